@@ -1,0 +1,2 @@
+"""The robot agent: estimator (14), ESO (39), behaviors (15)-(25), fusion (26),
+fully actuated controller (34)-(36), (40)-(42). Pure math; node I/O lives apart."""

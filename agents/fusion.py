@@ -1,0 +1,47 @@
+"""Null-space priority fusion (26) and the behavior supervisor (erratum 8).
+
+    v_d = v_1 + N_1 (v_2 + N_2 v_3),   N_k = I - J_k^+ J_k
+
+The supervisor orders the behaviors by the configured priority (default
+FOCB > FRCB > FDB). An inactive behavior contributes zero velocity and an
+identity projector, which is the same as leaving it out of the chain.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from agents.behaviors import BehaviorOutput, pinv_task_jacobian
+
+DEFAULT_PRIORITY = ("FOCB", "FRCB", "FDB")
+
+
+def null_space_projector(J: np.ndarray) -> np.ndarray:
+    return np.eye(J.shape[1]) - pinv_task_jacobian(J) @ J
+
+
+def fuse(ordered: Sequence[BehaviorOutput]) -> np.ndarray:
+    """Eq. (26) for any number of behaviors, highest priority first."""
+    v = np.zeros(3)
+    for b in reversed([b for b in ordered if b.active]):
+        v = b.velocity + null_space_projector(b.jacobian) @ v
+    return v
+
+
+def order_by_priority(
+    outputs: Sequence[BehaviorOutput], priority: Sequence[str]
+) -> list[BehaviorOutput]:
+    rank = {name: k for k, name in enumerate(priority)}
+    return sorted(outputs, key=lambda b: rank[b.name])
+
+
+def saturate_velocity(v: np.ndarray, max_speed: float, max_yaw_rate: float) -> np.ndarray:
+    """Explicit scenario limit on the fused command: |v_xy| <= max_speed, |w| <= max_yaw_rate."""
+    out = v.copy()
+    speed = float(np.hypot(v[0], v[1]))
+    if speed > max_speed:
+        out[:2] *= max_speed / speed
+    out[2] = float(np.clip(v[2], -max_yaw_rate, max_yaw_rate))
+    return out

@@ -1,0 +1,1 @@
+"""Scenarios, runners, metrics, figures and the ``omnifleet`` command line."""

@@ -1,0 +1,121 @@
+"""The ``omnifleet`` command line.
+
+Exit codes: 0 success, 1 the run did not meet the scenario's criteria (with
+``--check``), 2 bad input (scenario, arguments), 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from deploy.scenario import ScenarioError, load_scenario
+
+EXIT_BAD_INPUT = 2
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from deploy.outputs import write_run
+    from deploy.runner import PLANT_KINDS, run_in_process, terminal_progress
+
+    sc = load_scenario(args.scenario)
+    if not args.in_process:
+        print(
+            "omnifleet run: the distributed runtime (one process per agent) is not built yet; "
+            "run with --in-process",
+            file=sys.stderr,
+        )
+        return EXIT_BAD_INPUT
+    plant = args.plant or sc.spec.plant.kind
+    if plant not in PLANT_KINDS:
+        print(f"omnifleet run: --plant {plant}: in-process plants are {', '.join(PLANT_KINDS)}",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if args.duration is not None and args.duration <= 0:
+        print("omnifleet run: --duration must be positive", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    for note in sc.notes:
+        print(f"note: {note}", file=sys.stderr)
+    out = Path(args.out) if args.out else Path("runs") / sc.name
+    result = run_in_process(sc, plant, args.duration, terminal_progress(f"{sc.name} ({plant})"))
+    metrics = write_run(sc, result.series, out, plant, "lockstep", result.wall_time_s,
+                        figures=not args.no_figures)
+    print(_summary(metrics, out))
+    if args.check and not meets_paper_criteria(metrics):
+        print("omnifleet run: the run does NOT meet the criteria (settling, no contact)",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def meets_paper_criteria(m: dict) -> bool:
+    """Every robot settles before sqrt(2) T_p; no contact, ever."""
+    settle_ok = all(s is not None and s < m["settling_bound_s"] for s in m["settling_time_s"])
+    clear = [m["min_obstacle_clearance_m"], m["min_robot_separation_m"]]
+    return settle_ok and m["contacts"] == 0 and all(c is None or c > 0 for c in clear)
+
+
+def _fmt_list(xs) -> str:
+    return "[" + ", ".join("never" if x is None else f"{x:.3f}" for x in xs) + "]"
+
+
+def _summary(m: dict, out: Path) -> str:
+    def f(x):
+        return "n/a" if x is None else f"{x:.3f}"
+
+    return "\n".join([
+        f"{m['scenario']}: {m['robots']} robots, {m['plant']} plant, {m['clock']}, "
+        f"{m['sim_time_s']:.2f} s simulated in {m['wall_time_s']:.2f} s "
+        f"(x{m['real_time_factor']:.2f} real time)",
+        f"  settling time (s)          {_fmt_list(m['settling_time_s'])}  "
+        f"bound {m['settling_bound_s']:.3f}",
+        f"  formation RMS (m)          {_fmt_list(m['formation_rms_m'])}",
+        f"  min obstacle clearance (m) {f(m['min_obstacle_clearance_m'])}",
+        f"  min robot separation (m)   {f(m['min_robot_separation_m'])}",
+        f"  contacts                   {m['contacts']}",
+        f"  peak / RMS torque (N m)    {m['peak_torque_nm']:.4g} / {m['rms_torque_nm']:.4g}",
+        f"  written to {out}/ (metrics.json, timeseries.npz, figures)",
+    ])
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="omnifleet",
+        description="Collision-free formation control for mecanum-wheel robot fleets.",
+    )
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    run = sub.add_parser(
+        "run", help="run a scenario and write its report folder",
+        description="Run a scenario (a TOML file, or the name of a bundled one: paper, lab, "
+        "reference-code) and write metrics.json, timeseries.npz and figures to --out.",
+    )
+    run.add_argument("scenario", help="scenario file or bundled scenario name")
+    run.add_argument("--in-process", action="store_true",
+                     help="run leader, plant and all agents in this process (reference loop)")
+    run.add_argument("--plant", choices=["model", "kinematic"], default=None,
+                     help="plant to simulate (default: the scenario's plant.kind)")
+    run.add_argument("--out", metavar="DIR", help="output folder (default: runs/<scenario>)")
+    run.add_argument("--duration", type=float, metavar="S",
+                     help="simulate S seconds instead of the scenario's duration_s")
+    run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    run.add_argument("--check", action="store_true",
+                     help="exit 1 unless every robot settles before sqrt(2) T_p with no contact")
+    run.set_defaults(func=_cmd_run)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except ScenarioError as exc:
+        print(f"omnifleet: bad scenario: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("omnifleet: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,127 @@
+"""metrics.json: what "it works" means for a run (DESIGN §6), from the time series.
+
+Keys (every run, in-process or distributed): scenario, plant, clock, robots,
+sim_time_s, steps, control_rate_hz, wall_time_s, real_time_factor,
+settling_time_s, formation_rms_m, min_obstacle_clearance_m,
+min_robot_separation_m, contacts, peak_torque_nm, rms_torque_nm, messages.
+``None`` (JSON null) means "never" for a settling time and "no such pair" for a
+distance; infinite limits are written as null.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from deploy.scenario import Scenario
+from deploy.timeseries import TimeSeries
+
+# Wall-clock and process figures differ between two runs of the same scenario;
+# everything else in metrics.json is a control figure and must not.
+TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "jitter_ms",
+               "deadline_misses")
+
+
+def settling_time(t: np.ndarray, err_norm: np.ndarray, threshold: float) -> float | None:
+    """First time after which err_norm stays below threshold; None if it never does."""
+    above = np.nonzero(err_norm >= threshold)[0]
+    if len(above) == 0:
+        return float(t[0])
+    last = above[-1]
+    return None if last + 1 >= len(t) else float(t[last + 1])
+
+
+def pair_clearances(
+    positions: np.ndarray, radii: np.ndarray, obstacles: np.ndarray, obstacle_radii: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(robot-robot clearances (k, pairs), robot-obstacle clearances (k, n*m))."""
+    k, n, _ = positions.shape
+    iu, ju = np.triu_indices(n, 1)
+    rr = np.linalg.norm(positions[:, iu] - positions[:, ju], axis=2) - (radii[iu] + radii[ju])
+    if len(obstacles) == 0:
+        return rr, np.zeros((k, 0))
+    diff = positions[:, :, None, :] - obstacles[None, None, :, :]
+    ro = np.linalg.norm(diff, axis=3) - radii[None, :, None] - obstacle_radii[None, None, :]
+    return rr, ro.reshape(k, -1)
+
+
+def contact_onsets(clearance: np.ndarray) -> int:
+    """Number of times a pair goes from apart (> 0) to touching (<= 0), start included."""
+    if clearance.size == 0:
+        return 0
+    touching = clearance <= 0.0
+    onsets = touching[1:] & ~touching[:-1]
+    return int(touching[0].sum() + onsets.sum())
+
+
+def _finite_or_none(x: float) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def compute_metrics(
+    sc: Scenario,
+    series: TimeSeries,
+    plant: str,
+    clock: str,
+    wall_time_s: float,
+    messages: dict[str, int] | None = None,
+) -> dict[str, Any]:
+    s = sc.spec
+    t = series.t
+    n = sc.n
+    threshold = s.metrics.settle_threshold
+    err = np.linalg.norm(series.e, axis=2)
+    settling = [settling_time(t, err[:, i], threshold) for i in range(n)]
+    formation_err = np.linalg.norm(series.q[:, :, :2] - series.target, axis=2)
+    rms = []
+    for i in range(n):
+        from_k = 0 if settling[i] is None else int(np.searchsorted(t, settling[i]))
+        seg = formation_err[from_k:, i]
+        rms.append(float(np.sqrt(np.mean(seg**2))) if len(seg) else None)
+    radii = np.full(n, s.robot.body_radius_m)
+    obs = np.array([o.position for o in s.obstacles], float).reshape(-1, 2)
+    obs_r = np.array([o.radius_m for o in s.obstacles], float)
+    rr, ro = pair_clearances(series.q[:, :, :2], radii, obs, obs_r)
+    sim_time = series.steps * sc.dt
+    lim = s.limits
+    return {
+        "scenario": s.name,
+        "plant": plant,
+        "clock": clock,
+        "robots": n,
+        "sim_time_s": sim_time,
+        "steps": series.steps,
+        "control_rate_hz": s.control_rate_hz,
+        "wall_time_s": wall_time_s,
+        "real_time_factor": sim_time / wall_time_s if wall_time_s > 0 else None,
+        "settle_threshold": threshold,
+        "settling_bound_s": math.sqrt(2.0) * s.controller.T_p,
+        "settling_time_s": settling,
+        "formation_rms_m": rms,
+        "min_obstacle_clearance_m": float(ro.min()) if ro.size else None,
+        "min_robot_separation_m": float(rr.min()) if rr.size else None,
+        "contacts": contact_onsets(rr) + contact_onsets(ro),
+        "peak_torque_nm": float(np.abs(series.torque).max()),
+        "rms_torque_nm": float(np.sqrt(np.mean(series.torque**2))),
+        "nonfinite_commands": int(series.nonfinite.sum()),
+        "limits": {
+            "max_speed_mps": _finite_or_none(lim.max_speed_mps),
+            "max_yaw_rate_radps": _finite_or_none(lim.max_yaw_rate_radps),
+            "max_wheel_torque_nm": _finite_or_none(lim.max_wheel_torque_nm),
+        },
+        "notes": list(sc.notes),
+        "messages": dict(messages or {"sent": 0, "dropped": 0, "late": 0, "invalid": 0}),
+    }
+
+
+def control_figures(metrics: dict[str, Any]) -> dict[str, Any]:
+    """metrics without the wall-clock keys: what two runs must agree on."""
+    return {k: v for k, v in metrics.items() if k not in TIMING_KEYS}
+
+
+def write_metrics(metrics: dict[str, Any], path: Path) -> None:
+    path.write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n")

@@ -1,0 +1,138 @@
+"""In-process reference runner: leader, plant and every agent in one loop.
+
+It follows the lockstep contract of DESIGN §4 exactly (own state at t_k,
+neighbours' shares from step k-1, leader at t_k), so the distributed runtime
+can be checked against it number for number.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from agents.core import AgentCore
+from agents.formation import ScaleChange, offsets, scale_at
+from agents.leader import LeaderGenerator
+from deploy.scenario import Scenario
+from deploy.timeseries import TimeSeries
+from plant.disturbance import make_disturbance
+from plant.model_plant import KinematicPlant, ModelPlant
+from plant.perception import sense
+
+PLANT_KINDS = ("model", "kinematic")
+
+
+@dataclass
+class RunResult:
+    scenario: Scenario
+    plant: str
+    series: TimeSeries
+    wall_time_s: float
+
+
+def make_plant(sc: Scenario, kind: str):
+    q, qd = sc.initial_state()
+    if kind == "model":
+        d = sc.spec.disturbance
+        return ModelPlant(
+            [sc.model()] * sc.n, q, qd, make_disturbance(d.kind, d.scale, tuple(d.constant_nm)),
+            sc.spec.plant.substeps,
+        )
+    if kind == "kinematic":
+        return KinematicPlant(q, qd)
+    raise ValueError(f"unknown plant {kind!r}; choose one of {', '.join(PLANT_KINDS)}")
+
+
+def make_agents(sc: Scenario) -> list[AgentCore]:
+    q, qd = sc.initial_state()
+    model = sc.model()
+    agents = []
+    for i in range(sc.n):
+        q0h, v0h = sc.initial_estimates(i)
+        agents.append(AgentCore(sc.agent_config(i, model), q[i], qd[i], q0h, v0h))
+    return agents
+
+
+def true_formation_targets(sc: Scenario, t: float, q0: np.ndarray, v0: np.ndarray) -> np.ndarray:
+    """x_0 + rho_i with the true leader heading (for the formation error metric)."""
+    f = sc.spec.formation
+    changes = [ScaleChange(c.start_s, c.end_s, (c.to[0], c.to[1])) for c in f.scale_changes]
+    s, sd = scale_at(t, (f.initial_scale[0], f.initial_scale[1]), changes)
+    out = np.empty((sc.n, 2))
+    for i, r in enumerate(sc.spec.robots):
+        zeta, _ = offsets(np.array(r.offset, float), 0.0, float(q0[2]), float(v0[2]), s, sd)
+        out[i] = q0[:2] + zeta[:2]
+    return out
+
+
+def run_in_process(
+    sc: Scenario,
+    plant_kind: str | None = None,
+    duration_s: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> RunResult:
+    plant_kind = plant_kind or sc.spec.plant.kind
+    dt = sc.dt
+    steps = sc.steps if duration_s is None else int(round(duration_s / dt))
+    plant = make_plant(sc, plant_kind)
+    agents = make_agents(sc)
+    leader = LeaderGenerator(sc.leader_spec(), dt)
+    obstacles = sc.obstacle_bodies()
+    radii = [sc.spec.robot.body_radius_m] * sc.n
+    ids = sc.robot_ids
+    shares = {rid: a.initial_share for rid, a in zip(ids, agents, strict=False)}
+    series = TimeSeries.allocate(steps, sc.n)
+    b = sc.leader_weights
+    det = sc.spec.behaviors.detection_range_m
+    torques = np.zeros((sc.n, 4))
+    v_cmd = np.zeros((sc.n, 3))
+
+    start = time.perf_counter()
+    for k in range(steps):
+        t = k * dt
+        q0, v0 = leader.state()
+        pos, vel = plant.q[:, :2], plant.q_dot[:, :2]
+        new_shares = {}
+        for i, agent in enumerate(agents):
+            robots_seen, obstacles_seen = sense(i, pos, vel, radii, ids, obstacles, det)
+            out = agent.step(
+                t, plant.q[i].copy(), plant.q_dot[i].copy(),
+                {j: shares[j] for j, _ in agent.cfg.neighbours},
+                (q0, v0) if b[i] != 0.0 else None,
+                obstacles_seen, robots_seen,
+            )
+            torques[i], v_cmd[i] = out.torques, out.v_cmd
+            new_shares[ids[i]] = out.share
+            series.record_agent(k, i, out, agent)
+        series.record_world(
+            k, t, q0, v0, plant.q, plant.q_dot, true_formation_targets(sc, t, q0, v0)
+        )
+        plant.step(t, dt, torques, v_cmd)
+        leader.advance()
+        shares = new_shares
+        if progress is not None:
+            progress(k + 1, steps)
+    wall = time.perf_counter() - start
+    return RunResult(sc, plant_kind, series, wall)
+
+
+def terminal_progress(total_label: str) -> Callable[[int, int], None] | None:
+    """A tqdm progress callback on a terminal; None (quiet) when not a TTY."""
+    if not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+
+    bar = tqdm(desc=total_label, unit="step", leave=False)
+
+    def update(done: int, total: int) -> None:
+        if bar.total is None:
+            bar.total = total
+        bar.update(done - bar.n)
+        if done >= total:
+            bar.close()
+
+    return update

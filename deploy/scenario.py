@@ -1,0 +1,451 @@
+"""The scenario schema: one place, validated on load.
+
+A scenario is a TOML file (see ``deploy/scenarios/*.toml`` and
+``docs/scenarios.md``). Decoding uses msgspec with unknown fields forbidden, so
+a typo is an error naming the key; the semantic checks after it (shapes, the
+graph's directed spanning tree, positive gains) name the key too. Every error
+is a :class:`ScenarioError` carrying the file name; the CLI exits with code 2.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import msgspec
+import numpy as np
+
+from agents.controller import ControllerGains
+from agents.core import AgentConfig, Body
+from agents.eso import EsoGains
+from agents.estimator import EstimatorGains
+from agents.formation import ScaleChange
+from agents.leader import Harmonic, LeaderGenerator, LeaderSpec
+from plant.mecanum import MecanumModel, RobotParams
+
+SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
+BEHAVIOR_NAMES = ("FDB", "FOCB", "FRCB")
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot be run, with the file and key named."""
+
+
+class _S(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
+    pass
+
+
+class RobotPhysics(_S, kw_only=True):
+    wheel_radius_m: float = 0.0375
+    mass_kg: float = 1.2
+    inertia_z_kgm2: float = 0.01
+    inertia_wheel_kgm2: float = 0.02
+    half_wheelbase_m: float = 0.03
+    half_track_m: float = 0.02
+    static_friction: float = 0.125
+    viscous_friction: float = 0.2
+    body_radius_m: float = 0.5
+    coulomb_smoothing_radps: float = 0.5
+
+
+class RobotEntry(_S, kw_only=True):
+    id: int
+    position: list[float]
+    heading_rad: float = 0.0
+    velocity: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0])
+    offset: list[float]
+    heading_offset_rad: float = 0.0
+    estimate_position: list[float] | None = None  # q0_hat(0) [x, y, phi]; default: own pose
+    estimate_velocity: list[float] | None = None  # v0_hat(0); default: own velocity
+
+
+class Graph(_S, kw_only=True):
+    adjacency: list[list[float]]
+    leader: list[float]
+
+
+class PathComponent(_S, kw_only=True):
+    fn: Literal["sin", "cos"]
+    amp: float
+    freq: float
+    phase: float = 0.0
+    offset: float = 0.0
+
+
+class Leader(_S, kw_only=True):
+    kind: Literal["analytic", "path_follower"] = "analytic"
+    x: PathComponent
+    y: PathComponent
+    theta0: float = 0.0
+    theta_rate: float = 1.0
+    follow_gain: float = 3.5
+    heading: Literal["tangent", "polar"] = "tangent"
+
+
+class ScaleStep(_S, kw_only=True):
+    start_s: float
+    end_s: float
+    to: list[float]
+
+
+class Formation(_S, kw_only=True):
+    initial_scale: list[float] = msgspec.field(default_factory=lambda: [1.0, 1.0])
+    scale_changes: list[ScaleStep] = msgspec.field(default_factory=list)
+    kappa1: float = 1.0
+    kappa2: float = 0.0
+
+
+class Obstacle(_S, kw_only=True):
+    position: list[float]
+    radius_m: float = 0.0
+
+
+class Behaviors(_S, kw_only=True):
+    enabled: list[str] = msgspec.field(default_factory=lambda: list(BEHAVIOR_NAMES))
+    priority: list[str] = msgspec.field(default_factory=lambda: ["FOCB", "FRCB", "FDB"])
+    fdb_gains: list[float] = msgspec.field(default_factory=lambda: [12.0, 0.25])
+    focb_gains: list[float] = msgspec.field(default_factory=lambda: [24.0, 0.25])
+    frcb_gains: list[float] = msgspec.field(default_factory=lambda: [32.0, 0.25])
+    obstacle_safe_distance_m: float = 2.0
+    robot_safe_distance_m: float = 1.6
+    detection_range_m: float = 8.0
+
+
+class Estimator(_S, kw_only=True):
+    # q0_hat(0), v0_hat(0): "leader" = the leader's true initial state (our reading of
+    # the paper's q0_hat(0) = p(0)); "robot" = the robot's own pose and velocity.
+    # A robot's estimate_position/estimate_velocity override either.
+    init: Literal["leader", "robot"] = "leader"
+    iota: list[float] = msgspec.field(default_factory=lambda: [0.1, 0.1, 25.0, 6.0])
+    eta: list[float] = msgspec.field(default_factory=lambda: [1.5, 1.5])
+
+
+class Controller(_S, kw_only=True):
+    alpha: float = 0.5
+    mu: float = 30.0
+    T_p: float = 4.0
+    upsilon: float = 1.5
+    psi_epsilon: float = 1e-3
+
+
+class Eso(_S, kw_only=True):
+    mu1: float = 0.6
+    mu2: float = 0.2
+    r1: float = 0.7
+
+
+class Limits(_S, kw_only=True):
+    max_speed_mps: float = math.inf
+    max_yaw_rate_radps: float = math.inf
+    max_wheel_torque_nm: float = math.inf
+
+
+class Disturbance(_S, kw_only=True):
+    kind: Literal["paper", "none", "constant"] = "paper"
+    scale: float = 1.0
+    constant_nm: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
+
+
+class PlantSection(_S, kw_only=True):
+    kind: Literal["model", "kinematic"] = "model"
+    substeps: int = 4
+
+
+class Metrics(_S, kw_only=True):
+    settle_threshold: float = 0.05
+
+
+class ScenarioFile(_S, kw_only=True):
+    name: str
+    description: str = ""
+    duration_s: float
+    control_rate_hz: float
+    robot: RobotPhysics = msgspec.field(default_factory=RobotPhysics)
+    robots: list[RobotEntry]
+    graph: Graph
+    leader: Leader
+    formation: Formation = msgspec.field(default_factory=Formation)
+    obstacles: list[Obstacle] = msgspec.field(default_factory=list)
+    behaviors: Behaviors = msgspec.field(default_factory=Behaviors)
+    estimator: Estimator = msgspec.field(default_factory=Estimator)
+    controller: Controller = msgspec.field(default_factory=Controller)
+    eso: Eso = msgspec.field(default_factory=Eso)
+    limits: Limits = msgspec.field(default_factory=Limits)
+    disturbance: Disturbance = msgspec.field(default_factory=Disturbance)
+    plant: PlantSection = msgspec.field(default_factory=PlantSection)
+    metrics: Metrics = msgspec.field(default_factory=Metrics)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario, with the derived objects the runtime needs."""
+
+    path: str
+    spec: ScenarioFile
+    adjacency: np.ndarray  # n x n, diagonal zeroed (erratum 7)
+    leader_weights: np.ndarray  # b_i
+    notes: tuple[str, ...]  # what the loader changed, said out loud
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def n(self) -> int:
+        return len(self.spec.robots)
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.spec.control_rate_hz
+
+    @property
+    def steps(self) -> int:
+        return int(round(self.spec.duration_s * self.spec.control_rate_hz))
+
+    @property
+    def robot_ids(self) -> list[int]:
+        return [r.id for r in self.spec.robots]
+
+    def robot_params(self) -> RobotParams:
+        return RobotParams(**msgspec.structs.asdict(self.spec.robot))
+
+    def model(self) -> MecanumModel:
+        return MecanumModel.from_params(self.robot_params())
+
+    def leader_spec(self) -> LeaderSpec:
+        ld = self.spec.leader
+
+        def harm(c: PathComponent) -> Harmonic:
+            return Harmonic(c.fn, c.amp, c.freq, c.phase, c.offset)
+
+        return LeaderSpec(
+            harm(ld.x), harm(ld.y), ld.theta0, ld.theta_rate, ld.kind, ld.follow_gain, ld.heading
+        )
+
+    def obstacle_bodies(self) -> list[Body]:
+        return [
+            Body(-(k + 1), np.array(o.position, float), np.zeros(2), o.radius_m)
+            for k, o in enumerate(self.spec.obstacles)
+        ]
+
+    def initial_state(self) -> tuple[np.ndarray, np.ndarray]:
+        q = np.array([[*r.position, r.heading_rad] for r in self.spec.robots], float)
+        qd = np.array([[*r.velocity, 0.0] for r in self.spec.robots], float)
+        return q, qd
+
+    def initial_estimates(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        r = self.spec.robots[index]
+        if self.spec.estimator.init == "leader":
+            q, qd = LeaderGenerator(self.leader_spec(), self.dt).state()
+        else:
+            qs, qds = self.initial_state()
+            q, qd = qs[index], qds[index]
+        q0 = np.array(r.estimate_position, float) if r.estimate_position else q.copy()
+        v0 = np.array(r.estimate_velocity, float) if r.estimate_velocity else qd.copy()
+        return q0, v0
+
+    def agent_config(self, index: int, model: MecanumModel | None = None) -> AgentConfig:
+        s, r = self.spec, self.spec.robots[index]
+        b, ctl, lim = s.behaviors, s.controller, s.limits
+        ids = self.robot_ids
+        neighbours = tuple(
+            (ids[j], float(self.adjacency[index, j]))
+            for j in range(self.n)
+            if self.adjacency[index, j] != 0.0
+        )
+        return AgentConfig(
+            robot_id=r.id,
+            dt=self.dt,
+            model=model or self.model(),
+            neighbours=neighbours,
+            leader_weight=float(self.leader_weights[index]),
+            offset=(r.offset[0], r.offset[1]),
+            heading_offset=r.heading_offset_rad,
+            initial_scale=(s.formation.initial_scale[0], s.formation.initial_scale[1]),
+            scale_changes=tuple(
+                ScaleChange(c.start_s, c.end_s, (c.to[0], c.to[1]))
+                for c in s.formation.scale_changes
+            ),
+            kappa1=s.formation.kappa1,
+            kappa2=s.formation.kappa2,
+            enabled=frozenset(b.enabled),
+            priority=tuple(b.priority),
+            fdb_gains=(b.fdb_gains[0], b.fdb_gains[1]),
+            focb_gains=(b.focb_gains[0], b.focb_gains[1]),
+            frcb_gains=(b.frcb_gains[0], b.frcb_gains[1]),
+            obstacle_safe_m=b.obstacle_safe_distance_m,
+            robot_safe_m=b.robot_safe_distance_m,
+            robot_radius_m=s.robot.body_radius_m,
+            estimator=EstimatorGains(
+                (s.estimator.iota[0], s.estimator.iota[1], s.estimator.iota[2], s.estimator.iota[3]),
+                (s.estimator.eta[0], s.estimator.eta[1]),
+            ),
+            eso=EsoGains(s.eso.mu1, s.eso.mu2, s.eso.r1),
+            controller=ControllerGains(ctl.alpha, ctl.mu, ctl.T_p, ctl.upsilon, ctl.psi_epsilon),
+            max_speed_mps=lim.max_speed_mps,
+            max_yaw_rate_radps=lim.max_yaw_rate_radps,
+            max_wheel_torque_nm=lim.max_wheel_torque_nm,
+        )
+
+
+def _fail(path: str, key: str, msg: str) -> ScenarioError:
+    return ScenarioError(f"{path}: `{key}`: {msg}")
+
+
+def _check_len(path: str, key: str, values: list, n: int) -> None:
+    if len(values) != n:
+        raise _fail(path, key, f"expected {n} numbers, got {len(values)}")
+
+
+def _check_finite(path: str, key: str, values) -> None:
+    arr = np.asarray(values, dtype=float)
+    if not np.all(np.isfinite(arr)):
+        raise _fail(path, key, "must be finite numbers")
+
+
+def has_spanning_tree(adjacency: np.ndarray, leader: np.ndarray) -> bool:
+    """True iff every robot is reachable from the leader (a_ij: j -> i, b_i: 0 -> i)."""
+    n = len(leader)
+    reached = {i for i in range(n) if leader[i] != 0.0}
+    frontier = list(reached)
+    while frontier:
+        j = frontier.pop()
+        for i in range(n):
+            if adjacency[i, j] != 0.0 and i not in reached:
+                reached.add(i)
+                frontier.append(i)
+    return len(reached) == n
+
+
+def _validate(path: str, s: ScenarioFile) -> Scenario:
+    notes: list[str] = []
+    if s.duration_s <= 0:
+        raise _fail(path, "duration_s", "must be positive")
+    if not (0 < s.control_rate_hz <= 100_000):
+        raise _fail(path, "control_rate_hz", "must be in (0, 100000]")
+    n = len(s.robots)
+    if n == 0:
+        raise _fail(path, "robots", "at least one robot is needed")
+    ids = [r.id for r in s.robots]
+    if len(set(ids)) != n:
+        raise _fail(path, "robots.id", f"ids must be unique, got {ids}")
+    if any(i < 1 for i in ids):
+        raise _fail(path, "robots.id", "ids start at 1 (0 is the leader)")
+    for k, r in enumerate(s.robots):
+        _check_len(path, f"robots[{k}].position", r.position, 2)
+        _check_len(path, f"robots[{k}].velocity", r.velocity, 2)
+        _check_len(path, f"robots[{k}].offset", r.offset, 2)
+        _check_finite(path, f"robots[{k}]", [*r.position, *r.velocity, *r.offset, r.heading_rad])
+        if r.estimate_position is not None:
+            _check_len(path, f"robots[{k}].estimate_position", r.estimate_position, 3)
+        if r.estimate_velocity is not None:
+            _check_len(path, f"robots[{k}].estimate_velocity", r.estimate_velocity, 3)
+    A = np.array(s.graph.adjacency, dtype=float) if s.graph.adjacency else np.zeros((0, 0))
+    if A.shape != (n, n):
+        raise _fail(path, "graph.adjacency", f"must be {n}x{n} for {n} robots, got {list(A.shape)}")
+    _check_len(path, "graph.leader", s.graph.leader, n)
+    b = np.array(s.graph.leader, dtype=float)
+    _check_finite(path, "graph.adjacency", A)
+    _check_finite(path, "graph.leader", b)
+    if np.any(A < 0) or np.any(b < 0):
+        raise _fail(path, "graph", "weights must be non-negative")
+    if np.any(np.diag(A) != 0):
+        notes.append(
+            "graph.adjacency: diagonal (self loops) set to zero (erratum 7: it cancels in "
+            "eq. 14 but not in eq. 16)"
+        )
+        A = A.copy()
+        np.fill_diagonal(A, 0.0)
+    if not has_spanning_tree(A, b):
+        raise _fail(
+            path, "graph", "the graph has no directed spanning tree rooted at the leader "
+            "(some robot hears the leader through no path)"
+        )
+    f = s.formation
+    if f.kappa1 < 0 or f.kappa2 < 0:
+        raise _fail(path, "formation.kappa1/kappa2", "must be non-negative")
+    for i in range(n):
+        if f.kappa1 + f.kappa2 * A[i].sum() <= 0:
+            raise _fail(path, "formation.kappa1", f"robot {ids[i]}: kappa1 + kappa2 sum_j a_ij is 0")
+    _check_len(path, "formation.initial_scale", f.initial_scale, 2)
+    last_end = -math.inf
+    for k, c in enumerate(f.scale_changes):
+        _check_len(path, f"formation.scale_changes[{k}].to", c.to, 2)
+        if not (c.end_s > c.start_s >= last_end):
+            raise _fail(path, f"formation.scale_changes[{k}]", "windows must be ordered and non-empty")
+        last_end = c.end_s
+    for k, o in enumerate(s.obstacles):
+        _check_len(path, f"obstacles[{k}].position", o.position, 2)
+        if o.radius_m < 0:
+            raise _fail(path, f"obstacles[{k}].radius_m", "must be >= 0")
+    bh = s.behaviors
+    for key, names in (("behaviors.enabled", bh.enabled), ("behaviors.priority", bh.priority)):
+        bad = [x for x in names if x not in BEHAVIOR_NAMES]
+        if bad:
+            raise _fail(path, key, f"unknown behavior {bad[0]!r}; known: {', '.join(BEHAVIOR_NAMES)}")
+    if sorted(bh.priority) != sorted(BEHAVIOR_NAMES):
+        raise _fail(path, "behaviors.priority", f"must order all of {', '.join(BEHAVIOR_NAMES)} once")
+    for key in ("fdb_gains", "focb_gains", "frcb_gains"):
+        g = getattr(bh, key)
+        _check_len(path, f"behaviors.{key}", g, 2)
+        if any(x < 0 for x in g) or g[0] <= 0:
+            raise _fail(path, f"behaviors.{key}", "gains must be positive")
+    rr = s.robot.body_radius_m
+    if bh.obstacle_safe_distance_m <= rr:
+        raise _fail(path, "behaviors.obstacle_safe_distance_m", "must exceed the robot radius")
+    if bh.robot_safe_distance_m <= 2 * rr:
+        raise _fail(path, "behaviors.robot_safe_distance_m", "must exceed twice the robot radius")
+    _check_len(path, "estimator.iota", s.estimator.iota, 4)
+    _check_len(path, "estimator.eta", s.estimator.eta, 2)
+    c = s.controller
+    if not (0 < c.alpha < 1) or c.mu <= 0 or c.T_p <= 0 or c.upsilon <= 0 or c.psi_epsilon <= 0:
+        raise _fail(path, "controller", "need 0 < alpha < 1 and mu, T_p, upsilon, psi_epsilon > 0")
+    if not (0.5 < s.eso.r1 < 1) or s.eso.mu1 <= 0 or s.eso.mu2 <= 0:
+        raise _fail(path, "eso", "need 0.5 < r1 < 1 and mu1, mu2 > 0")
+    for key in ("max_speed_mps", "max_yaw_rate_radps", "max_wheel_torque_nm"):
+        if getattr(s.limits, key) <= 0:
+            raise _fail(path, f"limits.{key}", "must be positive (inf for none)")
+    _check_len(path, "disturbance.constant_nm", s.disturbance.constant_nm, 4)
+    if s.plant.substeps < 1:
+        raise _fail(path, "plant.substeps", "must be >= 1")
+    p = s.robot
+    for key in ("wheel_radius_m", "mass_kg", "inertia_z_kgm2", "inertia_wheel_kgm2",
+                "half_wheelbase_m", "half_track_m", "body_radius_m", "coulomb_smoothing_radps"):
+        if getattr(p, key) <= 0:
+            raise _fail(path, f"robot.{key}", "must be positive")
+    return Scenario(path, s, A, b, tuple(notes))
+
+
+def resolve_path(name_or_path: str | Path) -> Path:
+    """A file path, or the name of a bundled scenario (``paper``, ``lab``, ...)."""
+    p = Path(name_or_path)
+    if p.exists():
+        return p
+    bundled = SCENARIO_DIR / f"{p.name.removesuffix('.toml')}.toml"
+    if bundled.exists():
+        return bundled
+    known = ", ".join(sorted(x.stem for x in SCENARIO_DIR.glob("*.toml")))
+    raise ScenarioError(f"{name_or_path}: no such file, and no bundled scenario by that name ({known})")
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """Load and validate a scenario; raises :class:`ScenarioError` naming file and key."""
+    path = resolve_path(name_or_path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read: {exc}") from exc
+    try:
+        spec = msgspec.toml.decode(raw, type=ScenarioFile)
+    except msgspec.ValidationError as exc:
+        raise ScenarioError(f"{path}: {_readable(str(exc))}") from exc
+    except msgspec.DecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
+    return _validate(str(path), spec)
+
+
+def _readable(msg: str) -> str:
+    """msgspec says `Object contains unknown field `x` - at `$.a``; keep it, drop `$.`."""
+    return msg.replace("`$.", "`").replace("`$`", "top level")

@@ -1,0 +1,100 @@
+"""The run's full time series: preallocated columns, saved as one ``.npz``.
+
+Every column is a numpy array with time along axis 0 (robot along axis 1 where
+there is one). ``numpy.load`` reads it; ``pandas.DataFrame`` takes any 1-D or
+flattened column. Column names and units are listed in ``COLUMNS``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+BEHAVIOR_BITS = {"FDB": 1, "FOCB": 2, "FRCB": 4}
+
+COLUMNS = {
+    "t": "s, time of step k",
+    "leader_q": "(k,3) leader pose [x, y, psi], m, m, rad",
+    "leader_v": "(k,3) leader velocity",
+    "q": "(k,n,3) robot pose at t_k",
+    "q_dot": "(k,n,3) robot velocity at t_k",
+    "q_d": "(k,n,3) CLIK reference q_d",
+    "e": "(k,n,3) behavioral tracking error q - q_d",
+    "s": "(k,n,3) sliding variable",
+    "v_cmd": "(k,n,3) fused velocity command v_d",
+    "torque": "(k,n,4) wheel torques sent, N m",
+    "q0_hat": "(k,n,3) each agent's leader estimate (after its step)",
+    "q_fd": "(k,n,3) desired formation pose from eq. (16)",
+    "target": "(k,n,2) x_0 + rho_i with the true leader",
+    "fdb_error": "(k,n) FDB task error |x - x_fd|, m",
+    "active": "(k,n) active behaviors bitmask FDB=1 FOCB=2 FRCB=4",
+    "order": "(k,n) active behaviors, highest priority first, as text",
+    "nonfinite": "(k,n) 1 where the law gave NaN/Inf and torques were zeroed",
+}
+
+
+@dataclass
+class TimeSeries:
+    t: np.ndarray
+    leader_q: np.ndarray
+    leader_v: np.ndarray
+    q: np.ndarray
+    q_dot: np.ndarray
+    q_d: np.ndarray
+    e: np.ndarray
+    s: np.ndarray
+    v_cmd: np.ndarray
+    torque: np.ndarray
+    q0_hat: np.ndarray
+    q_fd: np.ndarray
+    target: np.ndarray
+    fdb_error: np.ndarray
+    active: np.ndarray
+    order: np.ndarray
+    nonfinite: np.ndarray
+
+    @classmethod
+    def allocate(cls, steps: int, n: int) -> TimeSeries:
+        z = np.zeros
+        return cls(
+            t=z(steps), leader_q=z((steps, 3)), leader_v=z((steps, 3)),
+            q=z((steps, n, 3)), q_dot=z((steps, n, 3)), q_d=z((steps, n, 3)),
+            e=z((steps, n, 3)), s=z((steps, n, 3)), v_cmd=z((steps, n, 3)),
+            torque=z((steps, n, 4)), q0_hat=z((steps, n, 3)), q_fd=z((steps, n, 3)),
+            target=z((steps, n, 2)), fdb_error=z((steps, n)),
+            active=z((steps, n), dtype=np.int8), order=np.full((steps, n), "", dtype="<U16"),
+            nonfinite=z((steps, n), dtype=np.int8),
+        )
+
+    @property
+    def steps(self) -> int:
+        return len(self.t)
+
+    def record_agent(self, k: int, i: int, out, agent) -> None:
+        self.q_d[k, i] = out.q_d
+        self.e[k, i] = out.tracking_error
+        self.s[k, i] = out.sliding
+        self.v_cmd[k, i] = out.v_cmd
+        self.torque[k, i] = out.torques
+        self.q0_hat[k, i] = out.share.q0_hat
+        self.q_fd[k, i] = out.q_fd
+        self.fdb_error[k, i] = out.task_errors.get("FDB", np.nan)
+        self.active[k, i] = sum(BEHAVIOR_BITS[b] for b in out.order)
+        self.order[k, i] = ">".join(out.order)
+        self.nonfinite[k, i] = int(out.nonfinite)
+
+    def record_world(self, k, t, q0, v0, q, q_dot, target) -> None:
+        self.t[k] = t
+        self.leader_q[k], self.leader_v[k] = q0, v0
+        self.q[k], self.q_dot[k] = q, q_dot
+        self.target[k] = target
+
+    def save(self, path: Path) -> None:
+        np.savez_compressed(path, **{name: getattr(self, name) for name in COLUMNS})
+
+    @classmethod
+    def load(cls, path: Path) -> TimeSeries:
+        with np.load(path) as data:
+            return cls(**{name: data[name] for name in COLUMNS})

@@ -1,0 +1,1 @@
+"""Plants: the mecanum model (eqs. 1-4), model and kinematic plants, perception."""
