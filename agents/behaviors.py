@@ -88,7 +88,15 @@ def formation_behavior(
             0.0,
         ]
     )
-    return BehaviorOutput("FDB", True, pinv_task_jacobian(J) @ rate, J, dist)
+    J_pinv = pinv_task_jacobian(J)
+    # The task's own null space carries the rest of the formation velocity:
+    # J (I - J^+ J) = 0, so the task dynamics of (19) are unchanged, but without
+    # it v_f = g g^T x_fd_dot - k (x - x_fd) jumps wherever g = (x - x_fd)/|x - x_fd|
+    # turns, i.e. all the time once the robot sits on its target, and the fused
+    # command chatters at the control rate (docs/errata.md, "FDB null space").
+    own_null = np.array([v_fd[0], v_fd[1], 0.0])
+    own_null = own_null - J_pinv @ (J @ own_null)
+    return BehaviorOutput("FDB", True, J_pinv @ rate + own_null, J, dist)
 
 
 def avoidance_task(d: float, safe: float, contact: float) -> tuple[float, float]:

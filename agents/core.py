@@ -26,7 +26,13 @@ from agents.controller import (
 from agents.eso import EsoGains, eso_step
 from agents.estimator import EstimatorGains, estimator_step
 from agents.formation import ScaleChange, desired_formation, offsets, scale_at
-from agents.fusion import DEFAULT_PRIORITY, fuse, order_by_priority, saturate_velocity
+from agents.fusion import (
+    DEFAULT_PRIORITY,
+    fuse,
+    order_by_priority,
+    saturate_velocity,
+    supervise,
+)
 from plant.mecanum import MecanumModel
 
 
@@ -67,6 +73,7 @@ class AgentConfig:
     kappa2: float = 0.0
     enabled: frozenset[str] = frozenset({"FDB", "FOCB", "FRCB"})
     priority: tuple[str, ...] = DEFAULT_PRIORITY
+    avoidance_engage: str = "approaching"  # | "inside" (see fusion.py)
     fdb_gains: tuple[float, float] = (12.0, 0.25)
     focb_gains: tuple[float, float] = (24.0, 0.25)
     frcb_gains: tuple[float, float] = (32.0, 0.25)
@@ -155,7 +162,8 @@ class AgentCore:
             out.append(
                 avoidance_behavior(
                     name, q, nearest.position,
-                    cfg.robot_radius_m + nearest.radius, safe + (nearest.radius if surface else 0.0),
+                    cfg.robot_radius_m + nearest.radius,
+                    safe + (nearest.radius if surface else 0.0),
                     float(q_fd[2]), float(v_fd[2]), gains,
                 )
             )
@@ -183,10 +191,11 @@ class AgentCore:
         )
 
         # behaviors (15)-(25), supervisor + fusion (26), explicit limits
-        ordered = order_by_priority(
-            self._behaviors(q, q_fd, v_fd, obstacles, robots), cfg.priority
+        chain = supervise(
+            order_by_priority(self._behaviors(q, q_fd, v_fd, obstacles, robots), cfg.priority),
+            cfg.avoidance_engage,
         )
-        v_d = saturate_velocity(fuse(ordered), cfg.max_speed_mps, cfg.max_yaw_rate_radps)
+        v_d = saturate_velocity(fuse(chain), cfg.max_speed_mps, cfg.max_yaw_rate_radps)
 
         # dynamic level, eqs. (36), (40)-(42)
         model = cfg.model
@@ -223,11 +232,13 @@ class AgentCore:
             self.q0_hat, self.v0_hat, [s.q0_hat for s in nbr], [s.v0_hat for s in nbr],
             self._weights, cfg.leader_weight, lq, lv, cfg.estimator, cfg.dt,
         )
-        share = Share(self.q0_hat.copy(), self.v0_hat.copy(), q.copy(), q_dot.copy(), zeta, zeta_dot)
+        share = Share(
+            self.q0_hat.copy(), self.v0_hat.copy(), q.copy(), q_dot.copy(), zeta, zeta_dot
+        )
         return AgentOutput(
             torques=torques, v_cmd=v_d, share=share, tracking_error=e, sliding=s,
             q_d=q_d_now, q_fd=q_fd,
-            order=tuple(b.name for b in ordered if b.active),
-            task_errors={b.name: b.task_error for b in ordered if b.active},
+            order=tuple(b.name for b in chain),
+            task_errors={b.name: b.task_error for b in chain},
             z2_hat=self.z2_hat, nonfinite=nonfinite,
         )

@@ -5,6 +5,17 @@
 The supervisor orders the behaviors by the configured priority (default
 FOCB > FRCB > FDB). An inactive behavior contributes zero velocity and an
 identity projector, which is the same as leaving it out of the chain.
+
+When an avoidance behavior (FOCB, FRCB) takes part is the scenario's choice:
+* ``inside``: whenever the body is inside its safety threshold (as printed, and
+  as the authors' code does for FOCB);
+* ``approaching`` (set-based, after Moe et al., "Set-based tasks within the
+  singularity-robust multiple task-priority inverse kinematics framework"):
+  inside the threshold AND the velocity fused without it would bring the body
+  closer (J_1 v < 0). ``inside`` removes every radial motion, moving away
+  included; two robots sent to one spot (the paper's narrow passage S =
+  diag(1, 0) does exactly that to robots 2 and 3) then block each other in a
+  column while the formation moves on. ``approaching`` lets the front robot go.
 """
 
 from __future__ import annotations
@@ -28,6 +39,30 @@ def fuse(ordered: Sequence[BehaviorOutput]) -> np.ndarray:
     for b in reversed([b for b in ordered if b.active]):
         v = b.velocity + null_space_projector(b.jacobian) @ v
     return v
+
+
+AVOIDANCE = ("FOCB", "FRCB")
+ENGAGE_MODES = ("inside", "approaching")
+
+
+def supervise(ordered: Sequence[BehaviorOutput], engage: str) -> list[BehaviorOutput]:
+    """The behaviors that take part in (26), highest priority first."""
+    active = [b for b in ordered if b.active]
+    if engage == "inside":
+        return active
+    if engage != "approaching":
+        raise ValueError(f"unknown avoidance engage mode {engage!r}")
+    engaged: set[str] = set()
+    for _ in range(len(active) + 1):  # grows monotonically, so this terminates
+        chain = [b for b in active if b.name not in AVOIDANCE or b.name in engaged]
+        v = fuse(chain)
+        now = engaged | {
+            b.name for b in active if b.name in AVOIDANCE and float(b.jacobian[0] @ v) < 0.0
+        }
+        if now == engaged:
+            return chain
+        engaged = now
+    return [b for b in active if b.name not in AVOIDANCE or b.name in engaged]
 
 
 def order_by_priority(

@@ -105,6 +105,7 @@ class Obstacle(_S, kw_only=True):
 class Behaviors(_S, kw_only=True):
     enabled: list[str] = msgspec.field(default_factory=lambda: list(BEHAVIOR_NAMES))
     priority: list[str] = msgspec.field(default_factory=lambda: ["FOCB", "FRCB", "FDB"])
+    avoidance_engage: Literal["inside", "approaching"] = "approaching"
     fdb_gains: list[float] = msgspec.field(default_factory=lambda: [12.0, 0.25])
     focb_gains: list[float] = msgspec.field(default_factory=lambda: [24.0, 0.25])
     frcb_gains: list[float] = msgspec.field(default_factory=lambda: [32.0, 0.25])
@@ -272,6 +273,7 @@ class Scenario:
             kappa2=s.formation.kappa2,
             enabled=frozenset(b.enabled),
             priority=tuple(b.priority),
+            avoidance_engage=b.avoidance_engage,
             fdb_gains=(b.fdb_gains[0], b.fdb_gains[1]),
             focb_gains=(b.focb_gains[0], b.focb_gains[1]),
             frcb_gains=(b.frcb_gains[0], b.frcb_gains[1]),
