@@ -12,7 +12,8 @@ behaviors use rho_d_dot = 0 as printed: feeding the other robot's velocity
 forward in FRCB makes two robots that avoid each other compensate each other's
 motion, a loop with no restoring force on their common radial velocity that
 the one-step delay turns unstable (seen at 1 kHz in the paper scenario).
-The heading row of every behavior tracks the formation heading phi_fd, so the behaviors never fight over the heading.
+The heading row of every behavior tracks the formation heading phi_fd, so the
+behaviors never fight over the heading.
 
 Avoidance task (erratum 2): for contact distance d0 (sum of the two radii) and
 safety threshold R > d0,

@@ -1,0 +1,21 @@
+"""Shared fixtures: bundled scenarios and short in-process runs, cached per session."""
+
+from __future__ import annotations
+
+import functools
+
+import pytest
+
+from deploy.runner import run_in_process
+from deploy.scenario import load_scenario
+
+
+@functools.lru_cache(maxsize=None)
+def cached_run(name: str, duration_s: float | None, plant: str | None = None):
+    """One in-process run per (scenario, duration, plant) for the whole session."""
+    return run_in_process(load_scenario(name), plant, duration_s)
+
+
+@pytest.fixture(scope="session")
+def paper():
+    return load_scenario("paper")
