@@ -10,7 +10,7 @@ from deploy.runner import run_in_process
 from deploy.scenario import load_scenario
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def cached_run(name: str, duration_s: float | None, plant: str | None = None):
     """One in-process run per (scenario, duration, plant) for the whole session."""
     return run_in_process(load_scenario(name), plant, duration_s)
