@@ -20,6 +20,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from deploy.runner import PLANT_KINDS, run_in_process, terminal_progress
 
     sc = load_scenario(args.scenario)
+    if args.control_rate is not None:
+        if not 0 < args.control_rate <= 100_000:
+            print("omnifleet run: --control-rate must be in (0, 100000]", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        sc = sc.with_control_rate(args.control_rate)
     if not args.in_process:
         print(
             "omnifleet run: the distributed runtime (one process per agent) is not built yet; "
@@ -98,6 +103,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", metavar="DIR", help="output folder (default: runs/<scenario>)")
     run.add_argument("--duration", type=float, metavar="S",
                      help="simulate S seconds instead of the scenario's duration_s")
+    run.add_argument("--control-rate", type=float, metavar="HZ",
+                     help="override the scenario's control_rate_hz (see docs/control-rate.md)")
     run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     run.add_argument("--check", action="store_true",
                      help="exit 1 unless every robot settles before sqrt(2) T_p with no contact")

@@ -75,7 +75,13 @@ def compute_metrics(
     n = sc.n
     threshold = s.metrics.settle_threshold
     err = np.linalg.norm(series.e, axis=2)
-    settling = [settling_time(t, err[:, i], threshold) for i in range(n)]
+    notes = list(sc.notes)
+    if plant == "kinematic":
+        # q follows v_d directly: no dynamic level, so no behavioral tracking error.
+        settling = [None] * n
+        notes.append("kinematic plant: no dynamic level; settling_time_s does not apply")
+    else:
+        settling = [settling_time(t, err[:, i], threshold) for i in range(n)]
     formation_err = np.linalg.norm(series.q[:, :, :2] - series.target, axis=2)
     rms = []
     for i in range(n):
@@ -113,7 +119,7 @@ def compute_metrics(
             "max_yaw_rate_radps": _finite_or_none(lim.max_yaw_rate_radps),
             "max_wheel_torque_nm": _finite_or_none(lim.max_wheel_torque_nm),
         },
-        "notes": list(sc.notes),
+        "notes": notes,
         "messages": dict(messages or {"sent": 0, "dropped": 0, "late": 0, "invalid": 0}),
     }
 

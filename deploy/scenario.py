@@ -10,7 +10,7 @@ is a :class:`ScenarioError` carrying the file name; the CLI exits with code 2.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
@@ -208,6 +208,10 @@ class Scenario:
     @property
     def robot_ids(self) -> list[int]:
         return [r.id for r in self.spec.robots]
+
+    def with_control_rate(self, hz: float) -> Scenario:
+        """The same scenario stepped at another control rate."""
+        return replace(self, spec=msgspec.structs.replace(self.spec, control_rate_hz=hz))
 
     def robot_params(self) -> RobotParams:
         return RobotParams(**msgspec.structs.asdict(self.spec.robot))
