@@ -325,8 +325,22 @@ def has_spanning_tree(adjacency: np.ndarray, leader: np.ndarray) -> bool:
     return len(reached) == n
 
 
+def _check_all_finite(path: str, node, key: str = "") -> None:
+    """Every number in the file is finite; only ``limits.*`` may be inf (no limit). NaN never."""
+    if isinstance(node, dict):
+        for k, v in node.items():
+            _check_all_finite(path, v, f"{key}.{k}" if key else k)
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            _check_all_finite(path, v, f"{key}[{i}]")
+    elif isinstance(node, float):
+        if math.isnan(node) or (math.isinf(node) and not key.startswith("limits.")):
+            raise _fail(path, key, f"must be a finite number, got {node}")
+
+
 def _validate(path: str, s: ScenarioFile) -> Scenario:
     notes: list[str] = []
+    _check_all_finite(path, msgspec.to_builtins(s))
     if s.duration_s <= 0:
         raise _fail(path, "duration_s", "must be positive")
     if not (0 < s.control_rate_hz <= 100_000):
