@@ -57,16 +57,22 @@ def make_agents(sc: Scenario) -> list[AgentCore]:
     return agents
 
 
-def true_formation_targets(sc: Scenario, t: float, q0: np.ndarray, v0: np.ndarray) -> np.ndarray:
+class FormationTargets:
     """x_0 + rho_i with the true leader heading (for the formation error metric)."""
-    f = sc.spec.formation
-    changes = [ScaleChange(c.start_s, c.end_s, (c.to[0], c.to[1])) for c in f.scale_changes]
-    s, sd = scale_at(t, (f.initial_scale[0], f.initial_scale[1]), changes)
-    out = np.empty((sc.n, 2))
-    for i, r in enumerate(sc.spec.robots):
-        zeta, _ = offsets(np.array(r.offset, float), 0.0, float(q0[2]), float(v0[2]), s, sd)
-        out[i] = q0[:2] + zeta[:2]
-    return out
+
+    def __init__(self, sc: Scenario) -> None:
+        f = sc.spec.formation
+        self.initial = (f.initial_scale[0], f.initial_scale[1])
+        self.changes = [ScaleChange(c.start_s, c.end_s, (c.to[0], c.to[1])) for c in f.scale_changes]
+        self.r = [np.array(r.offset, float) for r in sc.spec.robots]
+
+    def at(self, t: float, q0: np.ndarray, v0: np.ndarray) -> np.ndarray:
+        s, sd = scale_at(t, self.initial, self.changes)
+        out = np.empty((len(self.r), 2))
+        for i, r_i in enumerate(self.r):
+            zeta, _ = offsets(r_i, 0.0, float(q0[2]), float(v0[2]), s, sd)
+            out[i] = q0[:2] + zeta[:2]
+        return out
 
 
 def run_in_process(
@@ -90,6 +96,7 @@ def run_in_process(
     det = sc.spec.behaviors.detection_range_m
     torques = np.zeros((sc.n, 4))
     v_cmd = np.zeros((sc.n, 3))
+    targets = FormationTargets(sc)
 
     start = time.perf_counter()
     for k in range(steps):
@@ -109,7 +116,7 @@ def run_in_process(
             new_shares[ids[i]] = out.share
             series.record_agent(k, i, out, agent)
         series.record_world(
-            k, t, q0, v0, plant.q, plant.q_dot, true_formation_targets(sc, t, q0, v0)
+            k, t, q0, v0, plant.q, plant.q_dot, targets.at(t, q0, v0)
         )
         plant.step(t, dt, torques, v_cmd)
         leader.advance()
