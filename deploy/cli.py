@@ -73,8 +73,9 @@ def _summary(m: dict, out: Path) -> str:
         f"{m['scenario']}: {m['robots']} robots, {m['plant']} plant, {m['clock']}, "
         f"{m['sim_time_s']:.2f} s simulated in {m['wall_time_s']:.2f} s "
         f"(x{m['real_time_factor']:.2f} real time)",
-        f"  settling time (s)          {_fmt_list(m['settling_time_s'])}  "
-        f"bound {m['settling_bound_s']:.3f}",
+        "  settling time (s)          "
+        + ("n/a (kinematic plant: no dynamic level)" if m["plant"] == "kinematic" else
+           f"{_fmt_list(m['settling_time_s'])}  bound {m['settling_bound_s']:.3f}"),
         f"  formation RMS (m)          {_fmt_list(m['formation_rms_m'])}",
         f"  min obstacle clearance (m) {f(m['min_obstacle_clearance_m'])}",
         f"  min robot separation (m)   {f(m['min_robot_separation_m'])}",
