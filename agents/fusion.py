@@ -42,7 +42,6 @@ def fuse(ordered: Sequence[BehaviorOutput]) -> np.ndarray:
 
 
 AVOIDANCE = ("FOCB", "FRCB")
-ENGAGE_MODES = ("inside", "approaching")
 
 
 def supervise(ordered: Sequence[BehaviorOutput], engage: str) -> list[BehaviorOutput]:
@@ -53,7 +52,7 @@ def supervise(ordered: Sequence[BehaviorOutput], engage: str) -> list[BehaviorOu
     if engage != "approaching":
         raise ValueError(f"unknown avoidance engage mode {engage!r}")
     engaged: set[str] = set()
-    for _ in range(len(active) + 1):  # grows monotonically, so this terminates
+    while True:  # `engaged` only grows, at most once per avoidance behavior
         chain = [b for b in active if b.name not in AVOIDANCE or b.name in engaged]
         v = fuse(chain)
         now = engaged | {
@@ -62,7 +61,6 @@ def supervise(ordered: Sequence[BehaviorOutput], engage: str) -> list[BehaviorOu
         if now == engaged:
             return chain
         engaged = now
-    return [b for b in active if b.name not in AVOIDANCE or b.name in engaged]
 
 
 def order_by_priority(

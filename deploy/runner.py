@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.core import AgentCore
-from agents.formation import ScaleChange, offsets, scale_at
+from agents.formation import offsets, scale_at
 from agents.leader import LeaderGenerator
 from deploy.scenario import Scenario
 from deploy.timeseries import TimeSeries
@@ -63,7 +63,7 @@ class FormationTargets:
     def __init__(self, sc: Scenario) -> None:
         f = sc.spec.formation
         self.initial = (f.initial_scale[0], f.initial_scale[1])
-        self.changes = [ScaleChange(c.start_s, c.end_s, (c.to[0], c.to[1])) for c in f.scale_changes]
+        self.changes = sc.scale_changes()
         self.r = [np.array(r.offset, float) for r in sc.spec.robots]
 
     def at(self, t: float, q0: np.ndarray, v0: np.ndarray) -> np.ndarray:

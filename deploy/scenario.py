@@ -213,6 +213,13 @@ class Scenario:
         """The same scenario stepped at another control rate."""
         return replace(self, spec=msgspec.structs.replace(self.spec, control_rate_hz=hz))
 
+    def scale_changes(self) -> tuple[ScaleChange, ...]:
+        """The formation's S(t) schedule as the agents use it."""
+        return tuple(
+            ScaleChange(c.start_s, c.end_s, (c.to[0], c.to[1]))
+            for c in self.spec.formation.scale_changes
+        )
+
     def robot_params(self) -> RobotParams:
         return RobotParams(**msgspec.structs.asdict(self.spec.robot))
 
@@ -269,10 +276,7 @@ class Scenario:
             offset=(r.offset[0], r.offset[1]),
             heading_offset=r.heading_offset_rad,
             initial_scale=(s.formation.initial_scale[0], s.formation.initial_scale[1]),
-            scale_changes=tuple(
-                ScaleChange(c.start_s, c.end_s, (c.to[0], c.to[1]))
-                for c in s.formation.scale_changes
-            ),
+            scale_changes=self.scale_changes(),
             kappa1=s.formation.kappa1,
             kappa2=s.formation.kappa2,
             enabled=frozenset(b.enabled),
