@@ -235,6 +235,9 @@ class AgentCore:
         share = Share(
             self.q0_hat.copy(), self.v0_hat.copy(), q.copy(), q_dot.copy(), zeta, zeta_dot
         )
+        if not bool(np.all(np.isfinite(v_d))):
+            nonfinite = True
+            v_d = np.zeros(3)  # a kinematic plant takes v_cmd: never a NaN either
         return AgentOutput(
             torques=torques, v_cmd=v_d, share=share, tracking_error=e, sliding=s,
             q_d=q_d_now, q_fd=q_fd,

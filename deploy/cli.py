@@ -1,7 +1,9 @@
 """The ``omnifleet`` command line.
 
-Exit codes: 0 success, 1 the run did not meet the scenario's criteria (with
-``--check``), 2 bad input (scenario, arguments), 130 interrupted.
+Exit codes: 0 success, 1 the run failed (a node died) or did not meet the
+scenario's criteria (with ``--check``), 2 bad input (scenario, arguments,
+zenoh configuration), 3 a node lost a peer it cannot run without, 130
+interrupted (SIGINT), 143 terminated (SIGTERM).
 """
 
 from __future__ import annotations
@@ -10,7 +12,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from deploy.node_cli import CLOCKS, add_node_commands
 from deploy.scenario import ScenarioError, load_scenario
+from deploy.transport import TransportError
 
 EXIT_BAD_INPUT = 2
 
@@ -25,33 +29,59 @@ def _cmd_run(args: argparse.Namespace) -> int:
             print("omnifleet run: --control-rate must be in (0, 100000]", file=sys.stderr)
             return EXIT_BAD_INPUT
         sc = sc.with_control_rate(args.control_rate)
-    if not args.in_process:
-        print(
-            "omnifleet run: the distributed runtime (one process per agent) is not built yet; "
-            "run with --in-process",
-            file=sys.stderr,
-        )
-        return EXIT_BAD_INPUT
     plant = args.plant or sc.spec.plant.kind
     if plant not in PLANT_KINDS:
-        print(f"omnifleet run: --plant {plant}: in-process plants are {', '.join(PLANT_KINDS)}",
+        print(f"omnifleet run: --plant {plant}: available plants are {', '.join(PLANT_KINDS)}",
               file=sys.stderr)
         return EXIT_BAD_INPUT
     if args.duration is not None and args.duration <= 0:
         print("omnifleet run: --duration must be positive", file=sys.stderr)
         return EXIT_BAD_INPUT
+    if args.in_process and args.clock == "realtime":
+        print("omnifleet run: --in-process runs lockstep only", file=sys.stderr)
+        return EXIT_BAD_INPUT
     for note in sc.notes:
         print(f"note: {note}", file=sys.stderr)
     out = Path(args.out) if args.out else Path("runs") / sc.name
-    result = run_in_process(sc, plant, args.duration, terminal_progress(f"{sc.name} ({plant})"))
-    metrics = write_run(sc, result.series, out, plant, "lockstep", result.wall_time_s,
-                        figures=not args.no_figures)
+    label = f"{sc.name} ({plant}, {'in-process' if args.in_process else args.clock})"
+    if args.in_process:
+        result = run_in_process(sc, plant, args.duration, terminal_progress(label))
+        metrics = write_run(sc, result.series, out, plant, "lockstep", result.wall_time_s,
+                            figures=not args.no_figures)
+    else:
+        metrics = _run_distributed(sc, args, plant, out, label)
+        if metrics is None:
+            return 1
     print(_summary(metrics, out))
     if args.check and not meets_paper_criteria(metrics):
         print("omnifleet run: the run does NOT meet the criteria (settling, no contact)",
               file=sys.stderr)
         return 1
     return 0
+
+
+def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label: str):
+    from deploy.launcher import Launcher, LaunchOptions, RunFailed
+    from deploy.outputs import write_run
+    from deploy.runner import terminal_progress
+
+    opts = LaunchOptions(
+        scenario_arg=args.scenario, plant=plant, clock=args.clock, out=out,
+        duration_s=args.duration, control_rate_hz=args.control_rate,
+        step_deadline_s=args.step_deadline, startup_timeout_s=args.startup_timeout,
+        record=not args.no_record,
+    )
+    launcher = Launcher(sc, opts)
+    try:
+        extra = launcher.run(terminal_progress(label))
+    except RunFailed as exc:
+        print(f"omnifleet run: FAILED: {exc}", file=sys.stderr)
+        return None
+    series = launcher.collector.series()
+    wall = extra.pop("wall_time_s")
+    messages = extra.pop("messages")
+    return write_run(sc, series, out, plant, args.clock, wall, messages, extra,
+                     figures=not args.no_figures)
 
 
 def meets_paper_criteria(m: dict) -> bool:
@@ -81,8 +111,31 @@ def _summary(m: dict, out: Path) -> str:
         f"  min robot separation (m)   {f(m['min_robot_separation_m'])}",
         f"  contacts                   {m['contacts']}",
         f"  peak / RMS torque (N m)    {m['peak_torque_nm']:.4g} / {m['rms_torque_nm']:.4g}",
-        f"  written to {out}/ (metrics.json, timeseries.npz, figures)",
+        *_transport_lines(m),
+        f"  written to {out}/ (metrics.json, timeseries.npz, figures"
+        + (", recording.mcap)" if "recording" in m else ")"),
     ])
+
+
+def _transport_lines(m: dict) -> list[str]:
+    if "processes" not in m:
+        return []
+    msg = m["messages"]
+    lines = [f"  messages                   sent {msg['sent']}, dropped {msg['dropped']}, "
+             f"late {msg['late']}, invalid {msg['invalid']}"]
+    rss = [p["peak_rss_mb"] for p in m["processes"] if p["peak_rss_mb"] is not None]
+    lines.append(f"  processes                  {len(m['processes'])}, peak RSS up to "
+                 f"{max(rss):.0f} MB" if rss else f"  processes                  {len(m['processes'])}")
+    if "latency_ms" in m:
+        lat, jit = m["latency_ms"], m["jitter_ms"]
+
+        def ms(x):
+            return "n/a" if x is None else f"{x:.3f}"
+
+        lines.append(f"  state->command latency     p50 {ms(lat['p50'])} ms, p99 {ms(lat['p99'])} ms")
+        lines.append(f"  loop jitter                p50 {ms(jit['p50'])} ms, p99 {ms(jit['p99'])} ms; "
+                     f"deadline misses {m['deadline_misses']}")
+    return lines
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -98,9 +151,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("scenario", help="scenario file or bundled scenario name")
     run.add_argument("--in-process", action="store_true",
-                     help="run leader, plant and all agents in this process (reference loop)")
+                     help="run leader, plant and all agents in this process (the reference "
+                     "loop) instead of one process per node")
     run.add_argument("--plant", choices=["model", "kinematic"], default=None,
                      help="plant to simulate (default: the scenario's plant.kind)")
+    run.add_argument("--clock", choices=CLOCKS, default="lockstep",
+                     help="lockstep: deterministic, equals --in-process; realtime: every "
+                     "process on its own clock at the scenario's rates (default: lockstep)")
+    run.add_argument("--step-deadline", type=float, default=2.0, metavar="S",
+                     help="lockstep: how long a node waits for a step's inputs before going "
+                     "on with what it last had, counted as late (default: 2)")
+    run.add_argument("--startup-timeout", type=float, default=60.0, metavar="S",
+                     help="how long to wait for every node to come up (default: 60)")
+    run.add_argument("--no-record", action="store_true",
+                     help="do not write recording.mcap (distributed runs record by default)")
     run.add_argument("--out", metavar="DIR", help="output folder (default: runs/<scenario>)")
     run.add_argument("--duration", type=float, metavar="S",
                      help="simulate S seconds instead of the scenario's duration_s")
@@ -110,6 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--check", action="store_true",
                      help="exit 1 unless every robot settles before sqrt(2) T_p with no contact")
     run.set_defaults(func=_cmd_run)
+    add_node_commands(sub)
     return p
 
 
@@ -120,9 +185,12 @@ def main(argv: list[str] | None = None) -> int:
     except ScenarioError as exc:
         print(f"omnifleet: bad scenario: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("omnifleet: interrupted", file=sys.stderr)
-        return 130
+    except TransportError as exc:
+        print(f"omnifleet: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt as exc:
+        print("omnifleet: interrupted; every process of the run was stopped", file=sys.stderr)
+        return 143 if getattr(exc, "signal_name", "") == "SIGTERM" else 130
 
 
 if __name__ == "__main__":

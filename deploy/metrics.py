@@ -20,10 +20,11 @@ import numpy as np
 from deploy.scenario import Scenario
 from deploy.timeseries import TimeSeries
 
-# Wall-clock and process figures differ between two runs of the same scenario;
-# everything else in metrics.json is a control figure and must not.
+# Wall-clock, process and transport figures differ between two runs of the same
+# scenario (and between in-process and distributed runs); everything else in
+# metrics.json is a control figure and must not.
 TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "jitter_ms",
-               "deadline_misses")
+               "deadline_misses", "messages", "recording")
 
 
 def settling_time(t: np.ndarray, err_norm: np.ndarray, threshold: float) -> float | None:

@@ -209,6 +209,21 @@ class Scenario:
     def robot_ids(self) -> list[int]:
         return [r.id for r in self.spec.robots]
 
+    def index_of(self, robot_id: int) -> int:
+        """Row of robot ``robot_id``; a clear error when the scenario has no such robot."""
+        ids = self.robot_ids
+        if robot_id not in ids:
+            raise ScenarioError(
+                f"{self.path}: no robot {robot_id} in scenario {self.name!r} "
+                f"(its robots are {', '.join(map(str, ids))})"
+            )
+        return ids.index(robot_id)
+
+    def listeners(self, index: int) -> list[int]:
+        """Ids of the robots whose agents use robot ``index``'s share (a_ji != 0)."""
+        return [self.robot_ids[j] for j in range(self.n)
+                if j != index and self.adjacency[j, index] != 0.0]
+
     def with_control_rate(self, hz: float) -> Scenario:
         """The same scenario stepped at another control rate."""
         return replace(self, spec=msgspec.structs.replace(self.spec, control_rate_hz=hz))

@@ -1,0 +1,279 @@
+"""One robot's agent as a process: a zenoh peer around :class:`AgentCore`.
+
+Hears only what the scenario's graph gives it (DESIGN §3): its robot's state and
+perception, the shares of the j with a_ij != 0, the leader iff b_i != 0, and
+``ctl/*``. Publishes its share, its robot's wheel command and its telemetry.
+
+lockstep: step k waits for state k, perception k, the leader at k and the
+neighbours' shares of step k-1, so it computes exactly what the in-process
+reference computes. An input missing at the per-step deadline is counted as
+late and the step goes on with what it last had.
+
+realtime: a step runs as soon as a new state arrives (or one and a half periods
+after the last step, with what it has); t is this process's clock since start.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from agents.core import AgentCore, AgentOutput, Body, Share
+from deploy.node_runtime import ControlInbox, StopFlag, Timing, publish_report
+from deploy.scenario import Scenario
+from deploy.transport import Node
+from deploy.wire import (
+    LAUNCHER_ROLE,
+    LEADER_ROLE,
+    PLANT_ROLE,
+    WIRE_VERSION,
+    LeaderState,
+    NeighbourShare,
+    Perception,
+    RobotState,
+    SensedBody,
+    Telemetry,
+    WheelCommand,
+    agent_role,
+)
+
+KEEP_STEPS = 4  # lockstep inputs kept behind the current step
+
+
+def share_from_msg(m: NeighbourShare) -> Share:
+    a = np.array
+    return Share(a(m.q0_hat), a(m.v0_hat), a(m.q), a(m.q_dot), a(m.zeta), a(m.zeta_dot))
+
+
+def bodies_from_msg(bodies: list[SensedBody]) -> list[Body]:
+    return [Body(b.ident, np.array(b.position), np.array(b.velocity), b.radius) for b in bodies]
+
+
+def _t3(x: np.ndarray) -> tuple[float, float, float]:
+    return tuple(x.tolist())  # type: ignore[return-value]
+
+
+@dataclass
+class AgentInputs:
+    """Everything received, keyed by step (lockstep) and the newest (realtime).
+    Written by zenoh callbacks under the mailbox lock."""
+
+    states: dict[int, RobotState]
+    perceptions: dict[int, Perception]
+    leaders: dict[int, LeaderState]
+    shares: dict[tuple[int, int], NeighbourShare]
+    newest_state: RobotState | None = None
+    newest_perception: Perception | None = None
+    newest_leader: LeaderState | None = None
+
+    @classmethod
+    def empty(cls) -> AgentInputs:
+        return cls({}, {}, {}, {})
+
+
+class AgentNode:
+    def __init__(self, sc: Scenario, robot_id: int, node: Node, stop: StopFlag,
+                 with_recorder: bool = False) -> None:
+        self.sc, self.node, self.stop = sc, node, stop
+        self.index = sc.index_of(robot_id)
+        self.rid = robot_id
+        q, qd = sc.initial_state()
+        q0h, v0h = sc.initial_estimates(self.index)
+        self.core = AgentCore(sc.agent_config(self.index), q[self.index], qd[self.index], q0h, v0h)
+        self.neighbours = [j for j, _ in self.core.cfg.neighbours]
+        self.hears_leader = self.core.cfg.leader_weight != 0.0
+        self.inputs = AgentInputs.empty()
+        self.last_shares: dict[int, Share] = {}
+        self.timing = Timing()
+        self.steps_done = 0
+        self.stale_inputs = 0
+        self.peers = [PLANT_ROLE, *(agent_role(j) for j in self.neighbours),
+                      *(agent_role(j) for j in sc.listeners(self.index))]
+        if self.hears_leader:
+            self.peers.append(LEADER_ROLE)
+        if with_recorder:
+            self.peers.append(LAUNCHER_ROLE)
+        self._subscribe()
+        self.control = ControlInbox(node, stop)
+        node.declare_alive()
+
+    # -- subscriptions: exactly the graph's ------------------------------------------
+    def _subscribe(self) -> None:
+        keys, inp, rid = self.node.keys, self.inputs, self.rid
+
+        def on_state(m: RobotState) -> None:
+            inp.states[m.k] = m
+            if inp.newest_state is None or m.seq > inp.newest_state.seq:
+                inp.newest_state = m
+
+        def on_perception(m: Perception) -> None:
+            inp.perceptions[m.k] = m
+            if inp.newest_perception is None or m.seq > inp.newest_perception.seq:
+                inp.newest_perception = m
+
+        def on_leader(m: LeaderState) -> None:
+            inp.leaders[m.k] = m
+            if inp.newest_leader is None or m.seq > inp.newest_leader.seq:
+                inp.newest_leader = m
+
+        def on_share(m: NeighbourShare) -> None:
+            inp.shares[(m.robot, m.k)] = m
+
+        self.node.subscribe(keys.robot_state(rid), RobotState, on_state, robot=rid)
+        self.node.subscribe(keys.perception(rid), Perception, on_perception, robot=rid)
+        if self.hears_leader:
+            self.node.subscribe(keys.leader_state, LeaderState, on_leader)
+        for j in self.neighbours:
+            self.node.subscribe(keys.share(j), NeighbourShare, on_share, robot=j)
+
+    # -- start --------------------------------------------------------------------
+    def handshake(self, timeout_s: float) -> None:
+        """Wait for the peers we talk with, say ready, publish the initial share."""
+        missing = self.node.wait_for_roles(self.peers, "alive", timeout_s, self.stop)
+        if missing and not self.stop():
+            raise TimeoutError(f"{self.node.role}: no sign of {', '.join(sorted(missing))} "
+                               f"after {timeout_s:.0f} s")
+        self._publish_share(-1, self.core.initial_share)
+        self.node.declare_ready()
+
+    # -- publishing ---------------------------------------------------------------
+    def _publish_share(self, k: int, s: Share) -> None:
+        rid = self.rid
+        self.node.publish(self.node.keys.share(rid), lambda seq, stamp: NeighbourShare(
+            WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, q0_hat=_t3(s.q0_hat),
+            v0_hat=_t3(s.v0_hat), q=_t3(s.q), q_dot=_t3(s.q_dot), zeta=_t3(s.zeta),
+            zeta_dot=_t3(s.zeta_dot)))
+
+    def _publish_step(self, k: int, t: float, state: RobotState, out: AgentOutput,
+                      stale: int) -> None:
+        keys, rid, node = self.node.keys, self.rid, self.node
+        node.publish(keys.cmd(rid), lambda seq, stamp: WheelCommand(
+            WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, t=t,
+            torques=tuple(out.torques.tolist()), v_cmd=_t3(out.v_cmd),
+            state_seq=state.seq, state_stamp_ns=state.stamp_ns))
+        self._publish_share(k, out.share)
+        fdb = out.task_errors.get("FDB")
+        node.publish(keys.telemetry(rid), lambda seq, stamp: Telemetry(
+            WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, t=t, q_d=_t3(out.q_d),
+            e=_t3(out.tracking_error), s=_t3(out.sliding), v_cmd=_t3(out.v_cmd),
+            torques=tuple(out.torques.tolist()), q0_hat=_t3(out.share.q0_hat),
+            q_fd=_t3(out.q_fd), fdb_error=None if fdb is None else float(fdb),
+            order=">".join(out.order), nonfinite=out.nonfinite, stale_inputs=stale))
+
+    def _compute(self, t: float, state: RobotState, perception: Perception | None,
+                 leader: LeaderState | None) -> AgentOutput:
+        robots = bodies_from_msg(perception.robots) if perception else []
+        obstacles = bodies_from_msg(perception.obstacles) if perception else []
+        lead = (np.array(leader.q), np.array(leader.q_dot)) if leader is not None else None
+        if self.hears_leader and lead is None:  # never heard it yet: use own estimate
+            lead = (self.core.q0_hat.copy(), self.core.v0_hat.copy())
+        return self.core.step(t, np.array(state.q), np.array(state.q_dot), self.last_shares,
+                              lead, obstacles, robots)
+
+    # -- lockstep -----------------------------------------------------------------
+    def _lockstep_ready(self, k: int) -> bool:
+        inp = self.inputs
+        return (self.stop() or (
+            k in inp.states and k in inp.perceptions
+            and (not self.hears_leader or k in inp.leaders)
+            and all((j, k - 1) in inp.shares for j in self.neighbours)
+        ))
+
+    def run_lockstep(self, step_deadline_s: float) -> None:
+        inp, box = self.inputs, self.node.mailbox
+        k = 0
+        while not self.stop():
+            # wait for the plant's step k (with no deadline: the plant may be slow
+            # to start or to step; it ends the run with ``end``)
+            box.wait_until(lambda k=k: k in inp.states or self.stop(), 3600.0)
+            if self.stop():
+                break
+            box.wait_until(lambda k=k: self._lockstep_ready(k), step_deadline_s)
+            with box.lock:
+                newest = max(inp.states)
+                if newest > k:  # we fell behind the plant: skip to its newest step
+                    self.node.counters.late += newest - k
+                    k = newest
+                state = inp.states[k]
+                perception = inp.perceptions.get(k, inp.newest_perception)
+                leader = inp.leaders.get(k, inp.newest_leader)
+                stale = int(k not in inp.perceptions) + int(
+                    self.hears_leader and k not in inp.leaders)
+                for j in self.neighbours:
+                    msg = inp.shares.get((j, k - 1))
+                    if msg is None:
+                        stale += 1
+                        older = [kk for (jj, kk) in inp.shares if jj == j]
+                        msg = inp.shares[(j, max(older))] if older else None
+                    if msg is not None:
+                        self.last_shares[j] = share_from_msg(msg)
+                self._forget_before(k - KEEP_STEPS)
+            if stale:
+                self.node.counters.late += stale
+                self.stale_inputs += stale
+            missing = [j for j in self.neighbours if j not in self.last_shares]
+            if missing:  # never heard from a neighbour: cannot compute eq. (16)
+                print(f"{self.node.role}: no share ever received from {missing}", file=sys.stderr)
+                continue
+            t = k * self.sc.dt
+            out = self._compute(t, state, perception, leader)
+            self._publish_step(k, t, state, out, stale)
+            self.steps_done += 1
+            k += 1
+
+    def _forget_before(self, k: int) -> None:
+        inp = self.inputs
+        for d in (inp.states, inp.perceptions, inp.leaders):
+            for kk in [kk for kk in d if kk < k]:
+                del d[kk]
+        for key in [key for key in inp.shares if key[1] < k]:
+            del inp.shares[key]
+
+    # -- realtime -----------------------------------------------------------------
+    def run_realtime(self, t0_mono: float) -> None:
+        inp, box, dt = self.inputs, self.node.mailbox, self.sc.dt
+        last_seq = -1
+        last_step = None
+        while not self.stop():
+            box.wait_until(
+                lambda seen=last_seq: self.stop() or (inp.newest_state is not None
+                                                      and inp.newest_state.seq > seen),
+                1.5 * dt,
+            )
+            if self.stop():
+                break
+            now = time.monotonic()
+            with box.lock:
+                state = inp.newest_state
+                if state is None:
+                    continue
+                fresh = state.seq > last_seq
+                perception, leader = inp.newest_perception, inp.newest_leader
+                for j in self.neighbours:
+                    older = [kk for (jj, kk) in inp.shares if jj == j]
+                    if older:
+                        self.last_shares[j] = share_from_msg(inp.shares[(j, max(older))])
+                inp.states.clear()
+                inp.perceptions.clear()
+                inp.leaders.clear()
+                for key in [key for key in inp.shares if key[1] < max(
+                        (kk for (jj, kk) in inp.shares if jj == key[0]), default=0)]:
+                    del inp.shares[key]
+            if not fresh:
+                self.timing.deadline_misses += 1
+            if last_step is not None:
+                self.timing.add_jitter(int(abs((now - last_step) - dt) * 1e9))
+            last_step = now
+            last_seq = state.seq
+            if any(j not in self.last_shares for j in self.neighbours):
+                continue
+            t = now - t0_mono
+            out = self._compute(t, state, perception, leader)
+            self._publish_step(state.k, t, state, out, int(not fresh))
+            self.steps_done += 1
+
+    def finish(self) -> None:
+        publish_report(self.node, self.rid, self.steps_done, self.timing)

@@ -1,0 +1,330 @@
+"""``omnifleet run``: start leader, plant and one agent process per robot on
+this machine, watch them, record, and write the run's folder.
+
+Topology: the launcher is a zenoh peer listening on a free loopback port; every
+child listens on its own ephemeral loopback port and connects to the launcher;
+gossip scouting then links every pair of peers directly (no router, no
+multicast). Children are started in their own session (a Ctrl-C reaches only the
+launcher, which stops them in order) and get SIGTERM if the launcher itself dies.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from deploy.collector import Collector
+from deploy.node_runtime import StopFlag, peak_rss_kb
+from deploy.scenario import Scenario
+from deploy.transport import Node, zenoh_config
+from deploy.wire import (
+    LAUNCHER_ROLE,
+    LEADER_ROLE,
+    PLANT_ROLE,
+    Codec,
+    Control,
+    Keys,
+    NodeReport,
+    RobotState,
+    agent_role,
+)
+
+STOP_GRACE_S = 3.0
+TAIL_LINES = 15
+
+
+class RunFailed(RuntimeError):
+    """A child died, or the fleet never came up."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM reached the launcher; every child has been stopped."""
+
+    def __init__(self, signal_name: str) -> None:
+        super().__init__(signal_name)
+        self.signal_name = signal_name
+
+
+@dataclass
+class Child:
+    role: str
+    robot: int | None
+    argv: list[str]
+    log_path: Path
+    proc: subprocess.Popen | None = None
+    exit_code: int | None = None
+    peak_rss_mb: float | None = None
+    log: Any = None
+
+    def tail(self, n: int = TAIL_LINES) -> str:
+        try:
+            lines = self.log_path.read_text(errors="replace").splitlines()
+        except OSError:
+            return ""
+        return "\n".join(f"    {ln}" for ln in lines[-n:])
+
+
+@dataclass
+class LaunchOptions:
+    scenario_arg: str
+    plant: str
+    clock: str
+    out: Path
+    duration_s: float | None = None
+    control_rate_hz: float | None = None
+    step_deadline_s: float = 2.0
+    startup_timeout_s: float = 60.0
+    fleet: str | None = None
+    record: bool = True
+    extra_agent_args: list[str] = field(default_factory=list)
+
+
+def free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _percentiles_ms(samples: list[int]) -> dict[str, float | None]:
+    if not samples:
+        return {"p50": None, "p99": None}
+    a = np.asarray(samples, float) * 1e-6
+    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99))}
+
+
+class Launcher:
+    def __init__(self, sc: Scenario, opts: LaunchOptions) -> None:
+        self.sc, self.opts = sc, opts
+        self.fleet = opts.fleet or f"{sc.name}-{os.getpid()}"
+        self.keys = Keys(self.fleet)
+        self.codec = Codec(sc.robot_ids)
+        self.stop = StopFlag()
+        self.collector = Collector(sc)
+        self.children: list[Child] = []
+        self.recorder = None
+        self.invalid = 0
+        self.ended = False
+        self.progress_k = -1
+        self.steps = sc.steps if opts.duration_s is None else int(round(opts.duration_s / sc.dt))
+
+    # -- children -------------------------------------------------------------------
+    def _common_args(self, endpoint: str) -> list[str]:
+        o = self.opts
+        args = ["--scenario", o.scenario_arg, "--fleet", self.fleet, "--clock", o.clock,
+                "--listen", "tcp/127.0.0.1:0", "--connect", endpoint, "--with-recorder",
+                "--step-deadline", str(o.step_deadline_s),
+                "--startup-timeout", str(o.startup_timeout_s)]
+        if o.duration_s is not None:
+            args += ["--duration", repr(o.duration_s)]
+        if o.control_rate_hz is not None:
+            args += ["--control-rate", repr(o.control_rate_hz)]
+        return args
+
+    def _plan(self, endpoint: str) -> list[Child]:
+        cmd = [sys.executable, "-m", "deploy.cli"]
+        common = self._common_args(endpoint)
+        logs = self.opts.out / "logs"
+        plan = [
+            Child(LEADER_ROLE, None, [*cmd, "leader", *common], logs / "leader.log"),
+            Child(PLANT_ROLE, None, [*cmd, "plant", *common, "--plant", self.opts.plant],
+                  logs / "plant.log"),
+        ]
+        for r in self.sc.robot_ids:
+            plan.append(Child(agent_role(r), r, [*cmd, "agent", *common, "--robot", str(r),
+                                                 *self.opts.extra_agent_args],
+                              logs / f"{agent_role(r)}.log"))
+        return plan
+
+    def _spawn(self, child: Child) -> None:
+        child.log_path.parent.mkdir(parents=True, exist_ok=True)
+        child.log = open(child.log_path, "wb")  # noqa: SIM115 - closed in _reap
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        child.proc = subprocess.Popen(
+            child.argv, stdout=child.log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            env=env, start_new_session=True,
+        )
+
+    def _reap(self, child: Child, block: bool) -> bool:
+        """Collect the child's exit status; True once it has exited."""
+        if child.exit_code is not None or child.proc is None:
+            return True
+        try:
+            pid, status = os.waitpid(child.proc.pid, 0 if block else os.WNOHANG)
+        except ChildProcessError:
+            pid, status = child.proc.pid, 0
+        if pid == 0:
+            return False
+        child.exit_code = os.waitstatus_to_exitcode(status)
+        child.proc.returncode = child.exit_code
+        if child.log is not None:
+            child.log.close()
+        return True
+
+    def _check_children(self) -> None:
+        for c in self.children:
+            if self._reap(c, block=False) and not (self.ended and c.exit_code == 0):
+                if c.exit_code == 0 and c.role != PLANT_ROLE:
+                    continue  # a node that ended cleanly after ``end`` raced our flag
+                raise RunFailed(
+                    f"{c.role} (pid {c.proc.pid}) exited with code {c.exit_code}"
+                    + (f"; its last output:\n{c.tail()}" if c.tail() else "")
+                )
+
+    def stop_children(self) -> None:
+        """SIGTERM every live child by pid, SIGKILL after a grace period, reap all."""
+        live = [c for c in self.children if c.proc is not None and not self._reap(c, False)]
+        for c in live:
+            try:
+                os.kill(c.proc.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + STOP_GRACE_S
+        while live and time.monotonic() < deadline:
+            live = [c for c in live if not self._reap(c, False)]
+            time.sleep(0.02)
+        for c in live:
+            try:
+                os.kill(c.proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            self._reap(c, block=True)
+
+    # -- the wire -------------------------------------------------------------------
+    def _on_sample(self, key: str, data: bytes) -> None:
+        found = self.keys.kind_of(key)
+        if found is None:
+            return
+        kind, robot = found
+        msg = self.codec.decode(kind, data, robot)
+        if msg is None:
+            self.invalid += 1
+            return
+        if self.recorder is not None:
+            now = time.time_ns()
+            self.recorder.add(key, now, now, msg)
+        if isinstance(msg, Control):
+            if msg.command == "tick":
+                self.progress_k = max(self.progress_k, msg.k)
+            elif msg.command == "end":
+                self.ended = True
+            return
+        if isinstance(msg, RobotState) and self.opts.clock == "realtime":
+            self.progress_k = max(self.progress_k, msg.k)
+        self.collector.add(msg)
+
+    # -- the run --------------------------------------------------------------------
+    def run(self, progress=None) -> dict[str, Any]:
+        """Run to the end; returns the figures the launcher adds to metrics.json.
+        Raises RunFailed; KeyboardInterrupt after stopping every child."""
+        from deploy.recorder import McapRecorder
+
+        o = self.opts
+        o.out.mkdir(parents=True, exist_ok=True)
+        port = free_tcp_port()
+        endpoint = f"tcp/127.0.0.1:{port}"
+        node = Node(LAUNCHER_ROLE, self.keys, self.codec,
+                    zenoh_config(listen=[endpoint]))
+        if o.record:
+            self.recorder = McapRecorder(o.out / "recording.mcap")
+        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        start = time.perf_counter()
+        try:
+            node.subscribe_raw(self.keys.everything, self._on_sample)
+            node.declare_alive()
+            node.declare_ready()
+            self.children = self._plan(endpoint)
+            for c in self.children:
+                self._spawn(c)
+            roles = [c.role for c in self.children]
+            deadline = time.monotonic() + o.startup_timeout_s
+            while node.wait_for_roles(roles, "ready", 0.1, self.stop):
+                self._check_children()
+                if self.stop():
+                    raise Interrupted(self.stop.reason)
+                if time.monotonic() > deadline:
+                    missing = node.wait_for_roles(roles, "ready", 0.0)
+                    raise RunFailed(f"not ready after {o.startup_timeout_s:.0f} s: "
+                                    f"{', '.join(sorted(missing))}")
+            start = time.perf_counter()
+            while not self.ended:
+                if self.stop():
+                    raise Interrupted(self.stop.reason)
+                self._check_children()
+                if progress is not None:
+                    progress(self.progress_k + 1, self.steps)
+                time.sleep(0.05)
+            wall = time.perf_counter() - start
+            if progress is not None:
+                progress(self.steps, self.steps)
+            self._wait_for_exit(node, roles)
+            return self._figures(wall)
+        finally:
+            for s, h in previous.items():
+                signal.signal(s, h)
+            self.stop_children()
+            node.close()
+            if self.recorder is not None:
+                self.recorder.close()
+
+    def _on_signal(self, signum: int, _frame: object) -> None:
+        self.stop.set(signal.Signals(signum).name)
+
+    def _wait_for_exit(self, node: Node, roles: list[str], timeout_s: float = 20.0) -> None:
+        """After ``end``: every node sends its report and exits 0."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.stop():
+                raise Interrupted(self.stop.reason)
+            if all(self._reap(c, False) for c in self.children):
+                break
+            time.sleep(0.02)
+        bad = [c for c in self.children if c.exit_code not in (0,)]
+        if bad:
+            raise RunFailed("; ".join(
+                f"{c.role} (pid {c.proc.pid}) "
+                + ("did not exit" if c.exit_code is None else f"exited with code {c.exit_code}")
+                + (f"; its last output:\n{c.tail()}" if c.tail() else "") for c in bad))
+        # reports travel before the session closes; wait briefly for stragglers
+        node.mailbox.wait_until(lambda: len(self.collector.data.reports) >= len(roles), 2.0)
+
+    def _figures(self, wall: float) -> dict[str, Any]:
+        reports: dict[str, NodeReport] = dict(self.collector.data.reports)
+        messages = {"sent": 0, "dropped": 0, "late": 0, "invalid": self.invalid}
+        for c in self.children:
+            r = reports.get(c.role)
+            c.peak_rss_mb = r.peak_rss_kb / 1024.0 if r is not None and r.peak_rss_kb else None
+        for r in reports.values():
+            messages["sent"] += r.sent
+            messages["dropped"] += r.dropped
+            messages["late"] += r.late
+            messages["invalid"] += r.invalid
+        out: dict[str, Any] = {
+            "wall_time_s": wall,
+            "messages": messages,
+            "processes": [
+                {"role": c.role, "robot": c.robot, "pid": c.proc.pid,
+                 "peak_rss_mb": None if c.peak_rss_mb is None else round(c.peak_rss_mb, 1),
+                 "exit_code": c.exit_code, "reported": c.role in reports}
+                for c in self.children
+            ] + [{"role": LAUNCHER_ROLE, "robot": None, "pid": os.getpid(),
+                  "peak_rss_mb": round(peak_rss_kb() / 1024.0, 1), "exit_code": None,
+                  "reported": True}],
+        }
+        if self.recorder is not None:
+            out["recording"] = {"file": "recording.mcap", "messages": self.recorder.written}
+        if self.opts.clock == "realtime":
+            plant = reports.get(PLANT_ROLE)
+            out["latency_ms"] = _percentiles_ms(plant.latency_ns if plant else [])
+            out["jitter_ms"] = _percentiles_ms([j for r in reports.values() for j in r.jitter_ns])
+            out["deadline_misses"] = sum(r.deadline_misses for r in reports.values())
+        return out
+

@@ -1,0 +1,174 @@
+"""``omnifleet agent|plant|leader``: one node of a fleet, runnable alone.
+
+The same command works on one machine (the launcher starts it with loopback
+endpoints) and across machines (``--listen``/``--connect`` or
+``--zenoh-config``). Every node of a run must be given the same scenario, fleet
+name, clock, and --duration/--control-rate if any.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from deploy.node_runtime import (
+    CLOCKS,
+    StopFlag,
+    die_with_parent,
+    install_signal_handlers,
+)
+from deploy.scenario import Scenario, load_scenario
+from deploy.transport import Node, zenoh_config
+from deploy.wire import LEADER_ROLE, PLANT_ROLE, Codec, Keys, agent_role
+
+EXIT_PEER_LOST = 3
+EXIT_STARTUP = 4
+
+
+def _scenario(args: argparse.Namespace) -> Scenario:
+    sc = load_scenario(args.scenario)
+    if args.control_rate is not None:
+        sc = sc.with_control_rate(args.control_rate)
+    return sc
+
+
+def _steps(sc: Scenario, args: argparse.Namespace) -> int:
+    return sc.steps if args.duration is None else int(round(args.duration / sc.dt))
+
+
+def _open(args: argparse.Namespace, sc: Scenario, role: str, sender: int) -> Node:
+    if args.with_recorder:
+        die_with_parent()
+        if os.getppid() == 1:  # the launcher is already gone
+            sys.exit(EXIT_PEER_LOST)
+    cfg = zenoh_config(args.zenoh_config, args.listen, args.connect)
+    return Node(role, Keys(args.fleet or sc.name), Codec(sc.robot_ids), cfg, sender,
+                lossless=args.clock == "lockstep")
+
+
+def _exit_code(stop: StopFlag) -> int:
+    return {"": 0, "end": 0, "stop": 0, "estop": 0, "SIGINT": 130, "SIGTERM": 143}.get(
+        stop.reason, EXIT_PEER_LOST)
+
+
+def _run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, realtime) -> int:
+    sc = _scenario(args)
+    stop = StopFlag()
+    node = _open(args, sc, role, sender)
+    install_signal_handlers(stop, node)
+    try:
+        obj = build(sc, node, stop)
+        try:
+            obj.handshake(args.startup_timeout)
+        except TimeoutError as exc:
+            print(f"omnifleet {role}: {exc}", file=sys.stderr)
+            return EXIT_STARTUP
+        if args.clock == "lockstep":
+            lockstep(obj, sc)
+        else:
+            realtime(obj, sc)
+        obj.finish()
+    finally:
+        node.close()
+    if stop.reason not in ("", "end", "stop"):
+        print(f"omnifleet {role}: stopped ({stop.reason})", file=sys.stderr)
+    return _exit_code(stop)
+
+
+def _lost(stop: StopFlag, node: Node):
+    def on_lost(role: str) -> None:  # called under the mailbox lock
+        stop.set(f"lost {role}")
+        node.mailbox.changed.notify_all()
+    return on_lost
+
+
+def _cmd_agent(args: argparse.Namespace) -> int:
+    from agents.node import AgentNode
+
+    sc = _scenario(args)
+    sc.index_of(args.robot)  # fail fast, before opening a session
+
+    def build(sc, node, stop):
+        node.required, node.on_lost = {PLANT_ROLE}, _lost(stop, node)
+        return AgentNode(sc, args.robot, node, stop, args.with_recorder)
+
+    def realtime(obj, sc):
+        t0 = obj.control.wait_for_start(args.startup_timeout)
+        if t0 is not None:
+            obj.run_realtime(t0)
+
+    return _run_node(args, agent_role(args.robot), args.robot, build,
+                     lambda obj, sc: obj.run_lockstep(args.step_deadline), realtime)
+
+
+def _cmd_plant(args: argparse.Namespace) -> int:
+    from plant.node import PlantNode
+
+    def build(sc, node, stop):
+        return PlantNode(sc, args.plant or sc.spec.plant.kind, node, stop, args.with_recorder,
+                         args.command_timeout)
+
+    return _run_node(args, PLANT_ROLE, 0, build,
+                     lambda obj, sc: obj.run_lockstep(_steps(sc, args), args.step_deadline),
+                     lambda obj, sc: obj.run_realtime(_steps(sc, args)))
+
+
+def _cmd_leader(args: argparse.Namespace) -> int:
+    from agents.leader_node import LeaderNode
+
+    def build(sc, node, stop):
+        node.required, node.on_lost = {PLANT_ROLE}, _lost(stop, node)
+        return LeaderNode(sc, node, stop, args.with_recorder)
+
+    def realtime(obj, sc):
+        t0 = obj.control.wait_for_start(args.startup_timeout)
+        if t0 is not None:
+            obj.run_realtime(t0, _steps(sc, args))
+
+    return _run_node(args, LEADER_ROLE, 0, build,
+                     lambda obj, sc: obj.run_lockstep(_steps(sc, args)), realtime)
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", required=True, help="scenario file or bundled name")
+    p.add_argument("--fleet", help="fleet name: keys are omr/<fleet>/... (default: scenario name)")
+    p.add_argument("--clock", choices=CLOCKS, default="lockstep", help="default: lockstep")
+    p.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config file")
+    p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                   help="zenoh endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
+    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="zenoh endpoint of a peer to connect to (repeatable)")
+    p.add_argument("--duration", type=float, metavar="S", help="override duration_s")
+    p.add_argument("--control-rate", type=float, metavar="HZ", help="override control_rate_hz")
+    p.add_argument("--step-deadline", type=float, default=2.0, metavar="S",
+                   help="lockstep: wait this long for a step's inputs (default: 2)")
+    p.add_argument("--startup-timeout", type=float, default=60.0, metavar="S",
+                   help="wait this long for the peers to appear (default: 60)")
+    p.add_argument("--with-recorder", action="store_true",
+                   help="started by `omnifleet run`: wait for its recorder, die with it")
+
+
+def add_node_commands(sub: argparse._SubParsersAction) -> None:
+    agent = sub.add_parser("agent", help="run one robot's agent (a zenoh peer)",
+                           description="One robot's agent: estimator, observer, behaviors, "
+                           "controller. Hears only its graph neighbours.")
+    _common(agent)
+    agent.add_argument("--robot", type=int, required=True, metavar="ID",
+                       help="the robot's id in the scenario")
+    agent.set_defaults(func=_cmd_agent)
+
+    plant = sub.add_parser("plant", help="run the simulated plant of every robot",
+                           description="Simulates every robot and obstacle; the time master "
+                           "of a lockstep run.")
+    _common(plant)
+    plant.add_argument("--plant", choices=["model", "kinematic"], default=None,
+                       help="default: the scenario's plant.kind")
+    plant.add_argument("--command-timeout", type=float, default=0.1, metavar="S",
+                       help="realtime: zero a robot's torques when its newest command is "
+                       "older than this (default: 0.1)")
+    plant.set_defaults(func=_cmd_plant)
+
+    leader = sub.add_parser("leader", help="run the virtual leader (reference generator)")
+    _common(leader)
+    leader.set_defaults(func=_cmd_leader)

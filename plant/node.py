@@ -1,0 +1,174 @@
+"""The simulated plant as a process: every robot of the scenario, one zenoh peer.
+
+Publishes ``robot/i/state`` and ``robot/i/perception`` each step and takes
+``robot/i/cmd``. It is the time master of a lockstep run (DESIGN §4): step k
+publishes ``ctl/tick`` k and the states at t_k, waits for every robot's command
+of step k (per-step deadline; a missing one is counted late and the last
+command is held), then integrates to t_{k+1}. In realtime it steps on its own
+monotonic clock, uses the newest command of each robot, and zeroes a robot's
+torques when its newest command is older than the command timeout.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from deploy.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
+from deploy.runner import make_plant
+from deploy.scenario import Scenario
+from deploy.transport import Node
+from deploy.wire import (
+    LAUNCHER_ROLE,
+    LEADER_ROLE,
+    WIRE_VERSION,
+    Control,
+    Perception,
+    RobotState,
+    SensedBody,
+    WheelCommand,
+    agent_role,
+)
+from plant.perception import sense
+
+START_LEAD_S = 0.3  # realtime: t = 0 this long after ``start`` is sent
+
+
+def _sensed(bodies) -> list[SensedBody]:
+    return [SensedBody(b.ident, tuple(b.position.tolist()), tuple(b.velocity.tolist()),
+                       float(b.radius)) for b in bodies]
+
+
+class PlantNode:
+    def __init__(self, sc: Scenario, kind: str, node: Node, stop: StopFlag,
+                 with_recorder: bool = False, command_timeout_s: float = 0.1) -> None:
+        self.sc, self.node, self.stop, self.kind = sc, node, stop, kind
+        self.plant = make_plant(sc, kind)
+        self.ids = sc.robot_ids
+        self.obstacles = sc.obstacle_bodies()
+        self.radii = [sc.spec.robot.body_radius_m] * sc.n
+        self.torques = np.zeros((sc.n, 4))
+        self.v_cmd = np.zeros((sc.n, 3))
+        self.commands: dict[tuple[int, int], WheelCommand] = {}
+        self.newest: dict[int, WheelCommand] = {}
+        self.newest_at: dict[int, float] = {}
+        self.command_timeout_s = command_timeout_s
+        self.timing = Timing()
+        self.steps_done = 0
+        self.last_state_seq: dict[int, int] = {}
+        self.peers = [LEADER_ROLE, *(agent_role(r) for r in self.ids)]
+        if with_recorder:
+            self.peers.append(LAUNCHER_ROLE)
+        for rid in self.ids:
+            node.subscribe(node.keys.cmd(rid), WheelCommand, self._on_cmd, robot=rid)
+        self.control = ControlInbox(node, stop)
+        node.declare_alive()
+
+    def _on_cmd(self, m: WheelCommand) -> None:  # under the mailbox lock
+        self.commands[(m.robot, m.k)] = m
+        old = self.newest.get(m.robot)
+        if old is None or m.seq > old.seq:
+            self.newest[m.robot] = m
+            self.newest_at[m.robot] = time.monotonic()
+            if m.state_seq == self.last_state_seq.get(m.robot):
+                # answers the latest state: state-to-command latency on our clock
+                self.timing.add_latency(time.monotonic_ns() - m.state_stamp_ns)
+        else:
+            self.node.counters.dropped += 1  # out of order: never acted on
+
+    def handshake(self, timeout_s: float) -> None:
+        """Everyone alive, say ready, then wait until everyone is ready."""
+        missing = self.node.wait_for_roles(self.peers, "alive", timeout_s, self.stop)
+        if not missing:
+            self.node.declare_ready()
+            missing = self.node.wait_for_roles(self.peers, "ready", timeout_s, self.stop)
+        if missing and not self.stop():
+            raise TimeoutError(f"plant: no sign of {', '.join(sorted(missing))} "
+                               f"after {timeout_s:.0f} s")
+
+    def _publish_world(self, k: int, t: float) -> None:
+        node, keys = self.node, self.node.keys
+        q, qd = self.plant.q, self.plant.q_dot
+        pos, vel = q[:, :2], qd[:, :2]
+        for i, rid in enumerate(self.ids):
+            robots, obstacles = sense(i, pos, vel, self.radii, self.ids, self.obstacles,
+                                      self.sc.spec.behaviors.detection_range_m)
+            node.publish(keys.perception(rid), lambda seq, stamp, rid=rid, r=robots, o=obstacles:
+                         Perception(WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t,
+                                    robots=_sensed(r), obstacles=_sensed(o)))
+            msg = node.publish(keys.robot_state(rid), lambda seq, stamp, i=i, rid=rid: RobotState(
+                WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t,
+                q=tuple(q[i].tolist()), q_dot=tuple(qd[i].tolist())))
+            if msg is not None:
+                with node.mailbox.lock:
+                    self.last_state_seq[rid] = msg.seq
+
+    def _control(self, command: str, k: int = 0, t: float = 0.0, start_unix_ns: int = 0) -> None:
+        self.node.publish(self.node.keys.ctl(command), lambda seq, stamp: Control(
+            WIRE_VERSION, 0, seq, stamp, command=command, k=k, t=t, start_unix_ns=start_unix_ns))
+
+    # -- lockstep -------------------------------------------------------------------
+    def run_lockstep(self, steps: int, step_deadline_s: float) -> None:
+        box, dt = self.node.mailbox, self.sc.dt
+        for k in range(steps):
+            if self.stop():
+                return
+            t = k * dt
+            self._control("tick", k, t)
+            self._publish_world(k, t)
+            box.wait_until(
+                lambda k=k: self.stop() or all((r, k) in self.commands for r in self.ids),
+                step_deadline_s)
+            with box.lock:
+                for i, rid in enumerate(self.ids):
+                    cmd = self.commands.pop((rid, k), None)
+                    if cmd is None:
+                        self.node.counters.late += 1  # hold the last command
+                        continue
+                    self.torques[i], self.v_cmd[i] = cmd.torques, cmd.v_cmd
+                for key in [key for key in self.commands if key[1] <= k]:
+                    del self.commands[key]
+                    self.node.counters.late += 1
+            self.plant.step(t, dt, self.torques, self.v_cmd)
+            self.steps_done += 1
+        self._control("end", steps, steps * dt)
+
+    # -- realtime -------------------------------------------------------------------
+    def run_realtime(self, steps: int) -> None:
+        dt = self.sc.dt
+        start_unix_ns = time.time_ns() + int(START_LEAD_S * 1e9)
+        t0 = time.monotonic() + START_LEAD_S
+        self._control("start", start_unix_ns=start_unix_ns)
+        ticker = Periodic(t0, dt, self.timing)
+        k_prev = None
+        while not self.stop():
+            k = ticker.wait_next(self.stop)
+            if k is None or k >= steps:
+                break
+            if k_prev is not None:
+                # integrate [t_prev, t_k] with what the agents answered meanwhile:
+                # an answer within one period acts as in lockstep
+                self._apply_newest_commands(time.monotonic())
+                for _ in range(k - k_prev):
+                    self.plant.step(self.steps_done * dt, dt, self.torques, self.v_cmd)
+                    self.steps_done += 1
+            self._publish_world(k, k * dt)
+            k_prev = k
+        self._control("end", self.steps_done, self.steps_done * dt)
+
+    def _apply_newest_commands(self, now: float) -> None:
+        with self.node.mailbox.lock:
+            for i, rid in enumerate(self.ids):
+                cmd = self.newest.get(rid)
+                if cmd is None or now - self.newest_at[rid] > self.command_timeout_s:
+                    self.torques[i] = 0.0  # no command, or a stale one: stop pushing
+                    self.v_cmd[i] = 0.0
+                else:
+                    self.torques[i], self.v_cmd[i] = cmd.torques, cmd.v_cmd
+                if cmd is None or cmd.state_seq != self.last_state_seq.get(rid):
+                    self.timing.deadline_misses += 1  # the latest state went unanswered
+            self.commands.clear()
+
+    def finish(self) -> None:
+        publish_report(self.node, -1, self.steps_done, self.timing)
