@@ -41,6 +41,7 @@ from deploy.wire import (
 )
 
 KEEP_STEPS = 4  # lockstep inputs kept behind the current step
+TELEMETRY_HZ = 100.0  # realtime telemetry rate (lockstep: every step)
 
 
 def share_from_msg(m: NeighbourShare) -> Share:
@@ -90,6 +91,7 @@ class AgentNode:
         self.timing = Timing()
         self.steps_done = 0
         self.stale_inputs = 0
+        self.telemetry_every = 1  # realtime decimates (see run_realtime)
         self.peers = [PLANT_ROLE, *(agent_role(j) for j in self.neighbours),
                       *(agent_role(j) for j in sc.listeners(self.index))]
         if self.hears_leader:
@@ -155,6 +157,8 @@ class AgentNode:
             torques=tuple(out.torques.tolist()), v_cmd=_t3(out.v_cmd),
             state_seq=state.seq, state_stamp_ns=state.stamp_ns))
         self._publish_share(k, out.share)
+        if k % self.telemetry_every:
+            return
         fdb = out.task_errors.get("FDB")
         node.publish(keys.telemetry(rid), lambda seq, stamp: Telemetry(
             WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, t=t, q_d=_t3(out.q_d),
@@ -233,8 +237,11 @@ class AgentNode:
             del inp.shares[key]
 
     # -- realtime -----------------------------------------------------------------
-    def run_realtime(self, t0_mono: float) -> None:
+    def run_realtime(self, t0_mono: float, telemetry_hz: float = TELEMETRY_HZ) -> None:
         inp, box, dt = self.inputs, self.node.mailbox, self.sc.dt
+        # telemetry is for people and the recorder: at most telemetry_hz, so the
+        # control traffic keeps the CPU (the run's series fill the gaps forward)
+        self.telemetry_every = max(1, round(1.0 / (dt * telemetry_hz)))
         last_seq = -1
         last_step = None
         while not self.stop():
@@ -263,7 +270,11 @@ class AgentNode:
                         (kk for (jj, kk) in inp.shares if jj == key[0]), default=0)]:
                     del inp.shares[key]
             if not fresh:
+                # no new state for 1.5 periods: stepping again on the old one would
+                # integrate the observer on stale data; wait (the plant zeroes our
+                # torques after its command timeout) and count the miss
                 self.timing.deadline_misses += 1
+                continue
             if last_step is not None:
                 self.timing.add_jitter(int(abs((now - last_step) - dt) * 1e9))
             last_step = now
@@ -272,7 +283,7 @@ class AgentNode:
                 continue
             t = now - t0_mono
             out = self._compute(t, state, perception, leader)
-            self._publish_step(state.k, t, state, out, int(not fresh))
+            self._publish_step(state.k, t, state, out, 0)
             self.steps_done += 1
 
     def finish(self) -> None:

@@ -77,7 +77,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     except RunFailed as exc:
         print(f"omnifleet run: FAILED: {exc}", file=sys.stderr)
         return None
-    series = launcher.collector.series()
+    series = launcher.collector.series(realtime=args.clock == "realtime")
     wall = extra.pop("wall_time_s")
     messages = extra.pop("messages")
     return write_run(sc, series, out, plant, args.clock, wall, messages, extra,

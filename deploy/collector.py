@@ -50,37 +50,45 @@ class Collector:
             elif isinstance(msg, NodeReport):
                 d.reports[msg.role] = msg
 
-    def series(self) -> TimeSeries:
-        """Steps 0..K-1 where K is the first step some robot's state is missing."""
+    def series(self, realtime: bool = False) -> TimeSeries:
+        """Lockstep: steps 0..K-1 where K is the first step some robot's state is
+        missing (a lockstep run has them all). Realtime: every step up to the
+        newest state, gaps filled forward from the previous step (and counted)."""
         sc, d = self.sc, self.data
         ids = sc.robot_ids
         with self.lock:
-            steps = 0
-            while all((steps, r) in d.states for r in ids):
-                steps += 1
+            if realtime:
+                steps = d.newest_k + 1
+            else:
+                steps = 0
+                while all((steps, r) in d.states for r in ids):
+                    steps += 1
             ts = TimeSeries.allocate(steps, sc.n)
             targets = FormationTargets(sc)
             leader = None
             tel: list[Telemetry | None] = [None] * sc.n
+            state: list[RobotState | None] = [None] * sc.n
+            q0, v0 = np.full(3, np.nan), np.full(3, np.nan)
             for k in range(steps):
                 t = k * sc.dt
                 leader = d.leaders.get(k, leader)
-                if leader is None:
-                    q0, v0 = np.full(3, np.nan), np.full(3, np.nan)
-                else:
+                if leader is not None:
                     q0, v0 = np.array(leader.q), np.array(leader.q_dot)
-                states = [d.states[(k, r)] for r in ids]
-                q = np.array([s.q for s in states])
-                qd = np.array([s.q_dot for s in states])
-                ts.record_world(k, t, q0, v0, q, qd, targets.at(t, q0, v0))
                 for i, r in enumerate(ids):
+                    m = d.states.get((k, r))
+                    if m is None:
+                        self.filled += 1
+                    state[i] = m or state[i]
                     m = d.telemetry.get((k, r))
                     if m is None:
                         self.filled += 1
-                        m = tel[i]
-                    tel[i] = m
-                    if m is not None:
-                        record_telemetry(ts, k, i, m)
+                    tel[i] = m or tel[i]
+                q = np.array([s.q if s else (np.nan,) * 3 for s in state])
+                qd = np.array([s.q_dot if s else (np.nan,) * 3 for s in state])
+                ts.record_world(k, t, q0, v0, q, qd, targets.at(t, q0, v0))
+                for i in range(sc.n):
+                    if tel[i] is not None:
+                        record_telemetry(ts, k, i, tel[i])
         return ts
 
 

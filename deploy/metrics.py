@@ -130,5 +130,16 @@ def control_figures(metrics: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in metrics.items() if k not in TIMING_KEYS}
 
 
+def finite_or_null(x: Any) -> Any:
+    """JSON has no NaN/Inf: a diverged run's figures are written as null."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: finite_or_null(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [finite_or_null(v) for v in x]
+    return x
+
+
 def write_metrics(metrics: dict[str, Any], path: Path) -> None:
-    path.write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n")
+    path.write_text(json.dumps(finite_or_null(metrics), indent=2, allow_nan=False) + "\n")

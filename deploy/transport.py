@@ -169,9 +169,12 @@ class Node:
         pub = self._pubs.get(key)
         if pub is None:
             cc = self._zenoh.CongestionControl
+            # data in realtime may be dropped under congestion (newest wins);
+            # control and reports never are
+            must_arrive = self.lossless or "/ctl/" in key or "/report/" in key
             pub = self.session.declare_publisher(
                 key, express=True,
-                congestion_control=cc.BLOCK if self.lossless else cc.DROP,
+                congestion_control=cc.BLOCK if must_arrive else cc.DROP,
             )
             self._pubs[key] = pub
             self._seq[key] = 0

@@ -170,5 +170,9 @@ class PlantNode:
                     self.timing.deadline_misses += 1  # the latest state went unanswered
             self.commands.clear()
 
-    def finish(self) -> None:
+    def finish(self, linger_s: float = 5.0) -> None:
+        """Report, then stay until the other nodes have left after ``end``, so
+        none of them mistakes our leaving for a crash of the plant."""
         publish_report(self.node, -1, self.steps_done, self.timing)
+        others = set(self.peers) - {LAUNCHER_ROLE}
+        self.node.mailbox.wait_until(lambda: not (others & self.node.peers_alive), linger_s)

@@ -47,12 +47,6 @@ def test_kinematic_plant_option(tmp_path):
     assert json.loads((tmp_path / "metrics.json").read_text())["plant"] == "kinematic"
 
 
-def test_distributed_run_is_refused_until_built():
-    r = omnifleet("run", "paper")
-    assert r.returncode == 2
-    assert "--in-process" in r.stderr
-
-
 def test_unknown_scenario_name_fails_fast():
     r = omnifleet("run", "no-such-scenario", "--in-process")
     assert r.returncode == 2
