@@ -69,7 +69,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         scenario_arg=args.scenario, plant=plant, clock=args.clock, out=out,
         duration_s=args.duration, control_rate_hz=args.control_rate,
         step_deadline_s=args.step_deadline, startup_timeout_s=args.startup_timeout,
-        record=not args.no_record,
+        record=not args.no_record, fleet=args.fleet, endpoint=args.endpoint,
     )
     launcher = Launcher(sc, opts)
     try:
@@ -163,6 +163,11 @@ def build_parser() -> argparse.ArgumentParser:
                      "on with what it last had, counted as late (default: 2)")
     run.add_argument("--startup-timeout", type=float, default=60.0, metavar="S",
                      help="how long to wait for every node to come up (default: 60)")
+    run.add_argument("--fleet", help="fleet name: keys are omr/<fleet>/... "
+                     "(default: <scenario>-<launcher pid>)")
+    run.add_argument("--endpoint", metavar="ENDPOINT",
+                     help="zenoh endpoint the launcher listens on and the nodes connect to "
+                     "(default: a free tcp/127.0.0.1 port)")
     run.add_argument("--no-record", action="store_true",
                      help="do not write recording.mcap (distributed runs record by default)")
     run.add_argument("--out", metavar="DIR", help="output folder (default: runs/<scenario>)")

@@ -84,6 +84,7 @@ class LaunchOptions:
     step_deadline_s: float = 2.0
     startup_timeout_s: float = 60.0
     fleet: str | None = None
+    endpoint: str | None = None  # where the launcher listens (default: a free loopback port)
     record: bool = True
     extra_agent_args: list[str] = field(default_factory=list)
 
@@ -229,8 +230,7 @@ class Launcher:
 
         o = self.opts
         o.out.mkdir(parents=True, exist_ok=True)
-        port = free_tcp_port()
-        endpoint = f"tcp/127.0.0.1:{port}"
+        endpoint = o.endpoint or f"tcp/127.0.0.1:{free_tcp_port()}"
         node = Node(LAUNCHER_ROLE, self.keys, self.codec,
                     zenoh_config(listen=[endpoint]))
         if o.record:
@@ -266,14 +266,14 @@ class Launcher:
             if progress is not None:
                 progress(self.steps, self.steps)
             self._wait_for_exit(node, roles)
-            return self._figures(wall)
         finally:
             for s, h in previous.items():
                 signal.signal(s, h)
             self.stop_children()
             node.close()
             if self.recorder is not None:
-                self.recorder.close()
+                self.recorder.close()  # flushed, also after Ctrl-C
+        return self._figures(wall)
 
     def _on_signal(self, signum: int, _frame: object) -> None:
         self.stop.set(signal.Signals(signum).name)
@@ -313,7 +313,8 @@ class Launcher:
             "processes": [
                 {"role": c.role, "robot": c.robot, "pid": c.proc.pid,
                  "peak_rss_mb": None if c.peak_rss_mb is None else round(c.peak_rss_mb, 1),
-                 "exit_code": c.exit_code, "reported": c.role in reports}
+                 "exit_code": c.exit_code, "reported": c.role in reports,
+                 "received": dict(reports[c.role].received) if c.role in reports else {}}
                 for c in self.children
             ] + [{"role": LAUNCHER_ROLE, "robot": None, "pid": os.getpid(),
                   "peak_rss_mb": round(peak_rss_kb() / 1024.0, 1), "exit_code": None,

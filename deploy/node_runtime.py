@@ -150,4 +150,5 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
         dropped=c.dropped, late=c.late, invalid=c.invalid, steps=steps,
         latency_ns=timing.latency_ns, jitter_ns=timing.jitter_ns,
         deadline_misses=timing.deadline_misses, peak_rss_kb=peak_rss_kb(),
+        received=dict(node.received),
     ))

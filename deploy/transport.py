@@ -102,6 +102,7 @@ class Node:
         self.codec = codec
         self.sender = sender
         self.counters = Counters()
+        self.received: dict[str, int] = {}  # valid messages per key (what we really heard)
         self.mailbox = Mailbox()
         self.lossless = lossless
         try:
@@ -200,7 +201,7 @@ class Node:
     ) -> None:
         """Decode and validate on arrival; ``on_message`` runs under the mailbox
         lock (keep it short: store and return), and waiters are woken."""
-        codec, box, counters = self.codec, self.mailbox, self.counters
+        codec, box, counters, received = self.codec, self.mailbox, self.counters, self.received
 
         def callback(sample: Any) -> None:
             msg = codec.decode(kind, sample.payload.to_bytes(), robot)
@@ -208,6 +209,8 @@ class Node:
                 if msg is None:
                     counters.invalid += 1
                     return
+                k = str(sample.key_expr)
+                received[k] = received.get(k, 0) + 1
                 on_message(msg)
                 box.changed.notify_all()
 

@@ -172,6 +172,7 @@ class NodeReport(Message, frozen=True):
     jitter_ns: list[int] = []  # loop jitter samples (realtime)
     deadline_misses: int = 0
     peak_rss_kb: int = 0  # VmHWM of the node's process (0: unknown)
+    received: dict[str, int] = {}  # valid messages received, per key expression
 
     def __post_init__(self) -> None:
         if len(self.role) > MAX_ROLE_CHARS:

@@ -1,0 +1,264 @@
+"""The distributed runtime: one process per node over zenoh on loopback.
+
+Every process a test starts is ended by pid in a ``finally`` (the launcher stops
+its own children; the tests check that too)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from deploy.launcher import free_tcp_port
+from deploy.metrics import control_figures
+from deploy.timeseries import COLUMNS, TimeSeries
+
+zenoh = pytest.importorskip("zenoh")
+
+REPO = Path(__file__).resolve().parents[1]
+DURATION = "0.3"
+
+
+def start(*args: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", *args], cwd=REPO, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )
+
+
+def finish(proc: subprocess.Popen, timeout: float = 240) -> tuple[int, str, str]:
+    try:
+        out, err = proc.communicate(timeout=timeout)
+        return proc.returncode, out, err
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def pids_with(text: str) -> set[int]:
+    """Live processes whose command line contains ``text``."""
+    found = set()
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            except OSError:
+                continue
+            if text in cmd and int(d.name) != os.getpid():
+                found.add(int(d.name))
+    return found
+
+
+@pytest.fixture(scope="module")
+def distributed_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("dist")
+    fleet = f"t-equal-{os.getpid()}"
+    rc, _, err = finish(start("run", "paper", "--duration", DURATION, "--out", str(out),
+                              "--no-figures", "--fleet", fleet))
+    assert rc == 0, err
+    assert not pids_with(fleet), "a node of the run outlived it"
+    return out
+
+
+def test_lockstep_run_equals_the_in_process_reference(distributed_run, tmp_path):
+    rc, _, err = finish(start("run", "paper", "--in-process", "--duration", DURATION,
+                              "--out", str(tmp_path), "--no-figures"))
+    assert rc == 0, err
+    a = TimeSeries.load(distributed_run / "timeseries.npz")
+    b = TimeSeries.load(tmp_path / "timeseries.npz")
+    assert a.steps == b.steps == 300
+    for name in COLUMNS:
+        x, y = getattr(a, name), getattr(b, name)
+        if x.dtype.kind == "f":
+            assert np.allclose(x, y, rtol=0, atol=1e-9, equal_nan=True), name
+        else:
+            assert np.array_equal(x, y), name
+    ma = json.loads((distributed_run / "metrics.json").read_text())
+    mb = json.loads((tmp_path / "metrics.json").read_text())
+    assert control_figures(ma) == control_figures(mb)
+
+
+def test_run_reports_processes_messages_and_a_recording(distributed_run):
+    from mcap.reader import make_reader
+
+    m = json.loads((distributed_run / "metrics.json").read_text())
+    roles = sorted(p["role"] for p in m["processes"])
+    assert roles == ["agent-1", "agent-2", "agent-3", "launcher", "leader", "plant"]
+    assert all(p["peak_rss_mb"] and p["peak_rss_mb"] > 0 for p in m["processes"])
+    msg = m["messages"]
+    assert msg["sent"] > 0 and msg["invalid"] == 0 and msg["late"] == 0
+    with open(distributed_run / "recording.mcap", "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        topics = {c.topic for c in summary.channels.values()}
+        assert summary.statistics.message_count == m["recording"]["messages"] > 0
+        for _schema, channel, message in reader.iter_messages(topics=[topics.pop()]):
+            assert channel.message_encoding == "json"
+            assert isinstance(json.loads(message.data), dict)
+            break
+    assert any(t.endswith("/agent/3/share") for t in {c.topic for c in summary.channels.values()})
+
+
+def test_each_agent_hears_only_its_graph_neighbours(distributed_run):
+    """paper.toml: a = [[0,0,0],[1,0,0],[1,1,0]], b = [1,0,0] (self loop dropped)."""
+    m = json.loads((distributed_run / "metrics.json").read_text())
+    heard = {p["role"]: set(p["received"]) for p in m["processes"] if p["role"] != "launcher"}
+
+    def tails(role):
+        return {k.split("/", 2)[2] for k in heard[role]}
+
+    assert tails("agent-3") == {"robot/3/state", "robot/3/perception", "agent/1/share",
+                                "agent/2/share", "ctl/tick", "ctl/end"}
+    assert tails("agent-2") == {"robot/2/state", "robot/2/perception", "agent/1/share",
+                                "ctl/tick", "ctl/end"}
+    assert tails("agent-1") == {"robot/1/state", "robot/1/perception", "leader/state",
+                                "ctl/tick", "ctl/end"}
+    for key in heard["agent-2"] | heard["agent-3"]:
+        assert "leader" not in key
+    # and what each heard, it heard every step (300 steps + the initial share)
+    received = {p["role"]: p["received"] for p in m["processes"] if p["role"] != "launcher"}
+    shares_of_2 = [n for k, n in received["agent-3"].items() if k.endswith("/agent/2/share")]
+    assert shares_of_2 == [301]
+
+
+def _wait_ready(session, fleet: str, roles: set[str], timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        replies = session.liveliness().get(f"omr/{fleet}/ready/*", timeout=1.0)
+        seen = {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok is not None}
+        if roles <= seen:
+            return
+        time.sleep(0.05)
+    raise TimeoutError(f"fleet {fleet} not ready")
+
+
+def test_garbage_on_every_key_is_counted_invalid_and_changes_no_torque(tmp_path):
+    from deploy.transport import zenoh_config
+    from deploy.wire import Keys
+
+    port = free_tcp_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    fleet = f"t-garbage-{os.getpid()}"
+    out = tmp_path / "garbage"
+    proc = start("run", "paper", "--duration", "1.0", "--out", str(out), "--no-figures",
+                 "--fleet", fleet, "--endpoint", endpoint, "--no-record")
+    session = None
+    try:
+        session = zenoh.open(zenoh_config(connect=[endpoint]))
+        _wait_ready(session, fleet, {"plant", "leader", "agent-1", "agent-2", "agent-3"}, 60)
+        keys = Keys(fleet)
+        targets = [keys.leader_state, keys.ctl("stop"), keys.ctl("tick"), keys.report("plant")]
+        for r in (1, 2, 3):
+            targets += [keys.robot_state(r), keys.perception(r), keys.cmd(r), keys.share(r),
+                        keys.telemetry(r)]
+        nan_state = json.dumps(None).encode()  # wrong type entirely
+        for key in targets:
+            for payload in (b"\xc1garbage", b"", nan_state, b"\x93\x01\x02"):
+                session.put(key, payload)
+        rc, _, err = finish(proc)
+    finally:
+        if session is not None:
+            session.close()
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert rc == 0, err
+    m = json.loads((out / "metrics.json").read_text())
+    # every node counts what reached its subscriptions; the launcher hears all keys
+    assert m["messages"]["invalid"] >= 4 * len(targets)
+    rc, _, err = finish(start("run", "paper", "--in-process", "--duration", "1.0",
+                              "--out", str(tmp_path / "ref"), "--no-figures"))
+    assert rc == 0, err
+    a = TimeSeries.load(out / "timeseries.npz")
+    b = TimeSeries.load(tmp_path / "ref" / "timeseries.npz")
+    assert np.array_equal(a.torque, b.torque)
+
+
+def test_sigint_stops_every_process_of_the_run(tmp_path):
+    port = free_tcp_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    fleet = f"t-sigint-{os.getpid()}"
+    proc = start("run", "paper", "--out", str(tmp_path), "--no-figures", "--fleet", fleet,
+                 "--endpoint", endpoint)
+    session = None
+    try:
+        session = zenoh.open(__import__("deploy.transport").transport.zenoh_config(
+            connect=[endpoint]))
+        _wait_ready(session, fleet, {"plant", "leader", "agent-1", "agent-2", "agent-3"}, 60)
+        children = pids_with(fleet) - {proc.pid}
+        assert len(children) >= 5
+        session.close()
+        session = None
+        os.kill(proc.pid, signal.SIGINT)
+        rc, _, err = finish(proc, timeout=30)
+    finally:
+        if session is not None:
+            session.close()
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert rc == 130, err
+    assert "interrupted" in err
+    deadline = time.monotonic() + 5
+    while pids_with(fleet) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not pids_with(fleet), "orphans left behind"
+    from mcap.reader import make_reader
+
+    with open(tmp_path / "recording.mcap", "rb") as f:  # flushed, with its summary
+        assert make_reader(f).get_summary() is not None
+
+
+def test_an_agent_for_an_unknown_robot_fails_fast():
+    t0 = time.monotonic()
+    rc, _, err = finish(start("agent", "--scenario", "paper", "--robot", "7"), timeout=60)
+    assert rc == 2
+    assert "no robot 7" in err and "1, 2, 3" in err
+    assert time.monotonic() - t0 < 30
+
+
+def test_a_bad_zenoh_config_is_a_clear_error(tmp_path):
+    bad = tmp_path / "bad.json5"
+    bad.write_text("{ this is not json5")
+    rc, _, err = finish(start("agent", "--scenario", "paper", "--robot", "1",
+                              "--zenoh-config", str(bad)), timeout=60)
+    assert rc == 2 and "zenoh configuration" in err
+
+
+def test_a_node_that_dies_fails_the_run_and_is_named(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    fleet = f"t-death-{os.getpid()}"
+    proc = start("run", "paper", "--out", str(tmp_path), "--no-figures", "--fleet", fleet,
+                 "--endpoint", endpoint, "--no-record")
+    session = None
+    try:
+        session = zenoh.open(__import__("deploy.transport").transport.zenoh_config(
+            connect=[endpoint]))
+        _wait_ready(session, fleet, {"plant", "leader", "agent-1", "agent-2", "agent-3"}, 60)
+        session.close()
+        session = None
+        victim = [p for p in pids_with(fleet) if "--robot 2" in
+                  (Path(f"/proc/{p}/cmdline").read_bytes().replace(b"\0", b" ").decode())]
+        assert len(victim) == 1
+        os.kill(victim[0], signal.SIGKILL)
+        rc, _, err = finish(proc, timeout=60)
+    finally:
+        if session is not None:
+            session.close()
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert rc == 1
+    assert "agent-2" in err and "FAILED" in err
+    deadline = time.monotonic() + 5
+    while pids_with(fleet) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not pids_with(fleet)
