@@ -178,8 +178,13 @@ class AgentCore:
         leader: tuple[np.ndarray, np.ndarray] | None,
         obstacles: Sequence[Body] = (),
         robots: Sequence[Body] = (),
+        dt: float | None = None,
     ) -> AgentOutput:
+        """One control step. ``dt`` is the time to the next step: the configured
+        period unless given (a realtime agent passes the time its plant actually
+        advanced, so a missed period does not stretch the observer's clock)."""
         cfg = self.cfg
+        h = cfg.dt if dt is None else dt
         nbr = [shares[j] for j, _ in cfg.neighbours]
 
         # formation reference, eqs. (13), (16)
@@ -204,7 +209,7 @@ class AgentCore:
         # (see controller.py): velocity v_d(k-1) at t_k, constant acceleration
         # q_d_ddot over [t_k, t_k+1] that the zero-order-hold torque can realise.
         v_ref = v_d if self.v_d_prev is None else self.v_d_prev
-        q_d_ddot = (v_d - v_ref) / cfg.dt
+        q_d_ddot = (v_d - v_ref) / h
         e = q - self.q_d
         e_dot = q_dot - v_ref
         if self.z1_hat is None:
@@ -220,17 +225,17 @@ class AgentCore:
 
         # observer (39) and reference integration (CLIK, eq. 11)
         self.z1_hat, self.z2_hat = eso_step(
-            self.z1_hat, self.z2_hat, e_dot, gamma, cfg.eso, cfg.dt
+            self.z1_hat, self.z2_hat, e_dot, gamma, cfg.eso, h
         )
         q_d_now = self.q_d
-        self.q_d = self.q_d + 0.5 * cfg.dt * (v_ref + v_d)
+        self.q_d = self.q_d + 0.5 * h * (v_ref + v_d)
         self.v_d_prev = v_d
 
         # leader estimator (14), advanced to k+1 and shared
         lq, lv = leader if leader is not None else (None, None)
         self.q0_hat, self.v0_hat = estimator_step(
             self.q0_hat, self.v0_hat, [s.q0_hat for s in nbr], [s.v0_hat for s in nbr],
-            self._weights, cfg.leader_weight, lq, lv, cfg.estimator, cfg.dt,
+            self._weights, cfg.leader_weight, lq, lv, cfg.estimator, h,
         )
         share = Share(
             self.q0_hat.copy(), self.v0_hat.copy(), q.copy(), q_dot.copy(), zeta, zeta_dot

@@ -168,14 +168,14 @@ class AgentNode:
             order=">".join(out.order), nonfinite=out.nonfinite, stale_inputs=stale))
 
     def _compute(self, t: float, state: RobotState, perception: Perception | None,
-                 leader: LeaderState | None) -> AgentOutput:
+                 leader: LeaderState | None, dt: float | None = None) -> AgentOutput:
         robots = bodies_from_msg(perception.robots) if perception else []
         obstacles = bodies_from_msg(perception.obstacles) if perception else []
         lead = (np.array(leader.q), np.array(leader.q_dot)) if leader is not None else None
         if self.hears_leader and lead is None:  # never heard it yet: use own estimate
             lead = (self.core.q0_hat.copy(), self.core.v0_hat.copy())
         return self.core.step(t, np.array(state.q), np.array(state.q_dot), self.last_shares,
-                              lead, obstacles, robots)
+                              lead, obstacles, robots, dt)
 
     # -- lockstep -----------------------------------------------------------------
     def _lockstep_ready(self, k: int) -> bool:
@@ -244,6 +244,7 @@ class AgentNode:
         self.telemetry_every = max(1, round(1.0 / (dt * telemetry_hz)))
         last_seq = -1
         last_step = None
+        last_t: float | None = None
         while not self.stop():
             box.wait_until(
                 lambda seen=last_seq: self.stop() or (inp.newest_state is not None
@@ -279,10 +280,14 @@ class AgentNode:
                 self.timing.add_jitter(int(abs((now - last_step) - dt) * 1e9))
             last_step = now
             last_seq = state.seq
+            # the observer and the reference advance by the plant's own step
+            # between the states we answer (more than dt when we missed some)
+            h = dt if last_t is None or state.t <= last_t else state.t - last_t
+            last_t = state.t
             if any(j not in self.last_shares for j in self.neighbours):
                 continue
             t = now - t0_mono
-            out = self._compute(t, state, perception, leader)
+            out = self._compute(t, state, perception, leader, h)
             self._publish_step(state.k, t, state, out, 0)
             self.steps_done += 1
 
