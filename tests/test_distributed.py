@@ -5,6 +5,7 @@ its own children; the tests check that too)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -140,36 +141,58 @@ def _wait_ready(session, fleet: str, roles: set[str], timeout: float) -> None:
     raise TimeoutError(f"fleet {fleet} not ready")
 
 
-def test_garbage_on_every_key_is_counted_invalid_and_changes_no_torque(tmp_path):
-    from deploy.transport import zenoh_config
-    from deploy.wire import Keys
+NODES = {"plant", "leader", "agent-1", "agent-2", "agent-3"}
 
-    port = free_tcp_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    fleet = f"t-garbage-{os.getpid()}"
-    out = tmp_path / "garbage"
-    proc = start("run", "paper", "--duration", "1.0", "--out", str(out), "--no-figures",
-                 "--fleet", fleet, "--endpoint", endpoint, "--no-record")
+
+@contextlib.contextmanager
+def running_fleet(name: str, *args: str):
+    """``omnifleet run paper ARGS`` with a known endpoint and fleet; yields
+    (launcher process, fleet, a zenoh session on the fleet) once every node is
+    ready. Everything is ended by pid on the way out, whatever happened."""
+    from deploy.transport import zenoh_config
+
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    fleet = f"t-{name}-{os.getpid()}"
+    proc = start("run", "paper", "--no-figures", "--fleet", fleet, "--endpoint", endpoint,
+                 *args)
     session = None
     try:
         session = zenoh.open(zenoh_config(connect=[endpoint]))
-        _wait_ready(session, fleet, {"plant", "leader", "agent-1", "agent-2", "agent-3"}, 60)
-        keys = Keys(fleet)
-        targets = [keys.leader_state, keys.ctl("stop"), keys.ctl("tick"), keys.report("plant")]
-        for r in (1, 2, 3):
-            targets += [keys.robot_state(r), keys.perception(r), keys.cmd(r), keys.share(r),
-                        keys.telemetry(r)]
-        nan_state = json.dumps(None).encode()  # wrong type entirely
-        for key in targets:
-            for payload in (b"\xc1garbage", b"", nan_state, b"\x93\x01\x02"):
-                session.put(key, payload)
-        rc, _, err = finish(proc)
+        _wait_ready(session, fleet, NODES, 60)
+        yield proc, fleet, session
     finally:
         if session is not None:
             session.close()
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+        for pid in pids_with(fleet):
+            os.kill(pid, signal.SIGKILL)
+
+
+def assert_no_process_left(fleet: str) -> None:
+    deadline = time.monotonic() + 5
+    while pids_with(fleet) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not pids_with(fleet), "orphans left behind"
+
+
+def test_garbage_on_every_key_is_counted_invalid_and_changes_no_torque(tmp_path):
+    from deploy.wire import Keys
+
+    out = tmp_path / "garbage"
+    with running_fleet("garbage", "--duration", "1.0", "--out", str(out), "--no-record") as (
+            proc, fleet, session):
+        keys = Keys(fleet)
+        targets = [keys.leader_state, keys.ctl("stop"), keys.ctl("tick"), keys.report("plant")]
+        for r in (1, 2, 3):
+            targets += [keys.robot_state(r), keys.perception(r), keys.cmd(r), keys.share(r),
+                        keys.telemetry(r)]
+        wrong_type = json.dumps(None).encode()
+        for key in targets:
+            for payload in (b"\xc1garbage", b"", wrong_type, b"\x93\x01\x02"):
+                session.put(key, payload)
+        rc, _, err = finish(proc)
     assert rc == 0, err
     m = json.loads((out / "metrics.json").read_text())
     # every node counts what reached its subscriptions; the launcher hears all keys
@@ -183,36 +206,15 @@ def test_garbage_on_every_key_is_counted_invalid_and_changes_no_torque(tmp_path)
 
 
 def test_sigint_stops_every_process_of_the_run(tmp_path):
-    port = free_tcp_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    fleet = f"t-sigint-{os.getpid()}"
-    proc = start("run", "paper", "--out", str(tmp_path), "--no-figures", "--fleet", fleet,
-                 "--endpoint", endpoint)
-    session = None
-    try:
-        session = zenoh.open(__import__("deploy.transport").transport.zenoh_config(
-            connect=[endpoint]))
-        _wait_ready(session, fleet, {"plant", "leader", "agent-1", "agent-2", "agent-3"}, 60)
-        children = pids_with(fleet) - {proc.pid}
-        assert len(children) >= 5
-        session.close()
-        session = None
-        os.kill(proc.pid, signal.SIGINT)
-        rc, _, err = finish(proc, timeout=30)
-    finally:
-        if session is not None:
-            session.close()
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-    assert rc == 130, err
-    assert "interrupted" in err
-    deadline = time.monotonic() + 5
-    while pids_with(fleet) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not pids_with(fleet), "orphans left behind"
     from mcap.reader import make_reader
 
+    with running_fleet("sigint", "--out", str(tmp_path)) as (proc, fleet, _session):
+        assert len(pids_with(fleet) - {proc.pid}) >= 5
+        os.kill(proc.pid, signal.SIGINT)
+        rc, _, err = finish(proc, timeout=30)
+    assert rc == 130, err
+    assert "interrupted" in err
+    assert_no_process_left(fleet)
     with open(tmp_path / "recording.mcap", "rb") as f:  # flushed, with its summary
         assert make_reader(f).get_summary() is not None
 
@@ -234,34 +236,15 @@ def test_a_bad_zenoh_config_is_a_clear_error(tmp_path):
 
 
 def test_a_node_that_dies_fails_the_run_and_is_named(tmp_path):
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    fleet = f"t-death-{os.getpid()}"
-    proc = start("run", "paper", "--out", str(tmp_path), "--no-figures", "--fleet", fleet,
-                 "--endpoint", endpoint, "--no-record")
-    session = None
-    try:
-        session = zenoh.open(__import__("deploy.transport").transport.zenoh_config(
-            connect=[endpoint]))
-        _wait_ready(session, fleet, {"plant", "leader", "agent-1", "agent-2", "agent-3"}, 60)
-        session.close()
-        session = None
+    with running_fleet("death", "--out", str(tmp_path), "--no-record") as (proc, fleet, _s):
         victim = [p for p in pids_with(fleet) if "--robot 2" in
                   (Path(f"/proc/{p}/cmdline").read_bytes().replace(b"\0", b" ").decode())]
         assert len(victim) == 1
         os.kill(victim[0], signal.SIGKILL)
         rc, _, err = finish(proc, timeout=60)
-    finally:
-        if session is not None:
-            session.close()
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
     assert rc == 1
     assert "agent-2" in err and "FAILED" in err
-    deadline = time.monotonic() + 5
-    while pids_with(fleet) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not pids_with(fleet)
+    assert_no_process_left(fleet)
 
 
 def test_realtime_run_reports_latency_jitter_and_misses(tmp_path):
