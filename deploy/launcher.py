@@ -238,7 +238,8 @@ class Launcher:
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         start = time.perf_counter()
         try:
-            node.subscribe_raw(self.keys.everything, self._on_sample)
+            for key in self._listened_keys():
+                node.subscribe_raw(key, self._on_sample)
             node.declare_alive()
             node.declare_ready()
             self.children = self._plan(endpoint)
@@ -274,6 +275,15 @@ class Launcher:
             if self.recorder is not None:
                 self.recorder.close()  # flushed, also after Ctrl-C
         return self._figures(wall)
+
+    def _listened_keys(self) -> list[str]:
+        """Recording: every key of the fleet. Otherwise only what the series and
+        the metrics need (each message heard costs CPU in every listener)."""
+        k = self.keys
+        if self.opts.record:
+            return [k.everything]
+        return [k.leader_state, f"{k.root}/robot/*/state", f"{k.root}/agent/*/telemetry",
+                k.ctl_all, f"{k.root}/report/*"]
 
     def _on_signal(self, signum: int, _frame: object) -> None:
         self.stop.set(signal.Signals(signum).name)

@@ -181,7 +181,7 @@ def test_garbage_on_every_key_is_counted_invalid_and_changes_no_torque(tmp_path)
     from deploy.wire import Keys
 
     out = tmp_path / "garbage"
-    with running_fleet("garbage", "--duration", "1.0", "--out", str(out), "--no-record") as (
+    with running_fleet("garbage", "--duration", "1.0", "--out", str(out)) as (
             proc, fleet, session):
         keys = Keys(fleet)
         targets = [keys.leader_state, keys.ctl("stop"), keys.ctl("tick"), keys.report("plant")]
