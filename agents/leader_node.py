@@ -29,6 +29,10 @@ class LeaderNode:
         self.control = ControlInbox(node, stop)
         node.declare_alive()
 
+    @property
+    def steps_done(self) -> int:
+        return self.k_next
+
     def handshake(self, timeout_s: float) -> None:
         missing = self.node.wait_for_roles(self.peers, "alive", timeout_s, self.stop)
         if missing and not self.stop():

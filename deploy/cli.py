@@ -15,6 +15,7 @@ from pathlib import Path
 from deploy.node_cli import CLOCKS, add_node_commands
 from deploy.scenario import ScenarioError, load_scenario
 from deploy.transport import TransportError
+from deploy.wire import FleetNameError
 
 EXIT_BAD_INPUT = 2
 
@@ -190,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     except ScenarioError as exc:
         print(f"omnifleet: bad scenario: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except TransportError as exc:
+    except (TransportError, FleetNameError) as exc:
         print(f"omnifleet: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:

@@ -71,8 +71,11 @@ def _run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep,
         obj.finish()
     finally:
         node.close()
-    if stop.reason not in ("", "end", "stop"):
-        print(f"omnifleet {role}: stopped ({stop.reason})", file=sys.stderr)
+    c = node.counters
+    print(f"omnifleet {role}: {obj.steps_done} steps; messages sent {c.sent}, dropped "
+          f"{c.dropped}, late {c.late}, invalid {c.invalid}"
+          + ("" if stop.reason in ("", "end", "stop") else f"; stopped ({stop.reason})"),
+          file=sys.stderr)
     return _exit_code(stop)
 
 

@@ -217,6 +217,10 @@ class Codec:
         return msg
 
 
+class FleetNameError(ValueError):
+    """A fleet name that cannot be a key-expression chunk."""
+
+
 @dataclass(frozen=True)
 class Keys:
     """Key expressions of one fleet: ``omr/<fleet>/...``."""
@@ -225,7 +229,8 @@ class Keys:
 
     def __post_init__(self) -> None:
         if not self.fleet or any(c in self.fleet for c in "/*$?#"):
-            raise ValueError(f"fleet name {self.fleet!r} must be non-empty, without / * $ ? #")
+            raise FleetNameError(
+                f"fleet name {self.fleet!r} must be non-empty, without / * $ ? #")
 
     @property
     def root(self) -> str:

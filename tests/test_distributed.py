@@ -261,3 +261,8 @@ def test_realtime_run_reports_latency_jitter_and_misses(tmp_path):
     ts = TimeSeries.load(tmp_path / "timeseries.npz")
     assert np.isfinite(ts.torque).all() and np.abs(ts.torque).max() <= 2.0  # lab's limit
     assert m["contacts"] == 0
+
+
+def test_a_bad_fleet_name_is_refused_before_anything_starts():
+    rc, _, err = finish(start("run", "paper", "--fleet", "a/b", "--duration", "0.1"), timeout=60)
+    assert rc == 2 and "fleet name 'a/b'" in err
