@@ -10,86 +10,89 @@ realtime run may miss some, which are filled forward from the previous step
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from deploy.runner import FormationTargets
 from deploy.scenario import Scenario
-from deploy.timeseries import BEHAVIOR_BITS, TimeSeries
+from deploy.timeseries import BEHAVIOR_BITS, COLUMNS, TimeSeries
 from deploy.wire import LeaderState, NodeReport, RobotState, Telemetry
 
 
-@dataclass
-class Collected:
-    states: dict[tuple[int, int], RobotState] = field(default_factory=dict)
-    leaders: dict[int, LeaderState] = field(default_factory=dict)
-    telemetry: dict[tuple[int, int], Telemetry] = field(default_factory=dict)
-    reports: dict[str, NodeReport] = field(default_factory=dict)
-    newest_k: int = -1
-
-
 class Collector:
-    def __init__(self, sc: Scenario) -> None:
-        self.sc = sc
-        self.data = Collected()
+    """Writes each message straight into preallocated columns (memory does not
+    grow with the number of messages), remembering which cells were filled."""
+
+    def __init__(self, sc: Scenario, steps: int) -> None:
+        self.sc, self.steps = sc, steps
+        self.row = {r: i for i, r in enumerate(sc.robot_ids)}
+        self.ts = TimeSeries.allocate(steps, sc.n)
+        self.have_state = np.zeros((steps, sc.n), bool)
+        self.have_telemetry = np.zeros((steps, sc.n), bool)
+        self.have_leader = np.zeros(steps, bool)
+        self.reports: dict[str, NodeReport] = {}
+        self.newest_k = -1
+        self.out_of_range = 0  # messages stamped with a step outside the run
+        self.filled = 0  # cells filled forward (realtime)
         self.lock = threading.Lock()
-        self.filled = 0  # (k, robot) cells filled forward
 
     def add(self, msg: object) -> None:
-        d = self.data
+        ts = self.ts
         with self.lock:
+            if isinstance(msg, NodeReport):
+                self.reports[msg.role] = msg
+                return
+            k = getattr(msg, "k", -1)
+            if not 0 <= k < self.steps:
+                self.out_of_range += 1
+                return
             if isinstance(msg, RobotState):
-                d.states[(msg.k, msg.robot)] = msg
-                if msg.k > d.newest_k:
-                    d.newest_k = msg.k
+                i = self.row[msg.robot]
+                ts.q[k, i], ts.q_dot[k, i] = msg.q, msg.q_dot
+                self.have_state[k, i] = True
+                self.newest_k = max(self.newest_k, k)
             elif isinstance(msg, Telemetry):
-                d.telemetry[(msg.k, msg.robot)] = msg
+                i = self.row[msg.robot]
+                record_telemetry(ts, k, i, msg)
+                self.have_telemetry[k, i] = True
             elif isinstance(msg, LeaderState):
-                d.leaders[msg.k] = msg
-            elif isinstance(msg, NodeReport):
-                d.reports[msg.role] = msg
+                ts.leader_q[k], ts.leader_v[k] = msg.q, msg.q_dot
+                self.have_leader[k] = True
 
     def series(self, realtime: bool = False) -> TimeSeries:
         """Lockstep: steps 0..K-1 where K is the first step some robot's state is
         missing (a lockstep run has them all). Realtime: every step up to the
         newest state, gaps filled forward from the previous step (and counted)."""
-        sc, d = self.sc, self.data
-        ids = sc.robot_ids
+        sc = self.sc
         with self.lock:
             if realtime:
-                steps = d.newest_k + 1
+                steps = self.newest_k + 1
             else:
-                steps = 0
-                while all((steps, r) in d.states for r in ids):
-                    steps += 1
-            ts = TimeSeries.allocate(steps, sc.n)
-            targets = FormationTargets(sc)
-            leader = None
-            tel: list[Telemetry | None] = [None] * sc.n
-            state: list[RobotState | None] = [None] * sc.n
-            q0, v0 = np.full(3, np.nan), np.full(3, np.nan)
-            for k in range(steps):
-                t = k * sc.dt
-                leader = d.leaders.get(k, leader)
-                if leader is not None:
-                    q0, v0 = np.array(leader.q), np.array(leader.q_dot)
-                for i, r in enumerate(ids):
-                    m = d.states.get((k, r))
-                    if m is None:
-                        self.filled += 1
-                    state[i] = m or state[i]
-                    m = d.telemetry.get((k, r))
-                    if m is None:
-                        self.filled += 1
-                    tel[i] = m or tel[i]
-                q = np.array([s.q if s else (np.nan,) * 3 for s in state])
-                qd = np.array([s.q_dot if s else (np.nan,) * 3 for s in state])
-                ts.record_world(k, t, q0, v0, q, qd, targets.at(t, q0, v0))
-                for i in range(sc.n):
-                    if tel[i] is not None:
-                        record_telemetry(ts, k, i, tel[i])
+                complete = self.have_state.all(axis=1)
+                steps = self.steps if complete.all() else int(np.argmin(complete))
+            ts = TimeSeries(**{c: getattr(self.ts, c)[:steps].copy() for c in COLUMNS})
+            self._fill_forward(ts, steps)
+        targets = FormationTargets(sc)
+        for k in range(steps):
+            ts.t[k] = k * sc.dt
+            ts.target[k] = targets.at(ts.t[k], ts.leader_q[k], ts.leader_v[k])
         return ts
+
+    def _fill_forward(self, ts: TimeSeries, steps: int) -> None:
+        world = ("q", "q_dot")
+        agent = [c for c in COLUMNS if c not in (*world, "t", "leader_q", "leader_v", "target")]
+        for k in range(steps):
+            if not self.have_leader[k]:
+                prev = (ts.leader_q[k - 1], ts.leader_v[k - 1]) if k else (np.nan, np.nan)
+                ts.leader_q[k], ts.leader_v[k] = prev
+            for i in range(self.sc.n):
+                for have, cols in ((self.have_state, world), (self.have_telemetry, agent)):
+                    if not have[k, i]:
+                        self.filled += 1
+                        for c in cols:
+                            col = getattr(ts, c)
+                            col[k, i] = col[k - 1, i] if k else (
+                                np.nan if col.dtype.kind == "f" else col[k, i])
 
 
 def record_telemetry(ts: TimeSeries, k: int, i: int, m: Telemetry) -> None:

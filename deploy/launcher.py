@@ -109,13 +109,13 @@ class Launcher:
         self.keys = Keys(self.fleet)
         self.codec = Codec(sc.robot_ids)
         self.stop = StopFlag()
-        self.collector = Collector(sc)
         self.children: list[Child] = []
         self.recorder = None
         self.invalid = 0
         self.ended = False
         self.progress_k = -1
         self.steps = sc.steps if opts.duration_s is None else int(round(opts.duration_s / sc.dt))
+        self.collector = Collector(sc, self.steps)
 
     # -- children -------------------------------------------------------------------
     def _common_args(self, endpoint: str) -> list[str]:
@@ -304,10 +304,10 @@ class Launcher:
                 + ("did not exit" if c.exit_code is None else f"exited with code {c.exit_code}")
                 + (f"; its last output:\n{c.tail()}" if c.tail() else "") for c in bad))
         # reports travel before the session closes; wait briefly for stragglers
-        node.mailbox.wait_until(lambda: len(self.collector.data.reports) >= len(roles), 2.0)
+        node.mailbox.wait_until(lambda: len(self.collector.reports) >= len(roles), 2.0)
 
     def _figures(self, wall: float) -> dict[str, Any]:
-        reports: dict[str, NodeReport] = dict(self.collector.data.reports)
+        reports: dict[str, NodeReport] = dict(self.collector.reports)
         messages = {"sent": 0, "dropped": 0, "late": 0, "invalid": self.invalid}
         for c in self.children:
             r = reports.get(c.role)
