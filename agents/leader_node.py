@@ -65,12 +65,10 @@ class LeaderNode:
             k = ticker.wait_next(self.stop)
             if k is None or k >= steps:
                 break
-            while self.k_next <= k:  # catch up after a late wake: the leader is analytic
-                if self.k_next == k:
-                    self._publish_next()
-                else:
-                    self.generator.advance()
-                    self.k_next += 1
+            while self.k_next < k:  # catch up after a late wake, publishing only step k
+                self.generator.advance()
+                self.k_next += 1
+            self._publish_next()
 
     def finish(self) -> None:
         publish_report(self.node, -1, self.k_next, self.timing)

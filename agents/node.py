@@ -66,13 +66,14 @@ class AgentInputs:
     perceptions: dict[int, Perception]
     leaders: dict[int, LeaderState]
     shares: dict[tuple[int, int], NeighbourShare]
+    newest_share: dict[int, NeighbourShare]  # per neighbour, by step
     newest_state: RobotState | None = None
     newest_perception: Perception | None = None
     newest_leader: LeaderState | None = None
 
     @classmethod
     def empty(cls) -> AgentInputs:
-        return cls({}, {}, {}, {})
+        return cls({}, {}, {}, {}, {})
 
 
 class AgentNode:
@@ -90,7 +91,6 @@ class AgentNode:
         self.last_shares: dict[int, Share] = {}
         self.timing = Timing()
         self.steps_done = 0
-        self.stale_inputs = 0
         self.telemetry_every = 1  # realtime decimates (see run_realtime)
         self.peers = [PLANT_ROLE, *(agent_role(j) for j in self.neighbours),
                       *(agent_role(j) for j in sc.listeners(self.index))]
@@ -123,6 +123,9 @@ class AgentNode:
 
         def on_share(m: NeighbourShare) -> None:
             inp.shares[(m.robot, m.k)] = m
+            old = inp.newest_share.get(m.robot)
+            if old is None or m.k > old.k:
+                inp.newest_share[m.robot] = m
 
         self.node.subscribe(keys.robot_state(rid), RobotState, on_state, robot=rid)
         self.node.subscribe(keys.perception(rid), Perception, on_perception, robot=rid)
@@ -210,14 +213,11 @@ class AgentNode:
                     msg = inp.shares.get((j, k - 1))
                     if msg is None:
                         stale += 1
-                        older = [kk for (jj, kk) in inp.shares if jj == j]
-                        msg = inp.shares[(j, max(older))] if older else None
+                        msg = inp.newest_share.get(j)
                     if msg is not None:
                         self.last_shares[j] = share_from_msg(msg)
                 self._forget_before(k - KEEP_STEPS)
-            if stale:
-                self.node.counters.late += stale
-                self.stale_inputs += stale
+            self.node.counters.late += stale
             missing = [j for j in self.neighbours if j not in self.last_shares]
             if missing:  # never heard from a neighbour: cannot compute eq. (16)
                 print(f"{self.node.role}: no share ever received from {missing}", file=sys.stderr)
@@ -260,16 +260,10 @@ class AgentNode:
                     continue
                 fresh = state.seq > last_seq
                 perception, leader = inp.newest_perception, inp.newest_leader
-                for j in self.neighbours:
-                    older = [kk for (jj, kk) in inp.shares if jj == j]
-                    if older:
-                        self.last_shares[j] = share_from_msg(inp.shares[(j, max(older))])
-                inp.states.clear()
-                inp.perceptions.clear()
-                inp.leaders.clear()
-                for key in [key for key in inp.shares if key[1] < max(
-                        (kk for (jj, kk) in inp.shares if jj == key[0]), default=0)]:
-                    del inp.shares[key]
+                for j, msg in inp.newest_share.items():
+                    self.last_shares[j] = share_from_msg(msg)
+                for by_step in (inp.states, inp.perceptions, inp.leaders, inp.shares):
+                    by_step.clear()  # realtime uses only the newest of each
             if not fresh:
                 # no new state for 1.5 periods: stepping again on the old one would
                 # integrate the observer on stale data; wait (the plant zeroes our

@@ -79,6 +79,8 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         print(f"omnifleet run: FAILED: {exc}", file=sys.stderr)
         return None
     series = launcher.collector.series(realtime=args.clock == "realtime")
+    if args.clock == "realtime":
+        extra["series_cells_filled"] = launcher.collector.filled
     wall = extra.pop("wall_time_s")
     messages = extra.pop("messages")
     return write_run(sc, series, out, plant, args.clock, wall, messages, extra,

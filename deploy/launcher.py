@@ -210,8 +210,7 @@ class Launcher:
             self.invalid += 1
             return
         if self.recorder is not None:
-            now = time.time_ns()
-            self.recorder.add(key, now, now, msg)
+            self.recorder.add(key, time.time_ns(), msg)
         if isinstance(msg, Control):
             if msg.command == "tick":
                 self.progress_k = max(self.progress_k, msg.k)
@@ -308,7 +307,9 @@ class Launcher:
 
     def _figures(self, wall: float) -> dict[str, Any]:
         reports: dict[str, NodeReport] = dict(self.collector.reports)
-        messages = {"sent": 0, "dropped": 0, "late": 0, "invalid": self.invalid}
+        # a message for a step outside the run is never used: dropped
+        messages = {"sent": 0, "dropped": self.collector.out_of_range, "late": 0,
+                    "invalid": self.invalid}
         for c in self.children:
             r = reports.get(c.role)
             c.peak_rss_mb = r.peak_rss_kb / 1024.0 if r is not None and r.peak_rss_kb else None

@@ -47,7 +47,8 @@ def install_signal_handlers(stop: StopFlag, node: Node | None = None) -> None:
 
 def die_with_parent() -> None:
     """Linux: get SIGTERM when the launching process dies (no orphans, even
-    after a SIGKILL of the launcher). Used as Popen's preexec_fn."""
+    after a SIGKILL of the launcher). Called by the child itself at start-up
+    (a preexec_fn is unsafe in the launcher, which runs zenoh threads)."""
     try:
         libc = ctypes.CDLL("libc.so.6", use_errno=True)
         libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG

@@ -27,8 +27,8 @@ def _json_schema(kind: type[Message]) -> dict[str, Any]:
         typ = f.type
         if kind is Perception and f.name in ("robots", "obstacles"):
             typ = list[_SENSED_JSON]
-        default = f.default if f.default is not msgspec.NODEFAULT else msgspec.NODEFAULT
-        fields.append((f.name, typ, default) if default is not msgspec.NODEFAULT else (f.name, typ))
+        fields.append((f.name, typ) if f.default is msgspec.NODEFAULT
+                      else (f.name, typ, f.default))
     mirror = msgspec.defstruct(kind.__name__, fields, kw_only=True)
     return msgspec.json.schema(mirror)
 
@@ -60,7 +60,7 @@ class McapRecorder:
             for kind in MESSAGE_TYPES
         }
         self._channels: dict[str, int] = {}
-        self._queue: deque[tuple[str, int, int, Message]] = deque()
+        self._queue: deque[tuple[str, int, Message]] = deque()
         self._wake = threading.Event()
         self._closing = False
         self.written = 0
@@ -68,9 +68,9 @@ class McapRecorder:
         self._thread = threading.Thread(target=self._drain_forever, name="mcap", daemon=True)
         self._thread.start()
 
-    def add(self, key: str, log_time_ns: int, publish_time_ns: int, msg: Message) -> None:
+    def add(self, key: str, arrival_unix_ns: int, msg: Message) -> None:
         """Thread-safe (deque.append is atomic)."""
-        self._queue.append((key, log_time_ns, publish_time_ns, msg))
+        self._queue.append((key, arrival_unix_ns, msg))
 
     def _channel(self, key: str, kind: type[Message]) -> int:
         ch = self._channels.get(key)
@@ -82,10 +82,12 @@ class McapRecorder:
     def _drain(self) -> None:
         q = self._queue
         while q:
-            key, log_t, pub_t, msg = q.popleft()
+            key, t_ns, msg = q.popleft()
             data = self._encoder.encode(as_json_object(msg))
-            self._writer.add_message(self._channel(key, type(msg)), log_time=log_t,
-                                     data=data, publish_time=pub_t, sequence=msg.seq)
+            # stamp_ns is the sender's monotonic clock, not a date: log and publish
+            # times are the arrival on the wall clock, which Foxglove shows
+            self._writer.add_message(self._channel(key, type(msg)), log_time=t_ns,
+                                     data=data, publish_time=t_ns, sequence=msg.seq)
             self.written += 1
 
     def _drain_forever(self) -> None:

@@ -62,10 +62,6 @@ class Counters:
     late: int = 0  # arrived after its step's deadline, or a step ran without it
     invalid: int = 0  # failed validation at decode
 
-    def as_dict(self) -> dict[str, int]:
-        return {"sent": self.sent, "dropped": self.dropped, "late": self.late,
-                "invalid": self.invalid}
-
 
 @dataclass
 class Mailbox:

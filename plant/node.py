@@ -21,14 +21,14 @@ from deploy.scenario import Scenario
 from deploy.transport import Node
 from deploy.wire import (
     LAUNCHER_ROLE,
-    LEADER_ROLE,
+    PLANT_ROLE,
     WIRE_VERSION,
     Control,
     Perception,
     RobotState,
     SensedBody,
     WheelCommand,
-    agent_role,
+    run_roles,
 )
 from plant.perception import sense
 
@@ -57,7 +57,7 @@ class PlantNode:
         self.timing = Timing()
         self.steps_done = 0
         self.last_state_seq: dict[int, int] = {}
-        self.peers = [LEADER_ROLE, *(agent_role(r) for r in self.ids)]
+        self.peers = [r for r in run_roles(self.ids) if r != PLANT_ROLE]
         if with_recorder:
             self.peers.append(LAUNCHER_ROLE)
         for rid in self.ids:
