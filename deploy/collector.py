@@ -42,7 +42,9 @@ class Collector:
             if isinstance(msg, NodeReport):
                 self.reports[msg.role] = msg
                 return
-            k = getattr(msg, "k", -1)
+            if not isinstance(msg, RobotState | Telemetry | LeaderState):
+                return  # shares, perception, commands: recorded, not part of the series
+            k = msg.k
             if not 0 <= k < self.steps:
                 self.out_of_range += 1
                 return

@@ -95,7 +95,7 @@ def test_run_reports_processes_messages_and_a_recording(distributed_run):
     assert roles == ["agent-1", "agent-2", "agent-3", "launcher", "leader", "plant"]
     assert all(p["peak_rss_mb"] and p["peak_rss_mb"] > 0 for p in m["processes"])
     msg = m["messages"]
-    assert msg["sent"] > 0 and msg["invalid"] == 0 and msg["late"] == 0
+    assert msg["sent"] > 0 and msg["invalid"] == 0 and msg["late"] == 0 and msg["dropped"] == 0
     with open(distributed_run / "recording.mcap", "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
