@@ -12,8 +12,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from deploy.node_cli import CLOCKS, add_node_commands
-from deploy.scenario import ScenarioError, load_scenario
+from deploy.node_cli import CLOCKS, add_node_commands, gui_problem
+from deploy.scenario import PLANT_KINDS, ScenarioError, load_scenario
 from deploy.transport import TransportError
 from deploy.wire import FleetNameError
 
@@ -22,7 +22,7 @@ EXIT_BAD_INPUT = 2
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from deploy.outputs import write_run
-    from deploy.runner import PLANT_KINDS, run_in_process, terminal_progress
+    from deploy.runner import run_in_process, terminal_progress
 
     sc = load_scenario(args.scenario)
     if args.control_rate is not None:
@@ -31,9 +31,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
             return EXIT_BAD_INPUT
         sc = sc.with_control_rate(args.control_rate)
     plant = args.plant or sc.spec.plant.kind
-    if plant not in PLANT_KINDS:
-        print(f"omnifleet run: --plant {plant}: available plants are {', '.join(PLANT_KINDS)}",
-              file=sys.stderr)
+    problem = gui_problem(plant, args.gui)
+    if problem:
+        print(f"omnifleet run: {problem}", file=sys.stderr)
         return EXIT_BAD_INPUT
     if args.duration is not None and args.duration <= 0:
         print("omnifleet run: --duration must be positive", file=sys.stderr)
@@ -46,9 +46,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("runs") / sc.name
     label = f"{sc.name} ({plant}, {'in-process' if args.in_process else args.clock})"
     if args.in_process:
-        result = run_in_process(sc, plant, args.duration, terminal_progress(label))
+        result = run_in_process(sc, plant, args.duration, terminal_progress(label), gui=args.gui)
         metrics = write_run(sc, result.series, out, plant, "lockstep", result.wall_time_s,
-                            figures=not args.no_figures)
+                            figures=not args.no_figures, contact_log=result.contacts)
     else:
         metrics = _run_distributed(sc, args, plant, out, label)
         if metrics is None:
@@ -70,7 +70,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         scenario_arg=args.scenario, plant=plant, clock=args.clock, out=out,
         duration_s=args.duration, control_rate_hz=args.control_rate,
         step_deadline_s=args.step_deadline, startup_timeout_s=args.startup_timeout,
-        record=not args.no_record, fleet=args.fleet, endpoint=args.endpoint,
+        record=not args.no_record, fleet=args.fleet, endpoint=args.endpoint, gui=args.gui,
     )
     launcher = Launcher(sc, opts)
     try:
@@ -83,8 +83,10 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         extra["series_cells_filled"] = launcher.collector.filled
     wall = extra.pop("wall_time_s")
     messages = extra.pop("messages")
+    contact_log, contacts_total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
     return write_run(sc, series, out, plant, args.clock, wall, messages, extra,
-                     figures=not args.no_figures)
+                     figures=not args.no_figures, contact_log=contact_log,
+                     contacts_total=contacts_total)
 
 
 def meets_paper_criteria(m: dict) -> bool:
@@ -156,8 +158,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--in-process", action="store_true",
                      help="run leader, plant and all agents in this process (the reference "
                      "loop) instead of one process per node")
-    run.add_argument("--plant", choices=["model", "kinematic"], default=None,
-                     help="plant to simulate (default: the scenario's plant.kind)")
+    run.add_argument("--plant", choices=PLANT_KINDS, default=None,
+                     help="pybullet (rigid bodies, real contacts), model (eq. 4, RK4) or "
+                     "kinematic (default: the scenario's plant.kind)")
+    run.add_argument("--gui", action="store_true",
+                     help="pybullet: open the simulator's window (needs a display)")
     run.add_argument("--clock", choices=CLOCKS, default="lockstep",
                      help="lockstep: deterministic, equals --in-process; realtime: every "
                      "process on its own clock at the scenario's rates (default: lockstep)")

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from deploy.collector import Collector
@@ -86,6 +87,7 @@ class LaunchOptions:
     fleet: str | None = None
     endpoint: str | None = None  # where the launcher listens (default: a free loopback port)
     record: bool = True
+    gui: bool = False  # pybullet plant: open its window
     extra_agent_args: list[str] = field(default_factory=list)
 
 
@@ -136,7 +138,8 @@ class Launcher:
         logs = self.opts.out / "logs"
         plan = [
             Child(LEADER_ROLE, None, [*cmd, "leader", *common], logs / "leader.log"),
-            Child(PLANT_ROLE, None, [*cmd, "plant", *common, "--plant", self.opts.plant],
+            Child(PLANT_ROLE, None, [*cmd, "plant", *common, "--plant", self.opts.plant,
+                                     *(["--gui"] if self.opts.gui else [])],
                   logs / "plant.log"),
         ]
         for r in self.sc.robot_ids:
@@ -331,10 +334,13 @@ class Launcher:
                   "peak_rss_mb": round(peak_rss_kb() / 1024.0, 1), "exit_code": None,
                   "reported": True}],
         }
+        plant = reports.get(PLANT_ROLE)
+        if plant is not None and plant.contacts is not None:
+            out["contact_log"] = [msgspec.structs.asdict(c) for c in plant.contacts]
+            out["contacts_total"] = plant.contacts_total
         if self.recorder is not None:
             out["recording"] = {"file": "recording.mcap", "messages": self.recorder.written}
         if self.opts.clock == "realtime":
-            plant = reports.get(PLANT_ROLE)
             out["latency_ms"] = _percentiles_ms(plant.latency_ns if plant else [])
             out["jitter_ms"] = _percentiles_ms([j for r in reports.values() for j in r.jitter_ns])
             out["deadline_misses"] = sum(r.deadline_misses for r in reports.values())

@@ -3,7 +3,13 @@
 Keys (every run, in-process or distributed): scenario, plant, clock, robots,
 sim_time_s, steps, control_rate_hz, wall_time_s, real_time_factor,
 settling_time_s, formation_rms_m, min_obstacle_clearance_m,
-min_robot_separation_m, contacts, peak_torque_nm, rms_torque_nm, messages.
+min_robot_separation_m, contacts (+ contact_source, contact_log), peak_torque_nm,
+rms_torque_nm, messages.
+
+``contacts`` counts physical contact events when the plant simulates bodies
+(pybullet: ``contact_source`` "physics", every event in ``contact_log`` with its
+time, bodies and depth); for plants without bodies (model, kinematic) it counts
+geometric onsets, a pair's clearance going from > 0 to <= 0 ("geometry").
 ``None`` (JSON null) means "never" for a settling time and "no such pair" for a
 distance; infinite limits are written as null.
 """
@@ -70,7 +76,11 @@ def compute_metrics(
     clock: str,
     wall_time_s: float,
     messages: dict[str, int] | None = None,
+    contact_log: list[dict[str, Any]] | None = None,
+    contacts_total: int | None = None,
 ) -> dict[str, Any]:
+    """``contact_log``: the plant's physical contact events (None: it has no bodies);
+    ``contacts_total``: their number when the log was truncated in transit."""
     s = sc.spec
     t = series.t
     n = sc.n
@@ -111,7 +121,10 @@ def compute_metrics(
         "formation_rms_m": rms,
         "min_obstacle_clearance_m": float(ro.min()) if ro.size else None,
         "min_robot_separation_m": float(rr.min()) if rr.size else None,
-        "contacts": contact_onsets(rr) + contact_onsets(ro),
+        "contacts": (contact_onsets(rr) + contact_onsets(ro) if contact_log is None
+                     else max(len(contact_log), contacts_total or 0)),
+        "contact_source": "geometry" if contact_log is None else "physics",
+        "contact_log": contact_log,
         "peak_torque_nm": float(np.abs(series.torque).max()),
         "rms_torque_nm": float(np.sqrt(np.mean(series.torque**2))),
         "nonfinite_commands": int(series.nonfinite.sum()),

@@ -18,7 +18,7 @@ from deploy.node_runtime import (
     die_with_parent,
     install_signal_handlers,
 )
-from deploy.scenario import Scenario, load_scenario
+from deploy.scenario import PLANT_KINDS, Scenario, load_scenario
 from deploy.transport import Node, zenoh_config
 from deploy.wire import LEADER_ROLE, PLANT_ROLE, Codec, Keys, agent_role
 
@@ -50,6 +50,18 @@ def _open(args: argparse.Namespace, sc: Scenario, role: str, sender: int) -> Nod
 def _exit_code(stop: StopFlag) -> int:
     return {"": 0, "end": 0, "stop": 0, "estop": 0, "SIGINT": 130, "SIGTERM": 143}.get(
         stop.reason, EXIT_PEER_LOST)
+
+
+def gui_problem(plant_kind: str, gui: bool) -> str | None:
+    """Why ``--gui`` cannot be honoured (pybullet's window would end the process
+    on a failed X connection), or None."""
+    if not gui:
+        return None
+    if plant_kind != "pybullet":
+        return f"--gui shows the pybullet plant; this run's plant is {plant_kind}"
+    if not os.environ.get("DISPLAY"):
+        return "--gui needs a display, and DISPLAY is not set"
+    return None
 
 
 def _run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, realtime) -> int:
@@ -108,9 +120,14 @@ def _cmd_agent(args: argparse.Namespace) -> int:
 def _cmd_plant(args: argparse.Namespace) -> int:
     from plant.node import PlantNode
 
+    problem = gui_problem(args.plant or _scenario(args).spec.plant.kind, args.gui)
+    if problem:
+        print(f"omnifleet plant: {problem}", file=sys.stderr)
+        return 2
+
     def build(sc, node, stop):
         return PlantNode(sc, args.plant or sc.spec.plant.kind, node, stop, args.with_recorder,
-                         args.command_timeout)
+                         args.command_timeout, gui=args.gui)
 
     return _run_node(args, PLANT_ROLE, 0, build,
                      lambda obj, sc: obj.run_lockstep(_steps(sc, args), args.step_deadline),
@@ -165,8 +182,11 @@ def add_node_commands(sub: argparse._SubParsersAction) -> None:
                            description="Simulates every robot and obstacle; the time master "
                            "of a lockstep run.")
     _common(plant)
-    plant.add_argument("--plant", choices=["model", "kinematic"], default=None,
-                       help="default: the scenario's plant.kind")
+    plant.add_argument("--plant", choices=PLANT_KINDS, default=None,
+                       help="pybullet (rigid bodies, real contacts), model (eq. 4, RK4) or "
+                       "kinematic (default: the scenario's plant.kind)")
+    plant.add_argument("--gui", action="store_true",
+                       help="pybullet: open the simulator's window (needs a display)")
     plant.add_argument("--command-timeout", type=float, default=0.1, metavar="S",
                        help="realtime: zero a robot's torques when its newest command is "
                        "older than this (default: 0.1)")

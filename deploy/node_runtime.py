@@ -10,6 +10,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 from deploy.transport import Node
 from deploy.wire import WIRE_VERSION, Control, NodeReport
@@ -143,7 +144,9 @@ def peak_rss_kb() -> int:
     return 0
 
 
-def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = None) -> None:
+def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = None,
+                   **extra: Any) -> None:
+    """The node's :class:`NodeReport`; ``extra``: further NodeReport fields."""
     c = node.counters
     timing = timing or Timing()
     node.publish(node.keys.report(node.role), lambda seq, stamp: NodeReport(
@@ -151,5 +154,5 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
         dropped=c.dropped, late=c.late, invalid=c.invalid, steps=steps,
         latency_ns=timing.latency_ns, jitter_ns=timing.jitter_ns,
         deadline_misses=timing.deadline_misses, peak_rss_kb=peak_rss_kb(),
-        received=dict(node.received),
+        received=dict(node.received), **extra,
     ))

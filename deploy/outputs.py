@@ -21,9 +21,12 @@ def write_run(
     messages: dict[str, int] | None = None,
     extra: dict[str, Any] | None = None,
     figures: bool = True,
+    contact_log: list[dict[str, Any]] | None = None,
+    contacts_total: int | None = None,
 ) -> dict[str, Any]:
     out_dir.mkdir(parents=True, exist_ok=True)
-    metrics = compute_metrics(sc, series, plant, clock, wall_time_s, messages)
+    metrics = compute_metrics(sc, series, plant, clock, wall_time_s, messages, contact_log,
+                              contacts_total)
     metrics.update(extra or {})
     write_metrics(metrics, out_dir / "metrics.json")
     series.save(out_dir / "timeseries.npz")

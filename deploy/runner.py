@@ -17,13 +17,13 @@ import numpy as np
 from agents.core import AgentCore
 from agents.formation import offsets, scale_at
 from agents.leader import LeaderGenerator
-from deploy.scenario import Scenario
+from deploy.scenario import PLANT_KINDS, Scenario
 from deploy.timeseries import TimeSeries
 from plant.disturbance import make_disturbance
 from plant.model_plant import KinematicPlant, ModelPlant
-from plant.perception import sense
+from plant.perception import sensor_for
 
-PLANT_KINDS = ("model", "kinematic")
+__all__ = ["PLANT_KINDS", "RunResult", "make_plant", "run_in_process"]
 
 
 @dataclass
@@ -32,19 +32,42 @@ class RunResult:
     plant: str
     series: TimeSeries
     wall_time_s: float
+    contacts: list[dict] | None = None  # physical contact events (pybullet); None: not simulated
 
 
-def make_plant(sc: Scenario, kind: str):
+def make_plant(sc: Scenario, kind: str, gui: bool = False):
+    """The scenario's robots (and, for pybullet, obstacles) in a plant of ``kind``.
+
+    A pybullet plant holds a physics client: call its ``close()`` when done.
+    """
     q, qd = sc.initial_state()
-    if kind == "model":
-        d = sc.spec.disturbance
-        return ModelPlant(
-            [sc.model()] * sc.n, q, qd, make_disturbance(d.kind, d.scale, tuple(d.constant_nm)),
-            sc.spec.plant.substeps,
+    d = sc.spec.disturbance
+    disturbance = make_disturbance(d.kind, d.scale, tuple(d.constant_nm))
+    if kind == "pybullet":
+        from plant.pybullet_plant import PybulletPlant
+
+        return PybulletPlant(
+            [sc.model()] * sc.n, q, qd, disturbance, [sc.spec.robot.body_radius_m] * sc.n,
+            sc.robot_ids, sc.obstacle_bodies(), sc.spec.plant.substeps, gui=gui,
         )
+    if kind == "model":
+        return ModelPlant([sc.model()] * sc.n, q, qd, disturbance, sc.spec.plant.substeps)
     if kind == "kinematic":
         return KinematicPlant(q, qd)
     raise ValueError(f"unknown plant {kind!r}; choose one of {', '.join(PLANT_KINDS)}")
+
+
+def contact_log(plant) -> list[dict] | None:
+    """The plant's contact events as plain records, or None when the plant has no
+    bodies that can touch (model and kinematic plants: contacts come from geometry)."""
+    events = getattr(plant, "contacts", None)
+    if events is None:
+        return None
+    return [
+        {"t_start": e.t_start, "t_end": e.t_end, "body_a": e.body_a, "body_b": e.body_b,
+         "max_depth_m": e.max_depth_m}
+        for e in events
+    ]
 
 
 def make_agents(sc: Scenario) -> list[AgentCore]:
@@ -80,20 +103,28 @@ def run_in_process(
     plant_kind: str | None = None,
     duration_s: float | None = None,
     progress: Callable[[int, int], None] | None = None,
+    gui: bool = False,
 ) -> RunResult:
     plant_kind = plant_kind or sc.spec.plant.kind
     dt = sc.dt
     steps = sc.steps if duration_s is None else int(round(duration_s / dt))
-    plant = make_plant(sc, plant_kind)
+    plant = make_plant(sc, plant_kind, gui=gui)
+    try:
+        return _run(sc, plant, plant_kind, steps, progress)
+    finally:
+        getattr(plant, "close", lambda: None)()
+
+
+def _run(sc: Scenario, plant, plant_kind: str, steps: int,
+         progress: Callable[[int, int], None] | None) -> RunResult:
+    dt = sc.dt
     agents = make_agents(sc)
     leader = LeaderGenerator(sc.leader_spec(), dt)
-    obstacles = sc.obstacle_bodies()
-    radii = [sc.spec.robot.body_radius_m] * sc.n
+    sense = sensor_for(plant, sc)
     ids = sc.robot_ids
     shares = {rid: a.initial_share for rid, a in zip(ids, agents, strict=False)}
     series = TimeSeries.allocate(steps, sc.n)
     b = sc.leader_weights
-    det = sc.spec.behaviors.detection_range_m
     torques = np.zeros((sc.n, 4))
     v_cmd = np.zeros((sc.n, 3))
     targets = FormationTargets(sc)
@@ -102,10 +133,9 @@ def run_in_process(
     for k in range(steps):
         t = k * dt
         q0, v0 = leader.state()
-        pos, vel = plant.q[:, :2], plant.q_dot[:, :2]
         new_shares = {}
         for i, agent in enumerate(agents):
-            robots_seen, obstacles_seen = sense(i, pos, vel, radii, ids, obstacles, det)
+            robots_seen, obstacles_seen = sense(i)
             out = agent.step(
                 t, plant.q[i].copy(), plant.q_dot[i].copy(),
                 {j: shares[j] for j, _ in agent.cfg.neighbours},
@@ -124,7 +154,7 @@ def run_in_process(
         if progress is not None:
             progress(k + 1, steps)
     wall = time.perf_counter() - start
-    return RunResult(sc, plant_kind, series, wall)
+    return RunResult(sc, plant_kind, series, wall, contact_log(plant))
 
 
 def terminal_progress(total_label: str) -> Callable[[int, int], None] | None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Literal
+from typing import Literal, get_args
 
 import msgspec
 import numpy as np
@@ -149,8 +149,12 @@ class Disturbance(_S, kw_only=True):
     constant_nm: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
 
 
+PlantKind = Literal["pybullet", "model", "kinematic"]
+PLANT_KINDS: tuple[str, ...] = get_args(PlantKind)
+
+
 class PlantSection(_S, kw_only=True):
-    kind: Literal["model", "kinematic"] = "model"
+    kind: PlantKind = "pybullet"
     substeps: int = 4
 
 

@@ -26,6 +26,7 @@ WIRE_VERSION = 1
 MAX_BODIES = 256  # bodies per perception message
 MAX_ORDER_CHARS = 32
 MAX_ROLE_CHARS = 32
+MAX_CONTACTS = 10_000  # contact events carried by a plant's report (the count is exact)
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -158,6 +159,16 @@ class Control(Message, frozen=True):
         super().__post_init__()
 
 
+class ContactRecord(msgspec.Struct, array_like=True, frozen=True):
+    """One physical contact of two bodies (pybullet plant), for metrics.json."""
+
+    t_start: float
+    t_end: float | None  # None: still touching when the run ended
+    body_a: int  # robot id
+    body_b: int  # robot id, or -(obstacle index + 1)
+    max_depth_m: float
+
+
 class NodeReport(Message, frozen=True):
     """A node's counters and timing, sent once as it ends."""
 
@@ -173,10 +184,14 @@ class NodeReport(Message, frozen=True):
     deadline_misses: int = 0
     peak_rss_kb: int = 0  # VmHWM of the node's process (0: unknown)
     received: dict[str, int] = {}  # valid messages received, per key expression
+    contacts: list[ContactRecord] | None = None  # plant: physical contacts (None: not simulated)
+    contacts_total: int = 0  # every contact event, also those beyond MAX_CONTACTS
 
     def __post_init__(self) -> None:
         if len(self.role) > MAX_ROLE_CHARS:
             raise ValueError("role too long")
+        if self.contacts is not None and len(self.contacts) > MAX_CONTACTS:
+            raise ValueError("too many contact records")
         super().__post_init__()
 
 

@@ -21,8 +21,10 @@ from deploy.scenario import Scenario
 from deploy.transport import Node
 from deploy.wire import (
     LAUNCHER_ROLE,
+    MAX_CONTACTS,
     PLANT_ROLE,
     WIRE_VERSION,
+    ContactRecord,
     Control,
     Perception,
     RobotState,
@@ -30,7 +32,7 @@ from deploy.wire import (
     WheelCommand,
     run_roles,
 )
-from plant.perception import sense
+from plant.perception import sensor_for
 
 START_LEAD_S = 0.3  # realtime: t = 0 this long after ``start`` is sent
 
@@ -42,12 +44,12 @@ def _sensed(bodies) -> list[SensedBody]:
 
 class PlantNode:
     def __init__(self, sc: Scenario, kind: str, node: Node, stop: StopFlag,
-                 with_recorder: bool = False, command_timeout_s: float = 0.1) -> None:
+                 with_recorder: bool = False, command_timeout_s: float = 0.1,
+                 gui: bool = False) -> None:
         self.sc, self.node, self.stop, self.kind = sc, node, stop, kind
-        self.plant = make_plant(sc, kind)
+        self.plant = make_plant(sc, kind, gui=gui)
+        self.sense = sensor_for(self.plant, sc)
         self.ids = sc.robot_ids
-        self.obstacles = sc.obstacle_bodies()
-        self.radii = [sc.spec.robot.body_radius_m] * sc.n
         self.torques = np.zeros((sc.n, 4))
         self.v_cmd = np.zeros((sc.n, 3))
         self.commands: dict[tuple[int, int], WheelCommand] = {}
@@ -90,10 +92,8 @@ class PlantNode:
     def _publish_world(self, k: int, t: float) -> None:
         node, keys = self.node, self.node.keys
         q, qd = self.plant.q, self.plant.q_dot
-        pos, vel = q[:, :2], qd[:, :2]
         for i, rid in enumerate(self.ids):
-            robots, obstacles = sense(i, pos, vel, self.radii, self.ids, self.obstacles,
-                                      self.sc.spec.behaviors.detection_range_m)
+            robots, obstacles = self.sense(i)
             node.publish(keys.perception(rid), lambda seq, stamp, rid=rid, r=robots, o=obstacles:
                          Perception(WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t,
                                     robots=_sensed(r), obstacles=_sensed(o)))
@@ -173,6 +173,12 @@ class PlantNode:
     def finish(self, linger_s: float = 5.0) -> None:
         """Report, then stay until the other nodes have left after ``end``, so
         none of them mistakes our leaving for a crash of the plant."""
-        publish_report(self.node, -1, self.steps_done, self.timing)
+        events = getattr(self.plant, "contacts", None)
+        contacts = None if events is None else [
+            ContactRecord(e.t_start, e.t_end, e.body_a, e.body_b, e.max_depth_m)
+            for e in events[:MAX_CONTACTS]]
+        getattr(self.plant, "close", lambda: None)()
+        publish_report(self.node, -1, self.steps_done, self.timing, contacts=contacts,
+                       contacts_total=0 if events is None else len(events))
         others = set(self.peers) - {LAUNCHER_ROLE}
         self.node.mailbox.wait_until(lambda: not (others & self.node.peers_alive), linger_s)

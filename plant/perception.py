@@ -6,11 +6,17 @@ at most r_det. Pure function of positions; both plants call it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from agents.core import Body
+
+if TYPE_CHECKING:
+    from deploy.scenario import Scenario
+
+Sensor = Callable[[int], tuple[list[Body], list[Body]]]
 
 
 def sense(
@@ -35,3 +41,14 @@ def sense(
         if float(np.hypot(*(o.position - me))) - o.radius <= detection_range_m
     ]
     return robots, seen
+
+
+def sensor_for(plant, sc: Scenario) -> Sensor:
+    """i -> (robots, obstacles) robot i senses now: the plant's own world query when
+    it has one (pybullet), else :func:`sense` on the plant's positions."""
+    det = sc.spec.behaviors.detection_range_m
+    if hasattr(plant, "perceive"):
+        return lambda i: plant.perceive(i, det)
+    radii = [sc.spec.robot.body_radius_m] * sc.n
+    ids, obstacles = sc.robot_ids, sc.obstacle_bodies()
+    return lambda i: sense(i, plant.q[:, :2], plant.q_dot[:, :2], radii, ids, obstacles, det)

@@ -31,7 +31,10 @@ def test_run_writes_metrics_series_and_figures(tmp_path):
     assert r.returncode == 0, r.stderr
     m = json.loads((out / "metrics.json").read_text())
     assert REQUIRED_KEYS <= m.keys()
-    assert m["steps"] == 200 and m["robots"] == 3 and m["plant"] == "model"
+    # pybullet is the default plant: contacts come from its physics, with their log
+    assert m["steps"] == 200 and m["robots"] == 3 and m["plant"] == "pybullet"
+    assert m["contact_source"] == "physics" and m["contact_log"] == [] and m["contacts"] == 0
+    assert "pybullet build time" not in r.stderr + r.stdout  # its import banner is silenced
     assert m["messages"] == {"sent": 0, "dropped": 0, "late": 0, "invalid": 0}
     with np.load(out / "timeseries.npz") as ts:
         assert ts["q"].shape == (200, 3, 3) and ts["torque"].shape == (200, 3, 4)

@@ -9,13 +9,12 @@ import contextlib
 import json
 import os
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from procs import finish, pids_with, start
 
 from deploy.launcher import free_tcp_port
 from deploy.metrics import control_figures
@@ -27,51 +26,20 @@ REPO = Path(__file__).resolve().parents[1]
 DURATION = "0.3"
 
 
-def start(*args: str) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "deploy.cli", *args], cwd=REPO, stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE, text=True, start_new_session=True,
-    )
-
-
-def finish(proc: subprocess.Popen, timeout: float = 240) -> tuple[int, str, str]:
-    try:
-        out, err = proc.communicate(timeout=timeout)
-        return proc.returncode, out, err
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-
-
-def pids_with(text: str) -> set[int]:
-    """Live processes whose command line contains ``text``."""
-    found = set()
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-            except OSError:
-                continue
-            if text in cmd and int(d.name) != os.getpid():
-                found.add(int(d.name))
-    return found
-
-
 @pytest.fixture(scope="module")
 def distributed_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("dist")
     fleet = f"t-equal-{os.getpid()}"
-    rc, _, err = finish(start("run", "paper", "--duration", DURATION, "--out", str(out),
-                              "--no-figures", "--fleet", fleet))
+    rc, _, err = finish(start("run", "paper", "--plant", "model", "--duration", DURATION,
+                              "--out", str(out), "--no-figures", "--fleet", fleet))
     assert rc == 0, err
     assert not pids_with(fleet), "a node of the run outlived it"
     return out
 
 
 def test_lockstep_run_equals_the_in_process_reference(distributed_run, tmp_path):
-    rc, _, err = finish(start("run", "paper", "--in-process", "--duration", DURATION,
-                              "--out", str(tmp_path), "--no-figures"))
+    rc, _, err = finish(start("run", "paper", "--plant", "model", "--in-process", "--duration",
+                              DURATION, "--out", str(tmp_path), "--no-figures"))
     assert rc == 0, err
     a = TimeSeries.load(distributed_run / "timeseries.npz")
     b = TimeSeries.load(tmp_path / "timeseries.npz")
