@@ -29,9 +29,11 @@ nor R at d = R). Desired value rho_d = R.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from math import cos, pi, sin
+from math import cos, hypot, pi, sin
 
 import numpy as np
+
+from agents.signals import Vec2, Vec3
 
 _TINY = 1e-12
 
@@ -141,3 +143,81 @@ def avoidance_behavior(
         ]
     )
     return BehaviorOutput(name, True, pinv_task_jacobian(J) @ rate, J, safe_distance - rho)
+
+
+# --- hot path: the same behaviors on floats (tests/test_hot_path.py checks them
+# against formation_behavior and avoidance_behavior above) ----------------------------
+
+
+@dataclass(slots=True)
+class Task:
+    """An active behavior in reduced form, for the hot path of ``AgentCore.step``.
+
+    J = [[g_x, g_y, 0], [0, 0, 1], [0, 0, 0]] is fixed by the gradient g, and
+    J^+ = J^T diag(1/|row|^2) (:func:`pinv_task_jacobian`) by g and inv_g2.
+    """
+
+    name: str
+    gx: float
+    gy: float
+    inv_g2: float  # 1/|g|^2, 0 for a zero row (see inverse_square_norm)
+    velocity: Vec3  # v
+    task_error: float
+
+    def to_output(self) -> BehaviorOutput:
+        """The same behavior as a :class:`BehaviorOutput`."""
+        return BehaviorOutput(
+            self.name, True, np.array(self.velocity),
+            _task_jacobian((self.gx, self.gy)), self.task_error,
+        )
+
+
+def inverse_square_norm(gx: float, gy: float) -> float:
+    """1/|g|^2, the pseudo-inverse's factor for the row [g_x, g_y, 0]: 0 where
+    :func:`pinv_task_jacobian` treats the row as zero."""
+    g2 = gx * gx + gy * gy
+    return 1.0 / g2 if g2 > _TINY else 0.0
+
+
+def formation_task(q: Vec3, q_fd: Vec3, v_fd: Vec3, gains: tuple[float, float]) -> Task:
+    """:func:`formation_behavior` on floats: FDB, eqs. (15)-(19)."""
+    dx, dy = q[0] - q_fd[0], q[1] - q_fd[1]
+    dist = hypot(dx, dy)
+    gx, gy = (dx / dist, dy / dist) if dist > _TINY else (0.0, 0.0)
+    inv = inverse_square_norm(gx, gy)
+    vfx, vfy = v_fd[0], v_fd[1]
+    g_vfd = gx * vfx + gy * vfy  # -d rho/dt, and J [v_fd_xy, 0]
+    rate = g_vfd + gains[0] * (0.0 - dist)  # -d rho/dt + Lambda (rho_d - rho), rho_d = 0
+    # v = J^+ [rate, heading rate, 0] + (I - J^+ J) [v_fd_xy, 0] (see formation_behavior)
+    velocity = (
+        gx * inv * rate + (vfx - gx * inv * g_vfd),
+        gy * inv * rate + (vfy - gy * inv * g_vfd),
+        heading_row_rate(q[2], q_fd[2], v_fd[2], gains[1]),
+    )
+    return Task("FDB", gx, gy, inv, velocity, dist)
+
+
+def avoidance_task_of(
+    name: str,
+    q: Vec3,
+    other_xy: Vec2,
+    contact_distance: float,
+    safe_distance: float,
+    phi_d: float,
+    phi_d_dot: float,
+    gains: tuple[float, float],
+    min_gap: float = 1e-3,
+) -> Task | None:
+    """:func:`avoidance_behavior` on floats: FOCB (23)-(25) / FRCB (20)-(22); None if inactive."""
+    dx, dy = q[0] - other_xy[0], q[1] - other_xy[1]
+    d = hypot(dx, dy)
+    if d >= safe_distance:
+        return None
+    ux, uy = (dx / d, dy / d) if d > _TINY else (1.0, 0.0)
+    rho, drho_dd = avoidance_task(max(d, contact_distance + min_gap), safe_distance, contact_distance)
+    gx, gy = drho_dd * ux, drho_dd * uy
+    inv = inverse_square_norm(gx, gy)
+    rate = gains[0] * (safe_distance - rho)  # Lambda (rho_d - rho), rho_d = R
+    # v = J^+ [rate, heading rate, 0]
+    velocity = (gx * inv * rate, gy * inv * rate, heading_row_rate(q[2], phi_d, phi_d_dot, gains[1]))
+    return Task(name, gx, gy, inv, velocity, safe_distance - rho)

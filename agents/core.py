@@ -13,26 +13,26 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from math import cos, hypot, isfinite, sin
 
 import numpy as np
 
-from agents.behaviors import BehaviorOutput, avoidance_behavior, formation_behavior
+from agents.behaviors import Task, avoidance_task_of, formation_task
 from agents.controller import (
+    ControlConstants,
     ControllerGains,
-    allocate,
-    control_term,
-    saturate_torques,
+    ModelTerms,
+    allocate_vec,
+    control_term_vec,
+    coulomb_term,
+    matvec3,
+    saturate_torques_vec,
 )
-from agents.eso import EsoGains, eso_step
-from agents.estimator import EstimatorGains, estimator_step
-from agents.formation import ScaleChange, desired_formation, offsets, scale_at
-from agents.fusion import (
-    DEFAULT_PRIORITY,
-    fuse,
-    order_by_priority,
-    saturate_velocity,
-    supervise,
-)
+from agents.eso import EsoGains, eso_step_vec
+from agents.estimator import EstimatorGains, estimator_step_vec
+from agents.formation import ScaleChange, desired_formation_vec, offsets_vec, scale_at_vec
+from agents.fusion import DEFAULT_PRIORITY, saturate_velocity_vec, supervise_tasks
+from agents.signals import Vec2, Vec3
 from plant.mecanum import MecanumModel
 
 
@@ -105,7 +105,13 @@ class AgentOutput:
 
 
 class AgentCore:
-    """State and step of one agent (estimator, reference, ESO)."""
+    """State and step of one agent (estimator, reference, ESO).
+
+    The step works on floats: its vectors have 2 to 4 components, where a numpy
+    call costs more than the arithmetic. The numpy functions of the other modules
+    are the reference form of each equation; tests/test_hot_path.py checks the
+    float forms used here against them, and this step against their composition.
+    """
 
     def __init__(
         self,
@@ -116,40 +122,54 @@ class AgentCore:
         v0_hat_init: np.ndarray,
     ) -> None:
         self.cfg = cfg
-        self.q0_hat = np.array(q0_hat_init, dtype=float)
-        self.v0_hat = np.array(v0_hat_init, dtype=float)
-        self.q_d = np.array(q_init, dtype=float)  # CLIK reference starts at the robot
-        self.v_d_prev: np.ndarray | None = None
-        self.z1_hat: np.ndarray | None = None  # set to the first measurement (see eso.py)
-        self.z2_hat = np.zeros(3)
-        self._r_i = np.array(cfg.offset, dtype=float)
-        self._weights = [w for _, w in cfg.neighbours]
+        self._q0_hat: Vec3 = _vec3(np.asarray(q0_hat_init, dtype=float))
+        self._v0_hat: Vec3 = _vec3(np.asarray(v0_hat_init, dtype=float))
+        self._q_d: Vec3 = _vec3(np.asarray(q_init, dtype=float))  # CLIK reference starts at the robot
+        self._v_d_prev: Vec3 | None = None
+        self._z1_hat: Vec3 | None = None  # set to the first measurement (see eso.py)
+        self._z2_hat: Vec3 = (0.0, 0.0, 0.0)
+        # constants of the step
+        self._r_i = (float(cfg.offset[0]), float(cfg.offset[1]))
+        self._scale0 = (float(cfg.initial_scale[0]), float(cfg.initial_scale[1]))
+        self._weights = [float(w) for _, w in cfg.neighbours]
+        self._rank = {name: k for k, name in enumerate(cfg.priority)}
+        self._law = ControlConstants.from_gains(cfg.controller)
+        self._model = ModelTerms.from_model(cfg.model)
         zeta, zeta_dot = self._offsets(0.0)
         self.initial_share = Share(
-            self.q0_hat.copy(), self.v0_hat.copy(), np.array(q_init, float),
-            np.array(q_dot_init, float), zeta, zeta_dot,
+            self.q0_hat, self.v0_hat, np.array(q_init, float), np.array(q_dot_init, float),
+            np.array(zeta), np.array(zeta_dot),
         )
 
-    def _offsets(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        cfg = self.cfg
-        scale, scale_dot = scale_at(t, cfg.initial_scale, cfg.scale_changes)
-        return offsets(
-            self._r_i, cfg.heading_offset, float(self.q0_hat[2]), float(self.v0_hat[2]),
-            scale, scale_dot,
+    @property
+    def q0_hat(self) -> np.ndarray:
+        """The leader pose estimate (advanced to the next step after a step)."""
+        return np.array(self._q0_hat)
+
+    @property
+    def v0_hat(self) -> np.ndarray:
+        """The leader velocity estimate (advanced to the next step after a step)."""
+        return np.array(self._v0_hat)
+
+    def _offsets(self, t: float) -> tuple[Vec3, Vec3]:
+        scale, scale_dot = scale_at_vec(t, self._scale0, self.cfg.scale_changes)
+        return offsets_vec(
+            self._r_i, self.cfg.heading_offset, self._q0_hat[2], self._v0_hat[2], scale, scale_dot
         )
 
     def _behaviors(
         self,
-        q: np.ndarray,
-        q_fd: np.ndarray,
-        v_fd: np.ndarray,
+        q: Vec3,
+        q_fd: Vec3,
+        v_fd: Vec3,
         obstacles: Sequence[Body],
         robots: Sequence[Body],
-    ) -> list[BehaviorOutput]:
+    ) -> list[Task]:
+        """The active behaviors, highest priority first."""
         cfg = self.cfg
-        out: list[BehaviorOutput] = []
+        out: list[Task] = []
         if "FDB" in cfg.enabled:
-            out.append(formation_behavior(q, q_fd, v_fd, cfg.fdb_gains))
+            out.append(formation_task(q, q_fd, v_fd, cfg.fdb_gains))
         # R_a is measured from an obstacle's surface (the paper's obstacles are
         # points), R_c from the other robot's centre, as printed.
         for name, bodies, safe, surface, gains in (
@@ -158,16 +178,17 @@ class AgentCore:
         ):
             if name not in cfg.enabled or not bodies:
                 continue
-            nearest = min(bodies, key=lambda b: float(np.hypot(*(q[:2] - b.position))) - b.radius)
-            out.append(
-                avoidance_behavior(
-                    name, q, nearest.position,
-                    cfg.robot_radius_m + nearest.radius,
-                    safe + (nearest.radius if surface else 0.0),
-                    float(q_fd[2]), float(v_fd[2]), gains,
-                )
+            nearest, nearest_xy = _nearest(bodies, q[0], q[1])
+            task = avoidance_task_of(
+                name, q, nearest_xy,
+                cfg.robot_radius_m + nearest.radius,
+                safe + (nearest.radius if surface else 0.0),
+                q_fd[2], v_fd[2], gains,
             )
-        return out
+            if task is not None:
+                out.append(task)
+        rank = self._rank
+        return sorted(out, key=lambda b: rank[b.name])
 
     def step(
         self,
@@ -182,71 +203,147 @@ class AgentCore:
     ) -> AgentOutput:
         """One control step. ``dt`` is the time to the next step: the configured
         period unless given (a realtime agent passes the time its plant actually
-        advanced, so a missed period does not stretch the observer's clock)."""
+        advanced, so a missed period does not stretch the observer's clock).
+
+        A law that diverges gives zero torques and ``nonfinite``, never an
+        exception: the float hot path raises where numpy would return inf/NaN
+        (x**r overflowing in sig(), cos(inf)), and that is the same outcome."""
+        try:
+            return self._step(t, q, q_dot, shares, leader, obstacles, robots, dt)
+        except (ArithmeticError, ValueError):
+            return self._diverged(q, q_dot)
+
+    def _diverged(self, q: np.ndarray, q_dot: np.ndarray) -> AgentOutput:
+        nan3 = np.full(3, np.nan)
+        zero3 = np.zeros(3)
+        return AgentOutput(
+            torques=np.zeros(4), v_cmd=zero3.copy(),
+            share=Share(self.q0_hat, self.v0_hat, q.copy(), q_dot.copy(), zero3.copy(),
+                        zero3.copy()),
+            tracking_error=nan3.copy(), sliding=nan3.copy(), q_d=np.array(self._q_d),
+            q_fd=nan3.copy(), order=(), task_errors={}, z2_hat=np.array(self._z2_hat),
+            nonfinite=True,
+        )
+
+    def _step(
+        self,
+        t: float,
+        q: np.ndarray,
+        q_dot: np.ndarray,
+        shares: Mapping[int, Share],
+        leader: tuple[np.ndarray, np.ndarray] | None,
+        obstacles: Sequence[Body],
+        robots: Sequence[Body],
+        dt: float | None,
+    ) -> AgentOutput:
         cfg = self.cfg
         h = cfg.dt if dt is None else dt
         nbr = [shares[j] for j, _ in cfg.neighbours]
+        qv: Vec3 = _vec3(q)
+        q_dot_v: Vec3 = _vec3(q_dot)
 
         # formation reference, eqs. (13), (16)
         zeta, zeta_dot = self._offsets(t)
-        q_fd, v_fd = desired_formation(
-            cfg.kappa1, cfg.kappa2, self.q0_hat, self.v0_hat, zeta, zeta_dot, self._weights,
-            [s.q for s in nbr], [s.q_dot for s in nbr], [s.zeta for s in nbr],
-            [s.zeta_dot for s in nbr],
+        if cfg.kappa2 != 0.0:
+            nbr_terms = [[_vec3(sh.q) for sh in nbr], [_vec3(sh.q_dot) for sh in nbr],
+                         [_vec3(sh.zeta) for sh in nbr], [_vec3(sh.zeta_dot) for sh in nbr]]
+        else:  # eq. (16) without its neighbour sum
+            nbr_terms = [[], [], [], []]
+        q_fd, v_fd = desired_formation_vec(
+            cfg.kappa1, cfg.kappa2, self._q0_hat, self._v0_hat, zeta, zeta_dot, self._weights,
+            *nbr_terms,
         )
 
         # behaviors (15)-(25), supervisor + fusion (26), explicit limits
-        chain = supervise(
-            order_by_priority(self._behaviors(q, q_fd, v_fd, obstacles, robots), cfg.priority),
-            cfg.avoidance_engage,
+        chain, v_fused = supervise_tasks(
+            self._behaviors(qv, q_fd, v_fd, obstacles, robots), cfg.avoidance_engage
         )
-        v_d = saturate_velocity(fuse(chain), cfg.max_speed_mps, cfg.max_yaw_rate_radps)
+        v_d = saturate_velocity_vec(v_fused, cfg.max_speed_mps, cfg.max_yaw_rate_radps)
 
         # dynamic level, eqs. (36), (40)-(42)
-        model = cfg.model
-        phi = float(q[2])
+        model = self._model
+        c, s_phi = cos(qv[2]), sin(qv[2])
         # Reference q_d(t): first-order hold of the v_d samples, one period late
         # (see controller.py): velocity v_d(k-1) at t_k, constant acceleration
         # q_d_ddot over [t_k, t_k+1] that the zero-order-hold torque can realise.
-        v_ref = v_d if self.v_d_prev is None else self.v_d_prev
-        q_d_ddot = (v_d - v_ref) / h
-        e = q - self.q_d
-        e_dot = q_dot - v_ref
-        if self.z1_hat is None:
-            self.z1_hat = e_dot.copy()
-        gamma, s = control_term(e, e_dot, self.z2_hat, cfg.controller)
-        generalised = q_d_ddot + model.A0 @ q_dot + model.A1(phi, q_dot) + gamma
-        torques = saturate_torques(
-            allocate(model.augmented_input(phi), generalised), cfg.max_wheel_torque_nm
+        v_ref = v_d if self._v_d_prev is None else self._v_d_prev
+        e = _sub(qv, self._q_d)
+        e_dot = _sub(q_dot_v, v_ref)
+        if self._z1_hat is None:
+            self._z1_hat = e_dot
+        gamma, s = control_term_vec(e, e_dot, self._z2_hat, self._law)
+        # u = B_bar^-1 [q_d_ddot + A0 q_dot + A1 + Gamma; 0], q_d_ddot = (v_d - v_ref) / h
+        a0 = matvec3(model.A0, q_dot_v)
+        a1 = coulomb_term(model, c, s_phi, q_dot_v)
+        generalised = (
+            (v_d[0] - v_ref[0]) / h + a0[0] + a1[0] + gamma[0],
+            (v_d[1] - v_ref[1]) / h + a0[1] + a1[1] + gamma[1],
+            (v_d[2] - v_ref[2]) / h + a0[2] + a1[2] + gamma[2],
         )
-        nonfinite = not bool(np.all(np.isfinite(torques)))
+        torques = saturate_torques_vec(
+            allocate_vec(model, c, s_phi, generalised), cfg.max_wheel_torque_nm
+        )
+        nonfinite = not _finite(torques)
         if nonfinite:
-            torques = np.zeros(4)
+            torques = (0.0, 0.0, 0.0, 0.0)
 
         # observer (39) and reference integration (CLIK, eq. 11)
-        self.z1_hat, self.z2_hat = eso_step(
-            self.z1_hat, self.z2_hat, e_dot, gamma, cfg.eso, h
+        self._z1_hat, self._z2_hat = eso_step_vec(
+            self._z1_hat, self._z2_hat, e_dot, gamma, cfg.eso, h
         )
-        q_d_now = self.q_d
-        self.q_d = self.q_d + 0.5 * h * (v_ref + v_d)
-        self.v_d_prev = v_d
+        q_d_now = self._q_d
+        half_h = 0.5 * h
+        self._q_d = (
+            q_d_now[0] + half_h * (v_ref[0] + v_d[0]),
+            q_d_now[1] + half_h * (v_ref[1] + v_d[1]),
+            q_d_now[2] + half_h * (v_ref[2] + v_d[2]),
+        )
+        self._v_d_prev = v_d
 
         # leader estimator (14), advanced to k+1 and shared
-        lq, lv = leader if leader is not None else (None, None)
-        self.q0_hat, self.v0_hat = estimator_step(
-            self.q0_hat, self.v0_hat, [s.q0_hat for s in nbr], [s.v0_hat for s in nbr],
-            self._weights, cfg.leader_weight, lq, lv, cfg.estimator, h,
+        lq, lv = (_vec3(leader[0]), _vec3(leader[1])) if leader is not None else (None, None)
+        self._q0_hat, self._v0_hat = estimator_step_vec(
+            self._q0_hat, self._v0_hat, [_vec3(sh.q0_hat) for sh in nbr],
+            [_vec3(sh.v0_hat) for sh in nbr], self._weights, cfg.leader_weight, lq, lv,
+            cfg.estimator, h,
         )
         share = Share(
-            self.q0_hat.copy(), self.v0_hat.copy(), q.copy(), q_dot.copy(), zeta, zeta_dot
+            self.q0_hat, self.v0_hat, q.copy(), q_dot.copy(), np.array(zeta), np.array(zeta_dot)
         )
-        if not bool(np.all(np.isfinite(v_d))):
+        if not _finite(v_d):
             nonfinite = True
-            v_d = np.zeros(3)  # a kinematic plant takes v_cmd: never a NaN either
+            v_d = (0.0, 0.0, 0.0)  # a kinematic plant takes v_cmd: never a NaN either
         return AgentOutput(
-            torques=torques, v_cmd=v_d, share=share, tracking_error=e, sliding=s,
-            q_d=q_d_now, q_fd=q_fd,
-            order=tuple(b.name for b in chain),
+            torques=np.array(torques), v_cmd=np.array(v_d), share=share,
+            tracking_error=np.array(e), sliding=np.array(s),
+            q_d=np.array(q_d_now), q_fd=np.array(q_fd),
+            order=tuple([b.name for b in chain]),
             task_errors={b.name: b.task_error for b in chain},
-            z2_hat=self.z2_hat, nonfinite=nonfinite,
+            z2_hat=np.array(self._z2_hat), nonfinite=nonfinite,
         )
+
+
+def _nearest(bodies: Sequence[Body], x: float, y: float) -> tuple[Body, Vec2]:
+    """The body whose surface is closest to (x, y) (the first of equals), and its position."""
+    best: tuple[Body, Vec2] | None = None
+    best_gap = 0.0
+    for b in bodies:
+        bx, by = b.position.tolist()
+        gap = hypot(x - bx, y - by) - b.radius
+        if best is None or gap < best_gap:
+            best, best_gap = (b, (bx, by)), gap
+    assert best is not None, "no bodies"
+    return best
+
+
+def _vec3(x: np.ndarray) -> Vec3:
+    """A 3-vector as floats (``tolist`` is the cheapest way out of numpy)."""
+    return tuple(x.tolist())  # type: ignore[return-value]
+
+
+def _sub(a: Vec3, b: Vec3) -> Vec3:
+    return a[0] - b[0], a[1] - b[1], a[2] - b[2]
+
+
+def _finite(x: Sequence[float]) -> bool:
+    return all(map(isfinite, x))

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.signals import sig
+from agents.signals import Vec3, sig, sig_scalar
 
 
 @dataclass(frozen=True)
@@ -47,3 +47,34 @@ def eso_step(
     z1_rate = gamma + z2_hat + gains.mu1 * sig(eps1, gains.r1)
     z2_rate = gains.mu2 * sig(eps1, gains.r2)
     return z1_hat + dt * z1_rate, z2_hat + dt * z2_rate
+
+
+# --- hot path: the same step on float triples (tests/test_hot_path.py checks it
+# against eso_step above) -------------------------------------------------------------
+
+
+def eso_step_vec(
+    z1_hat: Vec3,
+    z2_hat: Vec3,
+    z1_measured: Vec3,
+    gamma: Vec3,
+    gains: EsoGains,
+    dt: float,
+) -> tuple[Vec3, Vec3]:
+    """:func:`eso_step` on float triples: one explicit-Euler step of eq. (39)."""
+    mu1, mu2, r1, r2 = gains.mu1, gains.mu2, gains.r1, gains.r2
+    ax, ay, aw = z1_hat
+    bx, by, bw = z2_hat
+    gx, gy, gw = gamma
+    ex, ey, ew = z1_measured[0] - ax, z1_measured[1] - ay, z1_measured[2] - aw  # eps1
+    z1_next = (  # z1_hat' = Gamma + z2_hat + mu1 sig^r1(eps1)
+        ax + dt * (gx + bx + mu1 * sig_scalar(ex, r1)),
+        ay + dt * (gy + by + mu1 * sig_scalar(ey, r1)),
+        aw + dt * (gw + bw + mu1 * sig_scalar(ew, r1)),
+    )
+    z2_next = (  # z2_hat' = mu2 sig^r2(eps1)
+        bx + dt * (mu2 * sig_scalar(ex, r2)),
+        by + dt * (mu2 * sig_scalar(ey, r2)),
+        bw + dt * (mu2 * sig_scalar(ew, r2)),
+    )
+    return z1_next, z2_next

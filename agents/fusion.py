@@ -21,10 +21,12 @@ When an avoidance behavior (FOCB, FRCB) takes part is the scenario's choice:
 from __future__ import annotations
 
 from collections.abc import Sequence
+from math import hypot
 
 import numpy as np
 
-from agents.behaviors import BehaviorOutput, pinv_task_jacobian
+from agents.behaviors import BehaviorOutput, Task, pinv_task_jacobian
+from agents.signals import Vec3
 
 DEFAULT_PRIORITY = ("FOCB", "FRCB", "FDB")
 
@@ -78,3 +80,52 @@ def saturate_velocity(v: np.ndarray, max_speed: float, max_yaw_rate: float) -> n
         out[:2] *= max_speed / speed
     out[2] = float(np.clip(v[2], -max_yaw_rate, max_yaw_rate))
     return out
+
+
+# --- hot path: the same fusion on reduced tasks (behaviors.Task); tests/test_hot_path.py
+# checks it against supervise, fuse and saturate_velocity above --------------------------
+
+
+def project_null_space(task: Task, v: Vec3) -> Vec3:
+    """N v = v - J^+ (J v) with N = I - J^+ J of eq. (26); the heading row [0, 0, 1]
+    of J takes out the whole yaw component."""
+    k = task.inv_g2 * (task.gx * v[0] + task.gy * v[1])
+    return v[0] - task.gx * k, v[1] - task.gy * k, 0.0
+
+
+def fuse_tasks(ordered: Sequence[Task]) -> Vec3:
+    """:func:`fuse` for active tasks, highest priority first: eq. (26)."""
+    v = (0.0, 0.0, 0.0)
+    for task in reversed(ordered):
+        nx, ny, nw = project_null_space(task, v)
+        vx, vy, w = task.velocity
+        v = (vx + nx, vy + ny, w + nw)
+    return v
+
+
+def supervise_tasks(ordered: Sequence[Task], engage: str) -> tuple[list[Task], Vec3]:
+    """:func:`supervise` for active tasks, and the fused velocity of the chain it returns."""
+    avoiding = [b for b in ordered if b.name in AVOIDANCE]
+    if engage == "inside" or (engage == "approaching" and not avoiding):
+        return list(ordered), fuse_tasks(ordered)
+    if engage != "approaching":
+        raise ValueError(f"unknown avoidance engage mode {engage!r}")
+    engaged: set[str] = set()
+    while True:  # `engaged` only grows, at most once per avoidance behavior
+        chain = [b for b in ordered if b.name not in AVOIDANCE or b.name in engaged]
+        v = fuse_tasks(chain)
+        now = engaged | {b.name for b in avoiding if b.gx * v[0] + b.gy * v[1] < 0.0}  # J_1 v < 0
+        if now == engaged:
+            return chain, v
+        engaged = now
+
+
+def saturate_velocity_vec(v: Vec3, max_speed: float, max_yaw_rate: float) -> Vec3:
+    """:func:`saturate_velocity` on floats."""
+    vx, vy, w = v
+    speed = hypot(vx, vy)
+    if speed > max_speed:
+        k = max_speed / speed
+        vx, vy = vx * k, vy * k
+    w = -max_yaw_rate if w < -max_yaw_rate else max_yaw_rate if w > max_yaw_rate else w
+    return vx, vy, w
