@@ -188,6 +188,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="exit 1 unless every robot settles before sqrt(2) T_p with no contact")
     run.set_defaults(func=_cmd_run)
     add_node_commands(sub)
+    from deploy.bench import add_bench_command
+
+    add_bench_command(sub)
     return p
 
 

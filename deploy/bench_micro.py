@@ -1,0 +1,117 @@
+"""In-process costs underneath every figure of ``omnifleet bench``: one agent's
+math per step, one plant step per robot (pybullet and model), and the wire
+codec (encode + validated decode) per message type.
+
+Each function returns samples (one per repeat), each sample the median over many
+calls, so a short hiccup of a shared machine moves one sample, not the figure.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from agents.core import AgentCore
+from deploy.runner import make_plant, run_in_process
+from deploy.scenario import Scenario
+from deploy.wire import (
+    WIRE_VERSION,
+    Codec,
+    LeaderState,
+    NeighbourShare,
+    Perception,
+    RobotState,
+    SensedBody,
+    Telemetry,
+    WheelCommand,
+    encode,
+)
+
+
+def agent_step_us(sc: Scenario, duration_s: float, repeats: int) -> list[float]:
+    """Median wall time of AgentCore.step (µs), in closed loop on the model plant."""
+    samples = []
+    original = AgentCore.step
+    for _ in range(repeats):
+        times: list[int] = []
+
+        def timed(self, *args, times=times, **kwargs):
+            t0 = time.perf_counter_ns()
+            out = original(self, *args, **kwargs)
+            times.append(time.perf_counter_ns() - t0)
+            return out
+
+        AgentCore.step = timed  # type: ignore[method-assign]
+        try:
+            run_in_process(sc, "model", duration_s)
+        finally:
+            AgentCore.step = original  # type: ignore[method-assign]
+        samples.append(statistics.median(times) / 1e3)
+    return samples
+
+
+def plant_step_us_per_robot(sc: Scenario, kind: str, steps: int, repeats: int) -> list[float]:
+    """Median wall time of one plant step divided by the number of robots (µs)."""
+    rng = np.random.default_rng(1)
+    torques = rng.uniform(-0.01, 0.01, size=(steps, sc.n, 4))
+    v_cmd = np.zeros((sc.n, 3))
+    samples = []
+    for _ in range(repeats):
+        plant = make_plant(sc, kind)
+        try:
+            times = []
+            for k in range(steps):
+                t0 = time.perf_counter_ns()
+                plant.step(k * sc.dt, sc.dt, torques[k], v_cmd)
+                times.append(time.perf_counter_ns() - t0)
+        finally:
+            getattr(plant, "close", lambda: None)()
+        samples.append(statistics.median(times) / 1e3 / sc.n)
+    return samples
+
+
+def sample_messages(sc: Scenario) -> dict[str, object]:
+    """One realistic message of each type the control loop sends every step."""
+    rid = sc.robot_ids[0]
+    v3, v4 = (1.0, 2.0, 0.5), (0.1, -0.2, 0.3, -0.4)
+    body = SensedBody(sc.robot_ids[-1], (1.0, 2.0), (0.5, 0.5), 0.5)
+    obstacle = SensedBody(-1, (3.0, 1.0), (0.0, 0.0), 0.0)
+    return {
+        "RobotState": RobotState(WIRE_VERSION, 0, 7, 123, robot=rid, k=7, t=0.007, q=v3, q_dot=v3),
+        "Perception": Perception(WIRE_VERSION, 0, 7, 123, robot=rid, k=7, t=0.007,
+                                 robots=[body, body], obstacles=[obstacle, obstacle]),
+        "WheelCommand": WheelCommand(WIRE_VERSION, rid, 7, 123, robot=rid, k=7, t=0.007,
+                                     torques=v4, v_cmd=v3, state_seq=7, state_stamp_ns=123),
+        "NeighbourShare": NeighbourShare(WIRE_VERSION, rid, 7, 123, robot=rid, k=7,
+                                         q0_hat=v3, v0_hat=v3, q=v3, q_dot=v3, zeta=v3,
+                                         zeta_dot=v3),
+        "LeaderState": LeaderState(WIRE_VERSION, 0, 7, 123, k=7, t=0.007, q=v3, q_dot=v3),
+        "Telemetry": Telemetry(WIRE_VERSION, rid, 7, 123, robot=rid, k=7, t=0.007, q_d=v3,
+                               e=v3, s=v3, v_cmd=v3, torques=v4, q0_hat=v3, q_fd=v3,
+                               fdb_error=0.1, order="FOCB>FRCB>FDB", nonfinite=False),
+    }
+
+
+def codec_us(sc: Scenario, calls: int, repeats: int) -> dict[str, list[float]]:
+    """Median µs of encode + validated decode, per message type."""
+    codec = Codec(sc.robot_ids)
+    out: dict[str, list[float]] = {}
+    for name, msg in sample_messages(sc).items():
+        kind = type(msg)
+        robot = getattr(msg, "robot", None)
+        out[name] = [_median_us(lambda m=msg, k=kind, r=robot: codec.decode(k, encode(m), r), calls)
+                     for _ in range(repeats)]
+        assert codec.decode(kind, encode(msg), robot) == msg  # a benchmark of a codec that works
+    return out
+
+
+def _median_us(fn: Callable[[], object], calls: int) -> float:
+    times = []
+    for _ in range(calls):
+        t0 = time.perf_counter_ns()
+        fn()
+        times.append(time.perf_counter_ns() - t0)
+    return statistics.median(times) / 1e3
