@@ -176,8 +176,12 @@ class Launcher:
     def _check_children(self) -> None:
         for c in self.children:
             if self._reap(c, block=False) and not (self.ended and c.exit_code == 0):
-                if c.exit_code == 0 and c.role != PLANT_ROLE:
-                    continue  # a node that ended cleanly after ``end`` raced our flag
+                if c.exit_code == 0:
+                    # a node that ended cleanly after ``end`` raced our flag; the plant
+                    # exits 0 only after sending ``end``, which a launcher behind on a
+                    # large fleet's traffic may not have read yet
+                    self.ended = self.ended or c.role == PLANT_ROLE
+                    continue
                 raise RunFailed(
                     f"{c.role} (pid {c.proc.pid}) exited with code {c.exit_code}"
                     + (f"; its last output:\n{c.tail()}" if c.tail() else "")
@@ -305,8 +309,9 @@ class Launcher:
                 f"{c.role} (pid {c.proc.pid}) "
                 + ("did not exit" if c.exit_code is None else f"exited with code {c.exit_code}")
                 + (f"; its last output:\n{c.tail()}" if c.tail() else "") for c in bad))
-        # reports travel before the session closes; wait briefly for stragglers
-        node.mailbox.wait_until(lambda: len(self.collector.reports) >= len(roles), 2.0)
+        # reports travel before the session closes; wait for stragglers (a launcher
+        # behind on a large fleet's traffic reads them late)
+        node.mailbox.wait_until(lambda: len(self.collector.reports) >= len(roles), 10.0)
 
     def _figures(self, wall: float) -> dict[str, Any]:
         reports: dict[str, NodeReport] = dict(self.collector.reports)

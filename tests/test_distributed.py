@@ -10,6 +10,7 @@ import json
 import os
 import signal
 import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -234,3 +235,20 @@ def test_realtime_run_reports_latency_jitter_and_misses(tmp_path):
 def test_a_bad_fleet_name_is_refused_before_anything_starts():
     rc, _, err = finish(start("run", "paper", "--fleet", "a/b", "--duration", "0.1"), timeout=60)
     assert rc == 2 and "fleet name 'a/b'" in err
+
+
+def test_plant_exiting_cleanly_ends_the_run_even_before_end_is_read(tmp_path):
+    """The plant exits 0 only after publishing ``end``; a launcher behind on a large
+    fleet's traffic (30 robots in realtime) may see the exit first: that is the end
+    of the run, not a crash. Any other exit code is a failure naming the node."""
+    from deploy.launcher import Child, Launcher, LaunchOptions, RunFailed
+    from deploy.scenario import load_scenario
+
+    launcher = Launcher(load_scenario("lab"), LaunchOptions("lab", "model", "lockstep", tmp_path))
+    done = types.SimpleNamespace(pid=4242)  # an exited process: only its pid is read
+    launcher.children = [Child("plant", None, [], tmp_path / "plant.log", done, exit_code=0)]
+    launcher._check_children()
+    assert launcher.ended
+    launcher.children.append(Child("agent-2", 2, [], tmp_path / "agent-2.log", done, exit_code=1))
+    with pytest.raises(RunFailed, match="agent-2"):
+        launcher._check_children()
