@@ -41,3 +41,19 @@ def pids_with(text: str) -> set[int]:
             if text in cmd and int(d.name) != os.getpid():
                 found.add(int(d.name))
     return found
+
+
+def assert_same_series(a, b, atol: float = 1e-9) -> None:
+    """Two runs' TimeSeries agree column by column: floats within atol (NaN where
+    NaN), everything else exactly."""
+    import numpy as np
+
+    from deploy.timeseries import COLUMNS
+
+    assert a.steps == b.steps
+    for name in COLUMNS:
+        x, y = getattr(a, name), getattr(b, name)
+        if x.dtype.kind == "f":
+            assert np.allclose(x, y, rtol=0, atol=atol, equal_nan=True), name
+        else:
+            assert np.array_equal(x, y), name

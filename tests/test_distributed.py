@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from procs import finish, pids_with, start
+from procs import assert_same_series, finish, pids_with, start
 
 from deploy.launcher import free_tcp_port
 from deploy.metrics import control_figures
-from deploy.timeseries import COLUMNS, TimeSeries
+from deploy.timeseries import TimeSeries
 
 zenoh = pytest.importorskip("zenoh")
 
@@ -45,12 +45,7 @@ def test_lockstep_run_equals_the_in_process_reference(distributed_run, tmp_path)
     a = TimeSeries.load(distributed_run / "timeseries.npz")
     b = TimeSeries.load(tmp_path / "timeseries.npz")
     assert a.steps == b.steps == 300
-    for name in COLUMNS:
-        x, y = getattr(a, name), getattr(b, name)
-        if x.dtype.kind == "f":
-            assert np.allclose(x, y, rtol=0, atol=1e-9, equal_nan=True), name
-        else:
-            assert np.array_equal(x, y), name
+    assert_same_series(a, b)
     ma = json.loads((distributed_run / "metrics.json").read_text())
     mb = json.loads((tmp_path / "metrics.json").read_text())
     assert control_figures(ma) == control_figures(mb)

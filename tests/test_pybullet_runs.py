@@ -14,12 +14,11 @@ import os
 import re
 from pathlib import Path
 
-import numpy as np
 import pytest
-from procs import finish, pids_with, start
+from procs import assert_same_series, finish, pids_with, start
 
 from deploy.metrics import control_figures
-from deploy.timeseries import COLUMNS, TimeSeries
+from deploy.timeseries import TimeSeries
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -72,12 +71,7 @@ def test_distributed_pybullet_run_equals_in_process_contacts_included(no_avoidan
     assert rc == 0, err
     a, b = TimeSeries.load(dist / "timeseries.npz"), TimeSeries.load(ref / "timeseries.npz")
     assert a.steps == b.steps == 300
-    for name in COLUMNS:
-        x, y = getattr(a, name), getattr(b, name)
-        if x.dtype.kind == "f":
-            assert np.allclose(x, y, rtol=0, atol=1e-9, equal_nan=True), name
-        else:
-            assert np.array_equal(x, y), name
+    assert_same_series(a, b)
     ma, mb = metrics_of(dist), metrics_of(ref)
     assert ma["contacts"] >= 1 and ma["contact_log"][0]["body_a"] == 1
     assert control_figures(ma) == control_figures(mb)
