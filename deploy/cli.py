@@ -188,8 +188,14 @@ def build_parser() -> argparse.ArgumentParser:
                      help="exit 1 unless every robot settles before sqrt(2) T_p with no contact")
     run.set_defaults(func=_cmd_run)
     add_node_commands(sub)
+    from bridges.bridge_cli import add_bridge_commands
+    from bridges.can_check import add_can_check_command
+    from bridges.emulator_cli import add_emulate_command
     from deploy.bench import add_bench_command
 
+    add_bridge_commands(sub)
+    add_emulate_command(sub)
+    add_can_check_command(sub)
     add_bench_command(sub)
     return p
 

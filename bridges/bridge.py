@@ -1,0 +1,216 @@
+"""One robot's CAN bridge as a process: a zenoh peer in place of the simulated
+plant for that robot (DESIGN §8). Realtime only: hardware has no lockstep.
+
+- ``robot/i/cmd`` -> torque frames, sent as the command arrives (the gate of
+  :mod:`bridges.safety` clamps them to the scenario's limit);
+- every period: frames from the drivers -> :class:`DriverMonitor`; wheel speeds
+  -> odometry (eq. 1) -> ``robot/i/state`` (``faulted`` set on a driver error or
+  a missing heartbeat); ``robot/i/perception`` from the scenario's obstacles (the
+  map) and the other robots' published states;
+- a command older than the timeout, an e-stop or a fault -> zero torque frames
+  and idle axes; leaving (end, Ctrl-C, a lost peer) always zeroes and idles.
+"""
+
+from __future__ import annotations
+
+import queue
+import sys
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from bridges.monitor import DriverMonitor
+from bridges.odometry import Odometry
+from bridges.protocol import (
+    AXIS_STATE_CLOSED_LOOP_CONTROL,
+    AXIS_STATE_IDLE,
+    CONTROL_MODE_TORQUE_CONTROL,
+    INPUT_MODE_PASSTHROUGH,
+    ClearErrors,
+    Estop,
+    SetAxisState,
+    SetControllerMode,
+    SetInputTorque,
+)
+from bridges.safety import ZERO, CommandGate, Decision
+from deploy.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
+from deploy.scenario import Scenario
+from deploy.transport import Node
+from deploy.wire import (
+    WIRE_VERSION,
+    Control,
+    Perception,
+    RobotState,
+    SensedBody,
+    WheelCommand,
+)
+from plant.perception import sense
+
+
+def bridge_role(robot: int) -> str:
+    return f"bridge-{robot}"
+
+
+class BridgeNode:
+    def __init__(self, sc: Scenario, robot_id: int, node: Node, stop: StopFlag, bus: Any,
+                 protocol: Any, node_ids: list[int], command_timeout_s: float = 0.1,
+                 heartbeat_timeout_s: float = 0.35) -> None:
+        self.sc, self.rid, self.node, self.stop = sc, robot_id, node, stop
+        self.index = sc.index_of(robot_id)
+        self.bus, self.protocol, self.node_ids = bus, protocol, list(node_ids)
+        q0, _ = sc.initial_state()
+        self.odometry = Odometry(sc.model(), q0[self.index])
+        self.gate = CommandGate(command_timeout_s, sc.spec.limits.max_wheel_torque_nm)
+        self.monitor = DriverMonitor(self.node_ids, heartbeat_timeout_s, time.monotonic())
+        self.timing = Timing()
+        self.steps_done = 0
+        self.armed = False
+        self.last_reason = ""
+        self.frames_sent = 0
+        self.zeroed_at: float | None = None  # first zero-torque frames after a command stopped
+        self.last_command_at: float | None = None
+        self._send_lock = threading.Lock()
+        self._frames: queue.SimpleQueue = queue.SimpleQueue()
+        # the other robots, for perception: their published states (initially the scenario's)
+        self.positions, self.velocities = q0[:, :2].copy(), np.zeros((sc.n, 2))
+        node.subscribe(node.keys.cmd(robot_id), WheelCommand, self._on_cmd, robot=robot_id)
+        for j, rid in enumerate(sc.robot_ids):
+            if rid != robot_id:
+                node.subscribe(node.keys.robot_state(rid), RobotState,
+                               lambda m, j=j: self._on_other(j, m), robot=rid)
+        self.control = ControlInbox(node, stop)
+        node.subscribe(node.keys.ctl_all, Control, self._on_ctl)
+        self._reader = threading.Thread(target=self._read_bus, name="can-rx", daemon=True)
+        self._reader.start()
+        node.declare_alive()
+
+    # -- inputs -----------------------------------------------------------------------
+    def _read_bus(self) -> None:
+        while not self.stop():
+            try:
+                frame = self.bus.recv(timeout=0.05)
+            except Exception as exc:  # a bus that failed: faulted by missing heartbeats
+                print(f"{self.node.role}: CAN receive failed: {exc}", file=sys.stderr)
+                time.sleep(0.05)
+                continue
+            if frame is not None:
+                self._frames.put((time.monotonic(), frame))
+
+    def _on_other(self, j: int, m: RobotState) -> None:  # under the mailbox lock
+        self.positions[j] = m.q[:2]
+        self.velocities[j] = m.q_dot[:2]
+
+    def _on_ctl(self, m: Control) -> None:  # under the mailbox lock
+        if m.command == "estop":
+            self.gate.estop()
+            self._send_all(lambda n: Estop(n))
+
+    def _on_cmd(self, m: WheelCommand) -> None:  # under the mailbox lock
+        arrived = time.monotonic()
+        self.gate.command(m.torques, arrived)
+        self.last_command_at = arrived
+        self.zeroed_at = None
+        if self.armed:  # torque on the bus now, not at the next period
+            self._apply(self.gate.decide(arrived, self.monitor.faulted(arrived)))
+            self.timing.add_latency(time.monotonic_ns() - int(arrived * 1e9))
+
+    # -- outputs ----------------------------------------------------------------------
+    def _send(self, msg: object) -> None:
+        frame = self.protocol.encode(msg)
+        with self._send_lock:
+            try:
+                self.bus.send(frame)
+                self.frames_sent += 1
+            except Exception as exc:
+                self.node.counters.dropped += 1
+                if self.node.counters.dropped <= 5:
+                    print(f"{self.node.role}: CAN send failed: {exc}", file=sys.stderr)
+
+    def _send_all(self, make) -> None:
+        for n in self.node_ids:
+            self._send(make(n))
+
+    def arm(self) -> None:
+        self._send_all(lambda n: ClearErrors(n))
+        self._send_all(lambda n: SetControllerMode(n, CONTROL_MODE_TORQUE_CONTROL,
+                                                   INPUT_MODE_PASSTHROUGH))
+        self._send_all(lambda n: SetAxisState(n, AXIS_STATE_CLOSED_LOOP_CONTROL))
+        self.armed = True
+
+    def disarm(self) -> None:
+        self._send_all(lambda n: SetInputTorque(n, 0.0))
+        self._send_all(lambda n: SetAxisState(n, AXIS_STATE_IDLE))
+        self.armed = False
+
+    def _apply(self, d: Decision) -> None:
+        for n, tau in zip(self.node_ids, d.torques, strict=True):
+            self._send(SetInputTorque(n, tau))
+        if d.torques == ZERO and self.zeroed_at is None and self.last_command_at is not None:
+            self.zeroed_at = time.monotonic()
+        self.last_reason = d.reason
+
+    # -- the loop ---------------------------------------------------------------------
+    def run_realtime(self, t0_mono: float, steps: int) -> None:
+        dt = self.sc.dt
+        ticker = Periodic(t0_mono, dt, self.timing)
+        last = None
+        try:
+            while not self.stop():
+                k = ticker.wait_next(self.stop)
+                if k is None or k >= steps:
+                    break
+                now = time.monotonic()
+                while True:
+                    try:
+                        at, frame = self._frames.get_nowait()
+                    except queue.Empty:
+                        break
+                    msg = self.protocol.decode(frame)
+                    if msg is not None:
+                        self.monitor.feed(msg, at)
+                self.odometry.update(self.monitor.wheel_speeds_radps(),
+                                     dt if last is None else now - last)
+                last = now
+                faulted = self.monitor.faulted(now)
+                with self.node.mailbox.lock:
+                    d = self.gate.decide(now, faulted)
+                    if d.armed and not self.armed:
+                        self.arm()
+                    elif not d.armed and self.armed:
+                        self.disarm()
+                    if d.armed or self.last_reason != d.reason:
+                        self._apply(d)
+                self._publish(k, k * dt, faulted)
+                self.steps_done += 1
+        finally:
+            with self.node.mailbox.lock:
+                self.disarm()  # whatever ended the loop, the robot stops pushing
+
+    def _publish(self, k: int, t: float, faulted: bool) -> None:
+        node, keys, i = self.node, self.node.keys, self.index
+        q, qd = self.odometry.q, self.odometry.q_dot
+        with node.mailbox.lock:
+            pos, vel = self.positions.copy(), self.velocities.copy()
+        pos[i], vel[i] = q[:2], qd[:2]
+        sc = self.sc
+        robots, obstacles = sense(i, pos, vel, [sc.spec.robot.body_radius_m] * sc.n, sc.robot_ids,
+                                  sc.obstacle_bodies(), sc.spec.behaviors.detection_range_m)
+
+        def bodies(bs):
+            return [SensedBody(b.ident, tuple(b.position.tolist()), tuple(b.velocity.tolist()),
+                               float(b.radius)) for b in bs]
+
+        node.publish(keys.perception(self.rid), lambda seq, stamp: Perception(
+            WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, robots=bodies(robots),
+            obstacles=bodies(obstacles)))
+        node.publish(keys.robot_state(self.rid), lambda seq, stamp: RobotState(
+            WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, q=tuple(q.tolist()),
+            q_dot=tuple(qd.tolist()), faulted=faulted))
+
+    def handshake(self, timeout_s: float) -> None:
+        self.node.declare_ready()
+
+    def finish(self) -> None:
+        publish_report(self.node, self.rid, self.steps_done, self.timing)

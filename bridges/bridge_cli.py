@@ -1,0 +1,65 @@
+"""``omnifleet bridge`` (one robot's CAN bridge, a zenoh peer) and
+``omnifleet can-check`` (bring-up: who answers on a bus)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from bridges.can_options import CanBusError, add_can_options, open_bus
+from deploy.node_cli import _common, _run_node, _steps
+
+EXIT_BAD_INPUT = 2
+
+
+def _cmd_bridge(args: argparse.Namespace) -> int:
+    from bridges.bridge import BridgeNode, bridge_role
+    from bridges.protocol import OdriveCanSimple
+    from deploy.scenario import load_scenario
+
+    if args.clock != "realtime":
+        print("omnifleet bridge: hardware runs on its own clock: use --clock realtime",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    load_scenario(args.scenario).index_of(args.robot)  # fail fast, before the bus
+    try:
+        bus = open_bus(args)
+    except CanBusError as exc:
+        print(f"omnifleet bridge: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+    def build(sc, node, stop):
+        return BridgeNode(sc, args.robot, node, stop, bus, OdriveCanSimple(args.node_ids),
+                          list(args.node_ids), args.command_timeout, args.heartbeat_timeout)
+
+    def realtime(obj, sc):
+        t0 = time.monotonic() if args.self_start else obj.control.wait_for_start(
+            args.startup_timeout)
+        if t0 is not None:
+            obj.run_realtime(t0, _steps(sc, args))
+
+    try:
+        return _run_node(args, bridge_role(args.robot), args.robot, build, None, realtime)
+    finally:
+        bus.shutdown()
+
+
+def add_bridge_commands(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "bridge", help="run one robot's CAN bridge (in place of the plant for that robot)",
+        description="Drives a robot's four motor drivers (ODrive CANSimple) from robot/<id>/cmd "
+        "and publishes robot/<id>/state from their encoders (odometry, eq. 1). Zero torque and "
+        "idle axes when the command is older than --command-timeout, on e-stop, on a driver "
+        "error or a missing heartbeat, and whenever the bridge leaves.")
+    _common(p)
+    p.set_defaults(clock="realtime")
+    p.add_argument("--robot", type=int, required=True, metavar="ID", help="the robot's id")
+    add_can_options(p)
+    p.add_argument("--command-timeout", type=float, default=0.1, metavar="S",
+                   help="zero torque when the newest command is older than this (default: 0.1)")
+    p.add_argument("--heartbeat-timeout", type=float, default=0.35, metavar="S",
+                   help="a driver silent this long faults the robot (default: 0.35)")
+    p.add_argument("--self-start", action="store_true",
+                   help="start the clock now instead of waiting for ctl/start (bring-up)")
+    p.set_defaults(func=_cmd_bridge)

@@ -1,0 +1,69 @@
+"""The CAN bus options every CAN command shares (bridge, emulate, can-check), and
+opening the bus they name with a clear error."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+
+class CanBusError(RuntimeError):
+    """The bus the options name cannot be opened (exit code 2 at the CLI)."""
+
+
+def parse_node_ids(text: str) -> tuple[int, ...]:
+    try:
+        ids = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        ids = ()
+    if len(ids) != 4 or len(set(ids)) != 4 or not all(0 <= i <= 63 for i in ids):
+        raise argparse.ArgumentTypeError(f"expected 4 distinct node ids in 0..63 (the wheel "
+                                         f"order of eq. 1), got {text!r}")
+    return ids
+
+
+def parse_can_arg(text: str) -> tuple[str, int | str]:
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"{text!r}: expected KEY=VALUE, e.g. port=43114")
+    return key, int(value) if value.lstrip("-").isdigit() else value
+
+
+class _Collect(argparse.Action):
+    def __call__(self, parser, namespace, value, option_string=None):
+        got = dict(getattr(namespace, self.dest, None) or {})
+        got.update([value])
+        setattr(namespace, self.dest, got)
+
+
+def add_can_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--can-interface", required=True, metavar="IFACE",
+                   help="python-can interface: virtual (this process only), udp_multicast (across "
+                   "processes and machines, no kernel module), socketcan, pcan, kvaser, slcan, ...")
+    p.add_argument("--can-channel", required=True, metavar="CH",
+                   help="the interface's channel: a name for virtual, a multicast group address "
+                   "for udp_multicast (e.g. 239.74.163.2), can0 for socketcan")
+    p.add_argument("--bitrate", type=int, metavar="B", help="bus bitrate, for interfaces that take one")
+    p.add_argument("--can-arg", type=parse_can_arg, action=_Collect, metavar="KEY=VALUE",
+                   help="an interface-specific bus option, repeatable (e.g. port=43114 for "
+                   "udp_multicast: every group on one port is heard by every bus on that port)")
+    p.add_argument("--node-ids", type=parse_node_ids, default=(0, 1, 2, 3), metavar="A,B,C,D",
+                   help="CAN node ids of the wheels' drives, in the wheel order of the model "
+                   "(default: 0,1,2,3)")
+
+
+def open_bus(args: argparse.Namespace) -> Any:
+    """The python-can bus the options name; CanBusError with the reason otherwise."""
+    import can
+
+    if args.can_interface not in can.VALID_INTERFACES:
+        raise CanBusError(f"unknown --can-interface {args.can_interface!r}; python-can knows "
+                          f"{', '.join(sorted(can.VALID_INTERFACES))}")
+    kwargs: dict[str, Any] = dict(getattr(args, "can_arg", None) or {})
+    if args.bitrate is not None:
+        kwargs["bitrate"] = args.bitrate
+    try:
+        return can.Bus(interface=args.can_interface, channel=args.can_channel, **kwargs)
+    except Exception as exc:  # python-can raises many kinds for a bad channel or option
+        raise CanBusError(f"cannot open CAN bus {args.can_interface}:{args.can_channel}: "
+                          f"{exc}") from None

@@ -1,0 +1,68 @@
+"""The four drivers as the bridge last heard them: wheel speeds from encoder
+estimates, axis states and errors from heartbeats. Pure bookkeeping fed with
+decoded frames and the bridge's clock; no I/O.
+
+A robot is **faulted** when any axis reports an error, or when an axis that was
+heard has been silent (no heartbeat) for longer than ``heartbeat_timeout_s``, or
+when an axis was never heard ``heartbeat_timeout_s`` after the bridge started.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import pi
+
+import numpy as np
+
+from bridges.protocol import DriverErrors, EncoderEstimate, Heartbeat
+
+
+@dataclass
+class AxisView:
+    node: int
+    heartbeat_at: float | None = None
+    axis_state: int = 0
+    axis_error: int = 0
+    active_errors: int = 0
+    encoder_at: float | None = None
+    velocity_rev_s: float = 0.0
+    position_rev: float = 0.0
+
+
+class DriverMonitor:
+    def __init__(self, node_ids: list[int] | tuple[int, ...], heartbeat_timeout_s: float,
+                 started_at: float) -> None:
+        self.axes = [AxisView(n) for n in node_ids]
+        self._by_node = {a.node: a for a in self.axes}
+        self.heartbeat_timeout_s = heartbeat_timeout_s
+        self.started_at = started_at
+
+    def feed(self, msg: object, now_s: float) -> None:
+        axis = self._by_node.get(getattr(msg, "node", -1))
+        if axis is None:
+            return
+        if isinstance(msg, Heartbeat):
+            axis.heartbeat_at = now_s
+            axis.axis_state, axis.axis_error = msg.axis_state, msg.axis_error
+        elif isinstance(msg, EncoderEstimate):
+            axis.encoder_at = now_s
+            axis.velocity_rev_s, axis.position_rev = msg.velocity_rev_s, msg.position_rev
+        elif isinstance(msg, DriverErrors):
+            axis.active_errors = msg.active_errors
+
+    def wheel_speeds_radps(self) -> np.ndarray:
+        """Last reported wheel speeds, in the wheel order of eq. (1)."""
+        return np.array([a.velocity_rev_s for a in self.axes]) * (2.0 * pi)
+
+    def fault_reasons(self, now_s: float) -> list[str]:
+        out = []
+        for a in self.axes:
+            if a.axis_error or a.active_errors:
+                out.append(f"node {a.node}: error 0x{a.axis_error | a.active_errors:x}")
+            last = a.heartbeat_at if a.heartbeat_at is not None else self.started_at
+            if now_s - last > self.heartbeat_timeout_s:
+                out.append(f"node {a.node}: no heartbeat for {now_s - last:.2f} s")
+        return out
+
+    def faulted(self, now_s: float) -> bool:
+        return bool(self.fault_reasons(now_s))

@@ -1,0 +1,473 @@
+"""Motor-driver CAN protocols: frames as typed values, encoded and decoded.
+
+Pure encoding: no bus I/O here (the bridge and the emulator own their buses).
+One protocol is implemented, ODrive CANSimple (firmware 0.5/0.6 style); a CiA 402
+(CANopen) driver can follow behind the same small :class:`DriverProtocol`
+interface.
+
+ODrive CANSimple
+----------------
+* 11-bit standard frames; arbitration id = ``node_id << 5 | cmd_id`` (node 0..63);
+  little-endian payloads. The frame layouts live in ``odrive_cansimple.dbc``
+  (messages given for node 0) and are encoded/decoded by cantools.
+* Drive -> host: Heartbeat (cyclic), Get_Encoder_Estimates (cyclic), Get_Error and
+  Get_Bus_Voltage_Current (on request). Host -> drive: Estop, Set_Axis_State,
+  Set_Controller_Mode, Set_Input_Torque, Clear_Errors, and remote (RTR) frames
+  requesting a drive -> host message (:class:`Request`).
+* Accepted lengths: from the bytes the signals need up to the DBC length (8 for
+  every frame with a payload, 0 for Estop, 1 for Clear_Errors). So a 4-byte
+  Set_Input_Torque, as some ODrive tools send it, is accepted; we always send the
+  DBC length.
+* **No payload checksum.** CANSimple frames carry no CRC or counter of their own, so
+  bit corruption that yields plausible values (a finite float, a known state) cannot
+  be detected here. On a real bus the CAN CRC-15 catches that; what this module
+  rejects are the implausible leftovers: non-finite floats, unknown state or mode
+  values, magnitudes beyond the configured bounds, wrong lengths.
+
+``decode`` never raises: a frame that is not a valid frame for this role is
+counted in :class:`FrameCounters` and ``None`` is returned. ``encode`` raises
+``ValueError`` for a value that ``decode`` would reject, so everything sent is
+decodable.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Literal, Protocol, runtime_checkable
+
+import can
+import cantools
+
+DBC_PATH = Path(__file__).resolve().parent / "odrive_cansimple.dbc"
+
+# --- command ids (cmd_id, the low 5 bits of the arbitration id) -------------------
+CMD_HEARTBEAT = 0x001
+CMD_ESTOP = 0x002
+CMD_GET_ERROR = 0x003
+CMD_SET_AXIS_STATE = 0x007
+CMD_GET_ENCODER_ESTIMATES = 0x009
+CMD_SET_CONTROLLER_MODE = 0x00B
+CMD_SET_INPUT_TORQUE = 0x00E
+CMD_GET_BUS_VOLTAGE_CURRENT = 0x017
+CMD_CLEAR_ERRORS = 0x018
+MAX_NODE_ID = 63  # 6 bits: node_id << 5 | cmd_id fits an 11-bit id
+
+# --- axis states (ODrive AXIS_STATE_*) ----------------------------------------------
+AXIS_STATE_UNDEFINED = 0
+AXIS_STATE_IDLE = 1  # motor off, no torque
+AXIS_STATE_CLOSED_LOOP_CONTROL = 8  # the controller runs; torque setpoints are applied
+# every state value ODrive firmware defines (5, sensorless control, was removed)
+AXIS_STATES = frozenset({0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11, 12, 13, 14})
+MAX_PROCEDURE_RESULT = 15  # 0 SUCCESS, 1 BUSY, 2 CANCELLED, 3 DISARMED, ... 15
+
+# --- controller modes (ODrive CONTROL_MODE_* / INPUT_MODE_*) -------------------------
+CONTROL_MODE_VOLTAGE_CONTROL = 0
+CONTROL_MODE_TORQUE_CONTROL = 1  # Input_Torque is the motor torque setpoint
+CONTROL_MODE_VELOCITY_CONTROL = 2
+CONTROL_MODE_POSITION_CONTROL = 3  # ODrive's power-up default
+INPUT_MODE_INACTIVE = 0
+INPUT_MODE_PASSTHROUGH = 1  # setpoints applied as received (no ramp/filter); ODrive's default
+MAX_CONTROL_MODE = 3
+MAX_INPUT_MODE = 8
+
+# --- axis error bits (ODrive 0.5 AXIS_ERROR_*; Heartbeat.Axis_Error, Get_Error) -------
+AXIS_ERROR_NONE = 0x0
+AXIS_ERROR_INVALID_STATE = 0x1  # a requested state was refused (see the emulator)
+AXIS_ERROR_WATCHDOG_TIMER_EXPIRED = 0x800  # no Set_Input_Torque within the watchdog timeout
+AXIS_ERROR_ESTOP_REQUESTED = 0x4000  # an Estop frame was received
+
+# plausibility bounds of the bus measurements (an ODrive bus is at most 56 V)
+MAX_BUS_VOLTAGE_V = 100.0
+MAX_ABS_BUS_CURRENT_A = 1000.0
+UINT32_MAX = 0xFFFF_FFFF
+
+Role = Literal["host", "drive"]
+
+
+# --- frames --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Heartbeat:
+    """Drive -> host, cyclic: latched errors, state, last procedure's result."""
+
+    node: int
+    axis_error: int
+    axis_state: int
+    procedure_result: int = 0
+    trajectory_done: bool = True
+
+
+@dataclass(frozen=True)
+class EncoderEstimate:
+    """Drive -> host, cyclic: wheel angle (turns, integrated) and speed (turns/s)."""
+
+    node: int
+    position_rev: float
+    velocity_rev_s: float
+
+
+@dataclass(frozen=True)
+class DriverErrors:
+    """Drive -> host (Get_Error), on request: latched errors, cause of the last disarm."""
+
+    node: int
+    active_errors: int
+    disarm_reason: int
+
+
+@dataclass(frozen=True)
+class BusVoltageCurrent:
+    """Drive -> host (Get_Bus_Voltage_Current), on request."""
+
+    node: int
+    voltage_v: float
+    current_a: float
+
+
+@dataclass(frozen=True)
+class SetAxisState:
+    node: int
+    state: int
+
+
+@dataclass(frozen=True)
+class SetControllerMode:
+    node: int
+    control_mode: int
+    input_mode: int
+
+
+@dataclass(frozen=True)
+class SetInputTorque:
+    node: int
+    torque_nm: float
+
+
+@dataclass(frozen=True)
+class ClearErrors:
+    node: int
+
+
+@dataclass(frozen=True)
+class Estop:
+    node: int
+
+
+@dataclass(frozen=True)
+class Request:
+    """Host -> drive remote (RTR) frame asking for a drive -> host message ``cmd``."""
+
+    node: int
+    cmd: int
+
+
+Frame = (Heartbeat | EncoderEstimate | DriverErrors | BusVoltageCurrent | SetAxisState
+         | SetControllerMode | SetInputTorque | ClearErrors | Estop | Request)
+REQUESTABLE = frozenset({CMD_HEARTBEAT, CMD_GET_ERROR, CMD_GET_ENCODER_ESTIMATES,
+                         CMD_GET_BUS_VOLTAGE_CURRENT})
+
+
+@dataclass
+class FrameCounters:
+    """What ``decode`` made of the frames it was given (each frame counted once)."""
+
+    decoded: int = 0
+    unknown_id: int = 0  # a node id not ours, or a cmd id not in this protocol
+    bad_length: int = 0  # DLC outside [bytes the signals need, DBC length]
+    invalid: int = 0  # non-finite float, unknown state/mode value, implausible magnitude
+    ignored_direction: int = 0  # a host->drive frame seen by the host, or vice versa
+    other_frame: int = 0  # extended id, error frame, CAN FD: not CANSimple
+
+    def as_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+    @property
+    def rejected(self) -> int:
+        return self.unknown_id + self.bad_length + self.invalid + self.ignored_direction \
+            + self.other_frame
+
+
+@runtime_checkable
+class DriverProtocol(Protocol):
+    """A motor-driver protocol: typed frames <-> ``can.Message``, no bus I/O.
+
+    ``decode`` never raises (``None`` + a counter for a frame it cannot use).
+    The arming helpers let a bridge drive any protocol the same way.
+    """
+
+    name: str
+    counters: FrameCounters
+
+    def encode(self, msg: Any) -> can.Message: ...
+
+    def decode(self, frame: can.Message) -> Any | None: ...
+
+    def arm_frames(self, node: int) -> list[can.Message]: ...
+
+    def disarm_frames(self, node: int) -> list[can.Message]: ...
+
+    def torque_frame(self, node: int, torque_nm: float) -> can.Message: ...
+
+
+# --- ODrive CANSimple ----------------------------------------------------------------
+@dataclass(frozen=True)
+class _Spec:
+    cmd: int
+    dbc_name: str
+    to_signals: Callable[[Any], dict[str, float | int]]
+    from_signals: Callable[[int, dict[str, Any]], Frame]
+    min_length: int | None = None  # None: the bytes the signals need
+
+
+_SPECS: dict[type, _Spec] = {
+    Heartbeat: _Spec(
+        CMD_HEARTBEAT, "Heartbeat",
+        lambda m: {"Axis_Error": m.axis_error, "Axis_State": m.axis_state,
+                   "Procedure_Result": m.procedure_result,
+                   "Trajectory_Done_Flag": int(bool(m.trajectory_done))},
+        lambda n, s: Heartbeat(n, int(s["Axis_Error"]), int(s["Axis_State"]),
+                               int(s["Procedure_Result"]), bool(s["Trajectory_Done_Flag"]))),
+    Estop: _Spec(CMD_ESTOP, "Estop", lambda m: {}, lambda n, s: Estop(n)),
+    DriverErrors: _Spec(
+        CMD_GET_ERROR, "Get_Error",
+        lambda m: {"Active_Errors": m.active_errors, "Disarm_Reason": m.disarm_reason},
+        lambda n, s: DriverErrors(n, int(s["Active_Errors"]), int(s["Disarm_Reason"]))),
+    SetAxisState: _Spec(
+        CMD_SET_AXIS_STATE, "Set_Axis_State",
+        lambda m: {"Axis_Requested_State": m.state},
+        lambda n, s: SetAxisState(n, int(s["Axis_Requested_State"]))),
+    EncoderEstimate: _Spec(
+        CMD_GET_ENCODER_ESTIMATES, "Get_Encoder_Estimates",
+        lambda m: {"Pos_Estimate": m.position_rev, "Vel_Estimate": m.velocity_rev_s},
+        lambda n, s: EncoderEstimate(n, float(s["Pos_Estimate"]), float(s["Vel_Estimate"]))),
+    SetControllerMode: _Spec(
+        CMD_SET_CONTROLLER_MODE, "Set_Controller_Mode",
+        lambda m: {"Control_Mode": m.control_mode, "Input_Mode": m.input_mode},
+        lambda n, s: SetControllerMode(n, int(s["Control_Mode"]), int(s["Input_Mode"]))),
+    SetInputTorque: _Spec(
+        CMD_SET_INPUT_TORQUE, "Set_Input_Torque",
+        lambda m: {"Input_Torque": m.torque_nm},
+        lambda n, s: SetInputTorque(n, float(s["Input_Torque"]))),
+    BusVoltageCurrent: _Spec(
+        CMD_GET_BUS_VOLTAGE_CURRENT, "Get_Bus_Voltage_Current",
+        lambda m: {"Bus_Voltage": m.voltage_v, "Bus_Current": m.current_a},
+        lambda n, s: BusVoltageCurrent(n, float(s["Bus_Voltage"]), float(s["Bus_Current"]))),
+    ClearErrors: _Spec(CMD_CLEAR_ERRORS, "Clear_Errors", lambda m: {"Identify": 0},
+                       lambda n, s: ClearErrors(n), min_length=0),  # Identify is optional
+}
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """One DBC message as the codec uses it."""
+
+    spec: _Spec
+    message: Any  # cantools Message
+    length: int  # DBC length: what we send, the most we accept
+    min_length: int  # bytes the signals need: the least we accept
+    to_host: bool  # sent by the drive
+
+
+_DB_CACHE: list[Any] = []
+
+
+def load_dbc() -> Any:
+    """The CANSimple DBC as a cantools database (parsed once per process)."""
+    if not _DB_CACHE:
+        _DB_CACHE.append(cantools.database.load_file(str(DBC_PATH)))
+    return _DB_CACHE[0]
+
+
+def arbitration_id(node: int, cmd: int) -> int:
+    """node_id << 5 | cmd_id."""
+    return (node << 5) | cmd
+
+
+def _finite(*xs: float) -> bool:
+    return all(math.isfinite(x) for x in xs)
+
+
+def _uint32(*xs: int) -> bool:
+    return all(isinstance(x, int) and 0 <= x <= UINT32_MAX for x in xs)
+
+
+class OdriveCanSimple:
+    """ODrive CANSimple for the drives ``node_ids``, seen from ``role``.
+
+    ``role="host"`` decodes what drives send (heartbeats, estimates, errors, bus
+    measurements); ``role="drive"`` decodes what a host sends (commands, requests).
+    A frame of the other direction is counted as ``ignored_direction``.
+    """
+
+    name = "odrive-cansimple"
+
+    def __init__(self, node_ids: Sequence[int], max_abs_velocity_rev_s: float = 1e4,
+                 max_abs_torque_nm: float = 1e3, role: Role = "host") -> None:
+        ids = [int(n) for n in node_ids]
+        if not ids or any(not 0 <= n <= MAX_NODE_ID for n in ids) or len(set(ids)) != len(ids):
+            raise ValueError(f"node ids must be distinct integers in 0..{MAX_NODE_ID}, got {ids}")
+        if role not in ("host", "drive"):
+            raise ValueError(f"role must be 'host' or 'drive', got {role!r}")
+        if not (max_abs_velocity_rev_s > 0 and max_abs_torque_nm > 0):
+            raise ValueError("the velocity and torque bounds must be positive")
+        self.node_ids = frozenset(ids)
+        self.role: Role = role
+        self.max_abs_velocity_rev_s = float(max_abs_velocity_rev_s)
+        self.max_abs_torque_nm = float(max_abs_torque_nm)
+        self.counters = FrameCounters()
+        db = load_dbc()
+        self._by_type: dict[type, _Layout] = {}
+        self._by_cmd: dict[int, _Layout] = {}
+        for cls, spec in _SPECS.items():
+            m = db.get_message_by_name(spec.dbc_name)
+            if m.frame_id != spec.cmd:
+                raise RuntimeError(f"{DBC_PATH.name}: {spec.dbc_name} has id {m.frame_id:#x}, "
+                                   f"expected {spec.cmd:#x}")
+            need = max(((s.start + s.length + 7) // 8 for s in m.signals), default=0)
+            if spec.min_length is not None:
+                need = spec.min_length
+            layout = _Layout(spec, m, m.length, need, "ODrive" in m.senders)
+            self._by_type[cls] = layout
+            self._by_cmd[spec.cmd] = layout
+
+    # --- plausibility, shared by encode and decode ---------------------------------
+    def problem(self, msg: Frame) -> str | None:
+        """Why ``msg`` is not a valid frame (``None`` if it is)."""
+        if not isinstance(msg.node, int) or msg.node not in self.node_ids:
+            return f"node {msg.node!r} is not one of {sorted(self.node_ids)}"
+        match msg:
+            case Heartbeat():
+                if not _uint32(msg.axis_error):
+                    return "axis_error is not a uint32"
+                if msg.axis_state not in AXIS_STATES:
+                    return f"unknown axis state {msg.axis_state}"
+                if not 0 <= msg.procedure_result <= MAX_PROCEDURE_RESULT:
+                    return f"unknown procedure result {msg.procedure_result}"
+            case EncoderEstimate():
+                if not _finite(msg.position_rev, msg.velocity_rev_s):
+                    return "non-finite encoder estimate"
+                if abs(msg.velocity_rev_s) > self.max_abs_velocity_rev_s:
+                    return f"|velocity| {abs(msg.velocity_rev_s):.3g} rev/s beyond the bound"
+            case DriverErrors():
+                if not _uint32(msg.active_errors, msg.disarm_reason):
+                    return "error words are not uint32"
+            case BusVoltageCurrent():
+                if not _finite(msg.voltage_v, msg.current_a):
+                    return "non-finite bus measurement"
+                if not (0.0 <= msg.voltage_v <= MAX_BUS_VOLTAGE_V
+                        and abs(msg.current_a) <= MAX_ABS_BUS_CURRENT_A):
+                    return "implausible bus voltage or current"
+            case SetAxisState():
+                if msg.state not in AXIS_STATES:
+                    return f"unknown axis state {msg.state}"
+            case SetControllerMode():
+                if not (0 <= msg.control_mode <= MAX_CONTROL_MODE
+                        and 0 <= msg.input_mode <= MAX_INPUT_MODE):
+                    return f"unknown control/input mode {msg.control_mode}/{msg.input_mode}"
+            case SetInputTorque():
+                if not _finite(msg.torque_nm):
+                    return "non-finite torque"
+                if abs(msg.torque_nm) > self.max_abs_torque_nm:
+                    return f"|torque| {abs(msg.torque_nm):.3g} N m beyond the bound"
+            case Request():
+                if msg.cmd not in REQUESTABLE:
+                    return f"cmd {msg.cmd:#x} cannot be requested"
+            case ClearErrors() | Estop():
+                pass
+            case _:
+                return f"not a CANSimple frame: {type(msg).__name__}"
+        return None
+
+    # --- encode ---------------------------------------------------------------------
+    def encode(self, msg: Frame) -> can.Message:
+        """The CAN frame of ``msg``; ``ValueError`` if ``decode`` would reject it."""
+        why = self.problem(msg)
+        if why is not None:
+            raise ValueError(f"cannot encode {msg!r}: {why}")
+        if isinstance(msg, Request):
+            layout = self._by_cmd[msg.cmd]
+            return can.Message(arbitration_id=arbitration_id(msg.node, msg.cmd),
+                               is_extended_id=False, is_remote_frame=True, dlc=layout.length)
+        layout = self._by_type[type(msg)]
+        try:
+            data = layout.message.encode(layout.spec.to_signals(msg), strict=True)
+        except (cantools.database.EncodeError, ValueError, TypeError) as exc:
+            raise ValueError(f"cannot encode {msg!r}: {exc}") from exc
+        if isinstance(msg, SetInputTorque | EncoderEstimate | BusVoltageCurrent):
+            # float32 overflow becomes inf on the wire: refuse what would decode invalid
+            if self._decode_payload(layout, msg.node, bytes(data)) is None:
+                raise ValueError(f"cannot encode {msg!r}: not representable as float32")
+        return can.Message(arbitration_id=arbitration_id(msg.node, layout.spec.cmd),
+                           is_extended_id=False, data=data, dlc=len(data))
+
+    # --- decode ---------------------------------------------------------------------
+    def decode(self, frame: can.Message) -> Frame | None:
+        """The frame's value, or ``None`` (counted) if it is not a valid frame for this
+        role. Never raises."""
+        try:
+            return self._decode(frame)
+        except Exception:  # noqa: BLE001 - a malformed frame object must not end the caller
+            self.counters.invalid += 1
+            return None
+
+    def _decode(self, frame: can.Message) -> Frame | None:
+        c = self.counters
+        if frame.is_error_frame or frame.is_extended_id or frame.is_fd:
+            c.other_frame += 1
+            return None
+        arb = int(frame.arbitration_id)
+        node, cmd = arb >> 5, arb & 0x1F
+        if not 0 <= arb <= 0x7FF or node not in self.node_ids:
+            c.unknown_id += 1
+            return None
+        if frame.is_remote_frame:
+            if self.role == "host":  # a request, as some host sends it
+                c.ignored_direction += 1
+                return None
+            if cmd not in REQUESTABLE:
+                c.unknown_id += 1
+                return None
+            c.decoded += 1
+            return Request(node, cmd)
+        layout = self._by_cmd.get(cmd)
+        if layout is None:
+            c.unknown_id += 1
+            return None
+        if layout.to_host != (self.role == "host"):
+            c.ignored_direction += 1
+            return None
+        data = bytes(frame.data or b"")
+        if not layout.min_length <= len(data) <= layout.length or frame.dlc != len(data):
+            c.bad_length += 1
+            return None
+        msg = self._decode_payload(layout, node, data)
+        if msg is None:
+            c.invalid += 1
+            return None
+        c.decoded += 1
+        return msg
+
+    def _decode_payload(self, layout: _Layout, node: int, data: bytes) -> Frame | None:
+        padded = data.ljust(layout.length, b"\0")
+        signals = layout.message.decode(padded, decode_choices=False, scaling=True)
+        msg = layout.spec.from_signals(node, signals)
+        return msg if self.problem(msg) is None else None
+
+    # --- the arming helpers of DriverProtocol ----------------------------------------
+    def arm_frames(self, node: int) -> list[can.Message]:
+        """Torque control with passthrough input, then closed loop (errors are not
+        cleared: a latched error needs an explicit :class:`ClearErrors`)."""
+        return [
+            self.encode(SetControllerMode(node, CONTROL_MODE_TORQUE_CONTROL, INPUT_MODE_PASSTHROUGH)),
+            self.encode(SetAxisState(node, AXIS_STATE_CLOSED_LOOP_CONTROL)),
+        ]
+
+    def disarm_frames(self, node: int) -> list[can.Message]:
+        """Zero torque, then IDLE."""
+        return [self.encode(SetInputTorque(node, 0.0)),
+                self.encode(SetAxisState(node, AXIS_STATE_IDLE))]
+
+    def torque_frame(self, node: int, torque_nm: float) -> can.Message:
+        return self.encode(SetInputTorque(node, float(torque_nm)))

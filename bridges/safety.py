@@ -1,0 +1,58 @@
+"""What torque a bridge may put on the bus, decided from the newest command and
+the drivers' health. Pure logic, no I/O (DESIGN §8, §9):
+
+- a command older than ``command_timeout_s`` (or none yet) -> zero torque, and
+  the axes go idle: a dead agent must not leave a robot pushing;
+- an e-stop -> zero torque and idle until the bridge is restarted;
+- a faulted robot (a driver error, a missing heartbeat) -> zero torque;
+- otherwise the commanded torques, each clamped to the scenario's limit; a
+  non-finite torque never reaches the bus (the whole command is refused).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+ZERO = (0.0, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Decision:
+    torques: tuple[float, float, float, float]
+    armed: bool  # axes should be in closed loop
+    reason: str  # "command", "no command", "stale", "estop", "faulted", "non-finite"
+
+
+class CommandGate:
+    def __init__(self, command_timeout_s: float, max_torque_nm: float) -> None:
+        if not command_timeout_s > 0:
+            raise ValueError("command timeout must be positive")
+        self.command_timeout_s = command_timeout_s
+        self.max_torque_nm = max_torque_nm
+        self.estopped = False
+        self._torques: tuple[float, ...] | None = None
+        self._received_at = -math.inf
+
+    def command(self, torques: tuple[float, ...], now_s: float) -> None:
+        """A fresh command arrived (already validated on the wire)."""
+        self._torques = tuple(float(x) for x in torques)
+        self._received_at = now_s
+
+    def estop(self) -> None:
+        self.estopped = True
+
+    def decide(self, now_s: float, faulted: bool) -> Decision:
+        if self.estopped:
+            return Decision(ZERO, False, "estop")
+        if self._torques is None:
+            return Decision(ZERO, False, "no command")
+        if now_s - self._received_at > self.command_timeout_s:
+            return Decision(ZERO, False, "stale")
+        if faulted:
+            return Decision(ZERO, False, "faulted")
+        if not all(math.isfinite(x) for x in self._torques):
+            return Decision(ZERO, False, "non-finite")
+        lim = self.max_torque_nm
+        t = tuple(max(-lim, min(lim, x)) for x in self._torques)
+        return Decision(t, True, "command")  # type: ignore[arg-type]

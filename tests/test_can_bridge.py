@@ -1,0 +1,143 @@
+"""The whole hardware chain without hardware: a test commander (zenoh) -> the CAN
+bridge process -> udp_multicast CAN -> the driver emulator process (four ODrive
+axes + the robot's dynamics), and back as robot/1/state from the encoders.
+
+Measured here and asserted against the spec: the robot moves the way the torques
+say; when commands stop, zero torque is on the bus within the command timeout
+plus one bridge period; odometry stays close to the emulator's ground truth.
+Every process is ended by pid in a ``finally``.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import statistics
+import threading
+import time
+
+import numpy as np
+import pytest
+from procs import finish, start
+
+from bridges.protocol import CMD_SET_INPUT_TORQUE, OdriveCanSimple, SetInputTorque
+from deploy.launcher import free_tcp_port
+from deploy.scenario import load_scenario
+from deploy.transport import Node, zenoh_config
+from deploy.wire import WIRE_VERSION, Codec, Keys, NodeReport, RobotState, WheelCommand
+
+can = pytest.importorskip("can")
+
+COMMAND_TIMEOUT_S = 0.1
+FORWARD_NM = 0.5
+DRIVE_S = 1.0
+
+
+class Sniffer:
+    """Every Set_Input_Torque frame on the bus, with this process's arrival time."""
+
+    def __init__(self, group: str, port: int) -> None:
+        self.bus = can.Bus(interface="udp_multicast", channel=group, port=port)
+        self.codec = OdriveCanSimple([0, 1, 2, 3], role="drive")
+        self.torques: list[tuple[float, int, float]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            frame = self.bus.recv(timeout=0.05)
+            if frame is None or frame.arbitration_id & 0x1F != CMD_SET_INPUT_TORQUE:
+                continue
+            msg = self.codec.decode(frame)
+            if isinstance(msg, SetInputTorque):
+                self.torques.append((time.monotonic(), msg.node, msg.torque_nm))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.bus.shutdown()
+
+
+def test_bridge_drives_the_emulated_robot_and_zeroes_torque_when_commands_stop(tmp_path):
+    sc = load_scenario("lab")
+    group = f"239.74.{random.randrange(1, 250)}.{random.randrange(1, 250)}"
+    port = random.randrange(40000, 60000)
+    can_opts = ["--can-interface", "udp_multicast", "--can-channel", group,
+                "--can-arg", f"port={port}"]
+    fleet = f"t-can-{os.getpid()}"
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    keys = Keys(fleet)
+    truth = tmp_path / "truth.npz"
+    sniffer = Sniffer(group, port)
+    node = Node("tester", keys, Codec(sc.robot_ids), zenoh_config(listen=[endpoint]))
+    states: list[tuple[float, RobotState]] = []
+    reports: list[NodeReport] = []
+    node.subscribe(keys.robot_state(1), RobotState, lambda m: states.append((time.monotonic(), m)),
+                   robot=1)
+    node.subscribe(keys.report("bridge-1"), NodeReport, reports.append)
+    emulator = start("emulate", "--scenario", "lab", "--robot", "1", *can_opts,
+                     "--duration", "12", "--truth-out", str(truth))
+    bridge = start("bridge", "--scenario", "lab", "--robot", "1", *can_opts, "--fleet", fleet,
+                   "--listen", "tcp/127.0.0.1:0", "--connect", endpoint, "--self-start",
+                   "--duration", "5", "--command-timeout", str(COMMAND_TIMEOUT_S))
+    try:
+        # the bridge is up and hears healthy drivers
+        assert node.mailbox.wait_until(
+            lambda: any(not m.faulted for _, m in states[-5:]), 30.0), "no healthy state"
+        x0 = states[-1][1].q[0]
+        end = time.monotonic() + DRIVE_S
+        while time.monotonic() < end:
+            last = states[-1][1]
+            node.publish(keys.cmd(1), lambda s, stamp, last=last: WheelCommand(
+                WIRE_VERSION, 1, s, stamp, robot=1, k=last.k, t=last.t,
+                torques=(FORWARD_NM,) * 4, v_cmd=(0.0, 0.0, 0.0), state_seq=last.seq,
+                state_stamp_ns=last.stamp_ns))
+            last_command_at = time.monotonic()
+            time.sleep(0.01)  # a 100 Hz commander: pacing, not synchronisation
+        x1 = max(m.q[0] for _, m in states)
+        rc_b, _, err_b = finish(bridge, timeout=60)
+        assert rc_b == 0, err_b
+        rc_e, _, err_e = finish(emulator, timeout=60)
+        assert rc_e == 0, err_e
+    finally:
+        for p in (bridge, emulator):
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+        node.close()
+        sniffer.close()
+
+    # the robot went forward (odometry from the encoders)
+    assert x1 - x0 > 0.1, (x0, x1)
+    # zero torque on the bus: the first all-zero torque frames after the last command
+    zero_at = min(t for t, _, tau in sniffer.torques if t > last_command_at and tau == 0.0)
+    nonzero_after = [t for t, _, tau in sniffer.torques if last_command_at < t < zero_at and tau]
+    delay = zero_at - last_command_at
+    period = sc.dt
+    print(f"last command -> zero torque on the bus: {delay * 1e3:.1f} ms "
+          f"(timeout {COMMAND_TIMEOUT_S * 1e3:.0f} ms + period {period * 1e3:.0f} ms)")
+    assert COMMAND_TIMEOUT_S <= delay + 0.002 and delay <= COMMAND_TIMEOUT_S + period + 0.02
+    assert all(t - last_command_at < COMMAND_TIMEOUT_S + period for t in nonzero_after)
+    # the bridge's added latency, command in -> torque frames out
+    (report,) = reports
+    lat = np.array(report.latency_ns) / 1e6
+    assert len(lat) >= 50
+    print(f"bridge cmd -> torque frame: p50 {np.percentile(lat, 50):.3f} ms, "
+          f"p99 {np.percentile(lat, 99):.3f} ms")
+    # odometry against the emulator's ground truth, matched on the host's monotonic
+    # clock (a state is compared with the truth when it arrived: at most a few ms old)
+    with np.load(truth) as g:
+        t_truth, q_truth = g["t"] + float(g["monotonic_origin_s"]), g["q"]
+    errors = []
+    for arrived, m in states:
+        k = int(np.searchsorted(t_truth, arrived))
+        if 0 < k < len(t_truth):
+            errors.append(float(np.hypot(*(np.array(m.q[:2]) - q_truth[k - 1][:2]))))
+    speed = max(float(np.hypot(*m.q_dot[:2])) for _, m in states)
+    print(f"odometry vs ground truth over {len(errors)} states: median {statistics.median(errors) * 100:.2f}"
+          f" cm, max {max(errors) * 100:.2f} cm (peak speed {speed:.2f} m/s)")
+    assert len(errors) > 100
+    # a state is one bridge period (5 ms) of motion older than the truth it is matched with,
+    # plus the encoder's own period: below 2 periods at the peak speed
+    assert statistics.median(errors) < 2 * period * speed + 0.01
