@@ -78,7 +78,8 @@ class AgentInputs:
 
 class AgentNode:
     def __init__(self, sc: Scenario, robot_id: int, node: Node, stop: StopFlag,
-                 with_recorder: bool = False) -> None:
+                 with_recorder: bool = False, plant_role: str = PLANT_ROLE) -> None:
+        """``plant_role``: who publishes this robot's state (the plant, or a CAN bridge)."""
         self.sc, self.node, self.stop = sc, node, stop
         self.index = sc.index_of(robot_id)
         self.rid = robot_id
@@ -92,7 +93,7 @@ class AgentNode:
         self.timing = Timing()
         self.steps_done = 0
         self.telemetry_every = 1  # realtime decimates (see run_realtime)
-        self.peers = [PLANT_ROLE, *(agent_role(j) for j in self.neighbours),
+        self.peers = [plant_role, *(agent_role(j) for j in self.neighbours),
                       *(agent_role(j) for j in sc.listeners(self.index))]
         if self.hears_leader:
             self.peers.append(LEADER_ROLE)

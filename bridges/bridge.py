@@ -45,12 +45,11 @@ from deploy.wire import (
     RobotState,
     SensedBody,
     WheelCommand,
+    agent_role,
 )
 from plant.perception import sense
 
-
-def bridge_role(robot: int) -> str:
-    return f"bridge-{robot}"
+REARM_AFTER_S = 0.25  # an axis still idle this long after arming (heartbeats at 10 Hz) is asked again
 
 
 class BridgeNode:
@@ -71,8 +70,12 @@ class BridgeNode:
         self.frames_sent = 0
         self.zeroed_at: float | None = None  # first zero-torque frames after a command stopped
         self.last_command_at: float | None = None
+        self.torque_sent_at = -1.0
+        self.armed_at = -1.0
+        self.rearms = 0  # arming frames sent again to an axis that stayed idle
         self._send_lock = threading.Lock()
         self._frames: queue.SimpleQueue = queue.SimpleQueue()
+        self._closing = False
         # the other robots, for perception: their published states (initially the scenario's)
         self.positions, self.velocities = q0[:, :2].copy(), np.zeros((sc.n, 2))
         node.subscribe(node.keys.cmd(robot_id), WheelCommand, self._on_cmd, robot=robot_id)
@@ -88,7 +91,7 @@ class BridgeNode:
 
     # -- inputs -----------------------------------------------------------------------
     def _read_bus(self) -> None:
-        while not self.stop():
+        while not self.stop() and not self._closing:
             try:
                 frame = self.bus.recv(timeout=0.05)
             except Exception as exc:  # a bus that failed: faulted by missing heartbeats
@@ -134,10 +137,26 @@ class BridgeNode:
 
     def arm(self) -> None:
         self._send_all(lambda n: ClearErrors(n))
-        self._send_all(lambda n: SetControllerMode(n, CONTROL_MODE_TORQUE_CONTROL,
-                                                   INPUT_MODE_PASSTHROUGH))
-        self._send_all(lambda n: SetAxisState(n, AXIS_STATE_CLOSED_LOOP_CONTROL))
+        for n in self.node_ids:
+            self._arm_axis(n)
         self.armed = True
+        self.armed_at = time.monotonic()
+
+    def _arm_axis(self, n: int) -> None:
+        self._send(SetControllerMode(n, CONTROL_MODE_TORQUE_CONTROL, INPUT_MODE_PASSTHROUGH))
+        self._send(SetAxisState(n, AXIS_STATE_CLOSED_LOOP_CONTROL))
+
+    def _rearm_idle_axes(self, now: float) -> None:
+        """An axis whose heartbeat still says idle well after arming missed its arming
+        frames (a lost frame, a driver that rebooted): ask again. Errors are not
+        cleared here: an axis with an error faults the robot instead."""
+        since = self.armed_at + REARM_AFTER_S
+        for a in self.monitor.axes:
+            if (a.heartbeat_at is not None and a.heartbeat_at > since and now > since
+                    and a.axis_state != AXIS_STATE_CLOSED_LOOP_CONTROL and not a.axis_error):
+                self._arm_axis(a.node)
+                self.rearms += 1
+                self.armed_at = now
 
     def disarm(self) -> None:
         self._send_all(lambda n: SetInputTorque(n, 0.0))
@@ -147,41 +166,65 @@ class BridgeNode:
     def _apply(self, d: Decision) -> None:
         for n, tau in zip(self.node_ids, d.torques, strict=True):
             self._send(SetInputTorque(n, tau))
+        self.torque_sent_at = time.monotonic()
         if d.torques == ZERO and self.zeroed_at is None and self.last_command_at is not None:
             self.zeroed_at = time.monotonic()
         self.last_reason = d.reason
 
     # -- the loop ---------------------------------------------------------------------
+    def _sample(self, now: float, dt: float) -> None:
+        """Apply the frames heard so far, then advance the odometry by dt."""
+        while True:
+            try:
+                at, frame = self._frames.get_nowait()
+            except queue.Empty:
+                break
+            msg = self.protocol.decode(frame)
+            if msg is not None:
+                self.monitor.feed(msg, at)
+        self.odometry.update(self.monitor.wheel_speeds_radps(), dt)
+
+    def idle_until_start(self, timeout_s: float) -> float | None:
+        """Before the run: keep the odometry going (the robot may be pushed) and the
+        axes idle until ``ctl/start``; t = 0 on this clock, or None."""
+        deadline = time.monotonic() + timeout_s
+        last = time.monotonic()
+        while not self.stop() and time.monotonic() < deadline:
+            if self.node.mailbox.wait_until(lambda: self.control.start is not None,
+                                            self.sc.dt):
+                break
+            now = time.monotonic()
+            self._sample(now, now - last)
+            last = now
+        self._pre_run_last = last
+        return None if self.control.start is None else self.control.wait_for_start(0.0)
+
     def run_realtime(self, t0_mono: float, steps: int) -> None:
         dt = self.sc.dt
         ticker = Periodic(t0_mono, dt, self.timing)
-        last = None
+        last = getattr(self, "_pre_run_last", None)
         try:
             while not self.stop():
                 k = ticker.wait_next(self.stop)
                 if k is None or k >= steps:
                     break
                 now = time.monotonic()
-                while True:
-                    try:
-                        at, frame = self._frames.get_nowait()
-                    except queue.Empty:
-                        break
-                    msg = self.protocol.decode(frame)
-                    if msg is not None:
-                        self.monitor.feed(msg, at)
-                self.odometry.update(self.monitor.wheel_speeds_radps(),
-                                     dt if last is None else now - last)
+                self._sample(now, dt if last is None else now - last)
                 last = now
                 faulted = self.monitor.faulted(now)
                 with self.node.mailbox.lock:
                     d = self.gate.decide(now, faulted)
                     if d.armed and not self.armed:
                         self.arm()
+                        self._apply(d)
                     elif not d.armed and self.armed:
                         self.disarm()
-                    if d.armed or self.last_reason != d.reason:
-                        self._apply(d)
+                    if d.armed and self.armed:
+                        self._rearm_idle_axes(now)
+                    if d.armed and now - self.torque_sent_at >= dt:
+                        self._apply(d)  # no command this period: hold it (feeds the watchdog)
+                    elif not d.armed and self.last_reason != d.reason:
+                        self._apply(d)  # zeros, once per reason
                 self._publish(k, k * dt, faulted)
                 self.steps_done += 1
         finally:
@@ -212,5 +255,14 @@ class BridgeNode:
     def handshake(self, timeout_s: float) -> None:
         self.node.declare_ready()
 
-    def finish(self) -> None:
+    def close(self) -> None:
+        """Stop reading the bus (before the bus is shut down)."""
+        self._closing = True
+        self._reader.join(1.0)
+
+    def finish(self, linger_s: float = 5.0) -> None:
+        """Report, then stay until this robot's agent has left (as the plant does),
+        so it does not mistake the end of the run for a lost bridge."""
         publish_report(self.node, self.rid, self.steps_done, self.timing)
+        agent = agent_role(self.rid)
+        self.node.mailbox.wait_until(lambda: agent not in self.node.peers_alive, linger_s)

@@ -14,9 +14,10 @@ EXIT_BAD_INPUT = 2
 
 
 def _cmd_bridge(args: argparse.Namespace) -> int:
-    from bridges.bridge import BridgeNode, bridge_role
+    from bridges.bridge import BridgeNode
     from bridges.protocol import OdriveCanSimple
     from deploy.scenario import load_scenario
+    from deploy.wire import bridge_role
 
     if args.clock != "realtime":
         print("omnifleet bridge: hardware runs on its own clock: use --clock realtime",
@@ -29,19 +30,23 @@ def _cmd_bridge(args: argparse.Namespace) -> int:
         print(f"omnifleet bridge: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
 
+    made = []
+
     def build(sc, node, stop):
-        return BridgeNode(sc, args.robot, node, stop, bus, OdriveCanSimple(args.node_ids),
-                          list(args.node_ids), args.command_timeout, args.heartbeat_timeout)
+        made.append(BridgeNode(sc, args.robot, node, stop, bus, OdriveCanSimple(args.node_ids),
+                          list(args.node_ids), args.command_timeout, args.heartbeat_timeout))
+        return made[0]
 
     def realtime(obj, sc):
-        t0 = time.monotonic() if args.self_start else obj.control.wait_for_start(
-            args.startup_timeout)
+        t0 = time.monotonic() if args.self_start else obj.idle_until_start(args.startup_timeout)
         if t0 is not None:
             obj.run_realtime(t0, _steps(sc, args))
 
     try:
         return _run_node(args, bridge_role(args.robot), args.robot, build, None, realtime)
     finally:
+        for bridge in made:
+            bridge.close()
         bus.shutdown()
 
 

@@ -142,7 +142,9 @@ def run_emulate(args: argparse.Namespace) -> int:
         if truth is not None:
             emu.save_truth(truth)
     reason = stop_reason[0] if stop_reason else "end"
-    print(f"{PROG}: t = {emu.t:.3f} s ({reason}); {emu.counters.summary()}", file=sys.stderr)
+    print(f"{PROG}: t = {emu.t:.3f} s ({reason}); {emu.counters.summary()}; axes "
+          + ", ".join(f"{a.node}: state {a.state} error 0x{a.axis_error:x}" for a in emu.axes),
+          file=sys.stderr)
     return _SIGNAL_EXIT.get(reason, 0)
 
 

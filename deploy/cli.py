@@ -31,6 +31,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
             return EXIT_BAD_INPUT
         sc = sc.with_control_rate(args.control_rate)
     plant = args.plant or sc.spec.plant.kind
+    if plant == "can-emulated":  # hardware through emulated drivers runs on the wall clock
+        if args.in_process or args.clock == "lockstep":
+            print("omnifleet run: --plant can-emulated runs realtime, one process per node",
+                  file=sys.stderr)
+            return EXIT_BAD_INPUT
+        args.clock = "realtime"
+    args.clock = args.clock or "lockstep"
     problem = gui_problem(plant, args.gui)
     if problem:
         print(f"omnifleet run: {problem}", file=sys.stderr)
@@ -81,6 +88,11 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     series = launcher.collector.series(realtime=args.clock == "realtime")
     if args.clock == "realtime":
         extra["series_cells_filled"] = launcher.collector.filled
+    if launcher.truth_files and launcher.t0_mono is not None:
+        from deploy.odometry_drift import odometry_drift
+
+        extra["odometry_drift"] = odometry_drift(series, sc.robot_ids, launcher.truth_files,
+                                                 launcher.t0_mono)
     wall = extra.pop("wall_time_s")
     messages = extra.pop("messages")
     contact_log, contacts_total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
@@ -158,12 +170,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--in-process", action="store_true",
                      help="run leader, plant and all agents in this process (the reference "
                      "loop) instead of one process per node")
-    run.add_argument("--plant", choices=PLANT_KINDS, default=None,
-                     help="pybullet (rigid bodies, real contacts), model (eq. 4, RK4) or "
-                     "kinematic (default: the scenario's plant.kind)")
+    run.add_argument("--plant", choices=[*PLANT_KINDS, "can-emulated"], default=None,
+                     help="pybullet (rigid bodies, real contacts), model (eq. 4, RK4), "
+                     "kinematic, or can-emulated (every robot through a CAN bridge and a driver "
+                     "emulator; realtime) (default: the scenario's plant.kind)")
     run.add_argument("--gui", action="store_true",
                      help="pybullet: open the simulator's window (needs a display)")
-    run.add_argument("--clock", choices=CLOCKS, default="lockstep",
+    run.add_argument("--clock", choices=CLOCKS, default=None,
                      help="lockstep: deterministic, equals --in-process; realtime: every "
                      "process on its own clock at the scenario's rates (default: lockstep)")
     run.add_argument("--step-deadline", type=float, default=2.0, metavar="S",

@@ -24,22 +24,25 @@ import msgspec
 import numpy as np
 
 from deploy.collector import Collector
-from deploy.node_runtime import StopFlag, peak_rss_kb
+from deploy.node_runtime import START_LEAD_S, StopFlag, peak_rss_kb
 from deploy.scenario import Scenario
 from deploy.transport import Node, zenoh_config
 from deploy.wire import (
     LAUNCHER_ROLE,
     LEADER_ROLE,
     PLANT_ROLE,
+    WIRE_VERSION,
     Codec,
     Control,
     Keys,
     NodeReport,
     RobotState,
     agent_role,
+    bridge_role,
 )
 
 STOP_GRACE_S = 3.0
+CAN_EMULATED = "can-emulated"  # every robot through a CAN bridge + driver emulator
 TAIL_LINES = 15
 
 
@@ -65,6 +68,8 @@ class Child:
     exit_code: int | None = None
     peak_rss_mb: float | None = None
     log: Any = None
+    zenoh: bool = True  # a zenoh peer with liveliness tokens (an emulator speaks CAN only)
+    stop_after_run: bool = False  # runs until stopped (an emulator): SIGTERM after the run
 
     def tail(self, n: int = TAIL_LINES) -> str:
         try:
@@ -89,6 +94,12 @@ class LaunchOptions:
     record: bool = True
     gui: bool = False  # pybullet plant: open its window
     extra_agent_args: list[str] = field(default_factory=list)
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def free_tcp_port() -> int:
@@ -118,6 +129,8 @@ class Launcher:
         self.progress_k = -1
         self.steps = sc.steps if opts.duration_s is None else int(round(opts.duration_s / sc.dt))
         self.collector = Collector(sc, self.steps)
+        self.truth_files: dict[int, Path] = {}  # can-emulated: each emulator's ground truth
+        self.t0_mono: float | None = None  # can-emulated: t = 0 of the run (this host's clock)
 
     # -- children -------------------------------------------------------------------
     def _common_args(self, endpoint: str) -> list[str]:
@@ -136,16 +149,40 @@ class Launcher:
         cmd = [sys.executable, "-m", "deploy.cli"]
         common = self._common_args(endpoint)
         logs = self.opts.out / "logs"
-        plan = [
-            Child(LEADER_ROLE, None, [*cmd, "leader", *common], logs / "leader.log"),
-            Child(PLANT_ROLE, None, [*cmd, "plant", *common, "--plant", self.opts.plant,
-                                     *(["--gui"] if self.opts.gui else [])],
-                  logs / "plant.log"),
-        ]
+        on_can = self.opts.plant == CAN_EMULATED
+        plan = [Child(LEADER_ROLE, None, [*cmd, "leader", *common,
+                                          *(["--plant-role", LAUNCHER_ROLE] if on_can else [])],
+                      logs / "leader.log")]
+        if on_can:
+            plan += self._can_plan(cmd, common, logs)
+        else:
+            plan.append(Child(PLANT_ROLE, None, [*cmd, "plant", *common, "--plant", self.opts.plant,
+                                                 *(["--gui"] if self.opts.gui else [])],
+                              logs / "plant.log"))
         for r in self.sc.robot_ids:
+            source = ["--plant-role", bridge_role(r)] if on_can else []
             plan.append(Child(agent_role(r), r, [*cmd, "agent", *common, "--robot", str(r),
-                                                 *self.opts.extra_agent_args],
+                                                 *source, *self.opts.extra_agent_args],
                               logs / f"{agent_role(r)}.log"))
+        return plan
+
+    def _can_plan(self, cmd: list[str], common: list[str], logs: Path) -> list[Child]:
+        """Per robot: a driver emulator and a bridge on a CAN bus of their own
+        (udp_multicast: a group and a port per robot, so robots never hear each other)."""
+        plan = []
+        rate = 1.0 / self.sc.dt
+        for i, r in enumerate(self.sc.robot_ids):
+            bus = ["--can-interface", "udp_multicast",
+                   "--can-channel", f"239.74.{os.getpid() % 250 + 1}.{i + 1}",
+                   "--can-arg", f"port={free_udp_port()}"]
+            truth = self.opts.out / f"truth-{r}.npz"
+            self.truth_files[r] = truth
+            plan.append(Child(f"emulator-{r}", r, [
+                *cmd, "emulate", "--scenario", self.opts.scenario_arg, "--robot", str(r), *bus,
+                "--encoder-rate", repr(rate), "--truth-out", str(truth)],
+                logs / f"emulator-{r}.log", zenoh=False, stop_after_run=True))
+            plan.append(Child(bridge_role(r), r, [*cmd, "bridge", *common, "--robot", str(r),
+                                                  *bus], logs / f"{bridge_role(r)}.log"))
         return plan
 
     def _spawn(self, child: Child) -> None:
@@ -251,7 +288,7 @@ class Launcher:
             self.children = self._plan(endpoint)
             for c in self.children:
                 self._spawn(c)
-            roles = [c.role for c in self.children]
+            roles = [c.role for c in self.children if c.zenoh]
             deadline = time.monotonic() + o.startup_timeout_s
             while node.wait_for_roles(roles, "ready", 0.1, self.stop):
                 self._check_children()
@@ -262,10 +299,15 @@ class Launcher:
                     raise RunFailed(f"not ready after {o.startup_timeout_s:.0f} s: "
                                     f"{', '.join(sorted(missing))}")
             start = time.perf_counter()
+            if o.plant == CAN_EMULATED:
+                self._announce_start(node)
             while not self.ended:
                 if self.stop():
                     raise Interrupted(self.stop.reason)
                 self._check_children()
+                if self.t0_mono is not None and time.monotonic() >= self.t0_mono + self.steps * self.sc.dt:
+                    self._control(node, "end")  # no plant: the launcher keeps the run's time
+                    self.ended = True
                 if progress is not None:
                     progress(self.progress_k + 1, self.steps)
                 time.sleep(0.05)
@@ -294,15 +336,35 @@ class Launcher:
     def _on_signal(self, signum: int, _frame: object) -> None:
         self.stop.set(signal.Signals(signum).name)
 
+    def _announce_start(self, node: Node) -> None:
+        start_unix_ns = time.time_ns() + int(START_LEAD_S * 1e9)
+        self.t0_mono = time.monotonic() + START_LEAD_S
+        self._control(node, "start", start_unix_ns)
+
+    def _control(self, node: Node, command: str, start_unix_ns: int = 0) -> None:
+        node.publish(self.keys.ctl(command), lambda seq, stamp: Control(
+            WIRE_VERSION, 0, seq, stamp, command=command, k=0, t=0.0,
+            start_unix_ns=start_unix_ns))
+
     def _wait_for_exit(self, node: Node, roles: list[str], timeout_s: float = 20.0) -> None:
-        """After ``end``: every node sends its report and exits 0."""
+        """After ``end``: every node sends its report and exits 0; then the children
+        that run until stopped (emulators) are stopped."""
         deadline = time.monotonic() + timeout_s
+        nodes = [c for c in self.children if not c.stop_after_run]
         while time.monotonic() < deadline:
             if self.stop():
                 raise Interrupted(self.stop.reason)
-            if all(self._reap(c, False) for c in self.children):
+            if all(self._reap(c, False) for c in nodes):
                 break
             time.sleep(0.02)
+        for c in self.children:
+            if c.stop_after_run and not self._reap(c, False):
+                c.proc.send_signal(signal.SIGTERM)
+                until = time.monotonic() + 10.0
+                while not self._reap(c, False) and time.monotonic() < until:
+                    time.sleep(0.02)
+                if c.exit_code in (-signal.SIGTERM, 143):
+                    c.exit_code = 0  # stopped as planned
         bad = [c for c in self.children if c.exit_code not in (0,)]
         if bad:
             raise RunFailed("; ".join(

@@ -30,7 +30,8 @@ from deploy.timeseries import TimeSeries
 # scenario (and between in-process and distributed runs); everything else in
 # metrics.json is a control figure and must not.
 TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "jitter_ms",
-               "deadline_misses", "messages", "recording", "series_cells_filled")
+               "deadline_misses", "messages", "recording", "series_cells_filled",
+               "odometry_drift")
 
 
 def settling_time(t: np.ndarray, err_norm: np.ndarray, threshold: float) -> float | None:
@@ -63,6 +64,10 @@ def contact_onsets(clearance: np.ndarray) -> int:
     touching = clearance <= 0.0
     onsets = touching[1:] & ~touching[:-1]
     return int(touching[0].sum() + onsets.sum())
+
+
+def _nan_aware(fn, x: np.ndarray) -> float:
+    return float(fn(x)) if np.isfinite(x).any() else float(np.abs(x).max(initial=np.nan))
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -125,8 +130,9 @@ def compute_metrics(
                      else max(len(contact_log), contacts_total or 0)),
         "contact_source": "geometry" if contact_log is None else "physics",
         "contact_log": contact_log,
-        "peak_torque_nm": float(np.abs(series.torque).max()),
-        "rms_torque_nm": float(np.sqrt(np.mean(series.torque**2))),
+        # a realtime series has no torque before an agent's first telemetry (NaN)
+        "peak_torque_nm": _nan_aware(np.nanmax, np.abs(series.torque)),
+        "rms_torque_nm": _nan_aware(lambda x: np.sqrt(np.nanmean(x)), series.torque**2),
         "nonfinite_commands": int(series.nonfinite.sum()),
         "limits": {
             "max_speed_mps": _finite_or_none(lim.max_speed_mps),

@@ -105,8 +105,8 @@ def _cmd_agent(args: argparse.Namespace) -> int:
     sc.index_of(args.robot)  # fail fast, before opening a session
 
     def build(sc, node, stop):
-        node.required, node.on_lost = {PLANT_ROLE}, _lost(stop, node)
-        return AgentNode(sc, args.robot, node, stop, args.with_recorder)
+        node.required, node.on_lost = {args.plant_role}, _lost(stop, node)
+        return AgentNode(sc, args.robot, node, stop, args.with_recorder, args.plant_role)
 
     def realtime(obj, sc):
         t0 = obj.control.wait_for_start(args.startup_timeout)
@@ -138,7 +138,7 @@ def _cmd_leader(args: argparse.Namespace) -> int:
     from agents.leader_node import LeaderNode
 
     def build(sc, node, stop):
-        node.required, node.on_lost = {PLANT_ROLE}, _lost(stop, node)
+        node.required, node.on_lost = {args.plant_role}, _lost(stop, node)
         return LeaderNode(sc, node, stop, args.with_recorder)
 
     def realtime(obj, sc):
@@ -176,6 +176,9 @@ def add_node_commands(sub: argparse._SubParsersAction) -> None:
     _common(agent)
     agent.add_argument("--robot", type=int, required=True, metavar="ID",
                        help="the robot's id in the scenario")
+    agent.add_argument("--plant-role", default=PLANT_ROLE, metavar="ROLE",
+                       help="the node that publishes this robot's state: plant (default), or "
+                       "bridge-<ID> when the robot is on CAN; losing it ends the agent")
     agent.set_defaults(func=_cmd_agent)
 
     plant = sub.add_parser("plant", help="run the simulated plant of every robot",
@@ -194,4 +197,7 @@ def add_node_commands(sub: argparse._SubParsersAction) -> None:
 
     leader = sub.add_parser("leader", help="run the virtual leader (reference generator)")
     _common(leader)
+    leader.add_argument("--plant-role", default=PLANT_ROLE, metavar="ROLE",
+                        help="the node whose loss ends the leader: plant (default), or the "
+                        "launcher when every robot is on CAN")
     leader.set_defaults(func=_cmd_leader)

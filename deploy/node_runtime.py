@@ -15,6 +15,8 @@ from typing import Any
 from deploy.transport import Node
 from deploy.wire import WIRE_VERSION, Control, NodeReport
 
+START_LEAD_S = 0.3  # realtime: t = 0 this long after ``start`` is sent
+
 CLOCKS = ("lockstep", "realtime")
 MAX_SAMPLES = 200_000  # timing samples kept per node (enough for 200 s at 1 kHz)
 

@@ -329,6 +329,11 @@ def agent_role(robot: int) -> str:
     return f"agent-{robot}"
 
 
+def bridge_role(robot: int) -> str:
+    """The CAN bridge that plays the plant for one robot on hardware."""
+    return f"bridge-{robot}"
+
+
 LEADER_ROLE = "leader"
 PLANT_ROLE = "plant"
 LAUNCHER_ROLE = "launcher"

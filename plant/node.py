@@ -15,7 +15,14 @@ import time
 
 import numpy as np
 
-from deploy.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
+from deploy.node_runtime import (
+    START_LEAD_S,
+    ControlInbox,
+    Periodic,
+    StopFlag,
+    Timing,
+    publish_report,
+)
 from deploy.runner import make_plant
 from deploy.scenario import Scenario
 from deploy.transport import Node
@@ -33,8 +40,6 @@ from deploy.wire import (
     run_roles,
 )
 from plant.perception import sensor_for
-
-START_LEAD_S = 0.3  # realtime: t = 0 this long after ``start`` is sent
 
 
 def _sensed(bodies) -> list[SensedBody]:

@@ -1,0 +1,33 @@
+"""Odometry drift of a run on CAN: the bridges' states (the run's series, built
+from robot/i/state) against each emulator's ground truth, matched in time on the
+host's monotonic clock (every process of one host shares it)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from deploy.timeseries import TimeSeries
+
+
+def odometry_drift(series: TimeSeries, robot_ids: list[int], truth_files: dict[int, Path],
+                   t0_mono: float) -> dict[str, Any]:
+    """Per robot: median, max and final |xy_odometry - xy_truth| (m) over the run."""
+    out: dict[str, Any] = {"robot": [], "median_m": [], "max_m": [], "final_m": []}
+    for i, rid in enumerate(robot_ids):
+        path = truth_files.get(rid)
+        if path is None or not path.exists():
+            continue
+        with np.load(path) as g:
+            t_truth = g["t"] + float(g["monotonic_origin_s"])
+            q_truth = g["q"]
+        t_run = t0_mono + series.t  # when the bridge sampled step k
+        k = np.clip(np.searchsorted(t_truth, t_run), 0, len(t_truth) - 1)
+        err = np.linalg.norm(series.q[:, i, :2] - q_truth[k, :2], axis=1)
+        out["robot"].append(rid)
+        out["median_m"].append(float(np.median(err)))
+        out["max_m"].append(float(err.max()))
+        out["final_m"].append(float(err[-1]))
+    return out
