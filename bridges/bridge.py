@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from bridges.monitor import DriverMonitor
+from bridges.monitor import RECOVERABLE_ERRORS, DriverMonitor
 from bridges.odometry import Odometry
 from bridges.protocol import (
     AXIS_STATE_CLOSED_LOOP_CONTROL,
@@ -148,12 +148,16 @@ class BridgeNode:
 
     def _rearm_idle_axes(self, now: float) -> None:
         """An axis whose heartbeat still says idle well after arming missed its arming
-        frames (a lost frame, a driver that rebooted): ask again. Errors are not
-        cleared here: an axis with an error faults the robot instead."""
+        frames (a lost frame, a driver that rebooted) or was stopped by its watchdog
+        while this host was off the CPU: clear that and ask again. Other errors are
+        not cleared here: they fault the robot instead."""
         since = self.armed_at + REARM_AFTER_S
         for a in self.monitor.axes:
             if (a.heartbeat_at is not None and a.heartbeat_at > since and now > since
-                    and a.axis_state != AXIS_STATE_CLOSED_LOOP_CONTROL and not a.axis_error):
+                    and a.axis_state != AXIS_STATE_CLOSED_LOOP_CONTROL
+                    and not a.axis_error & ~RECOVERABLE_ERRORS):
+                if a.axis_error:
+                    self._send(ClearErrors(a.node))
                 self._arm_axis(a.node)
                 self.rearms += 1
                 self.armed_at = now

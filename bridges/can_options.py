@@ -63,7 +63,32 @@ def open_bus(args: argparse.Namespace) -> Any:
     if args.bitrate is not None:
         kwargs["bitrate"] = args.bitrate
     try:
-        return can.Bus(interface=args.can_interface, channel=args.can_channel, **kwargs)
+        bus = can.Bus(interface=args.can_interface, channel=args.can_channel, **kwargs)
     except Exception as exc:  # python-can raises many kinds for a bad channel or option
         raise CanBusError(f"cannot open CAN bus {args.can_interface}:{args.can_channel}: "
                           f"{exc}") from None
+    if args.can_interface == "udp_multicast":
+        _grow_receive_buffer(bus)
+    return bus
+
+
+UDP_RECEIVE_BUFFER_BYTES = 4 << 20
+
+
+def _grow_receive_buffer(bus: Any) -> None:
+    """A loaded host can leave a process off the CPU for tens of ms: with the kernel's
+    default ~200 kB a busy udp_multicast bus then drops frames. Ask for 4 MB (root may
+    exceed net.core.rmem_max; others get what the kernel allows)."""
+    import socket
+
+    sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
+    if sock is None:
+        return
+    for opt in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        if opt is None:
+            continue
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, opt, UDP_RECEIVE_BUFFER_BYTES)
+            return
+        except OSError:
+            continue

@@ -2,9 +2,12 @@
 estimates, axis states and errors from heartbeats. Pure bookkeeping fed with
 decoded frames and the bridge's clock; no I/O.
 
-A robot is **faulted** when any axis reports an error, or when an axis that was
+A robot is **faulted** when any axis reports an error other than its watchdog, or
+when an axis that was
 heard has been silent (no heartbeat) for longer than ``heartbeat_timeout_s``, or
 when an axis was never heard ``heartbeat_timeout_s`` after the bridge started.
+A watchdog expiry only says the drive stopped because the bridge fell silent (a
+host that was off the CPU): the bridge clears it when it arms the axis again.
 """
 
 from __future__ import annotations
@@ -14,7 +17,14 @@ from math import pi
 
 import numpy as np
 
-from bridges.protocol import DriverErrors, EncoderEstimate, Heartbeat
+from bridges.protocol import (
+    AXIS_ERROR_WATCHDOG_TIMER_EXPIRED,
+    DriverErrors,
+    EncoderEstimate,
+    Heartbeat,
+)
+
+RECOVERABLE_ERRORS = AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
 
 
 @dataclass
@@ -57,8 +67,9 @@ class DriverMonitor:
     def fault_reasons(self, now_s: float) -> list[str]:
         out = []
         for a in self.axes:
-            if a.axis_error or a.active_errors:
-                out.append(f"node {a.node}: error 0x{a.axis_error | a.active_errors:x}")
+            fatal = a.axis_error & ~RECOVERABLE_ERRORS
+            if fatal or a.active_errors:
+                out.append(f"node {a.node}: error 0x{fatal | a.active_errors:x}")
             last = a.heartbeat_at if a.heartbeat_at is not None else self.started_at
             if now_s - last > self.heartbeat_timeout_s:
                 out.append(f"node {a.node}: no heartbeat for {now_s - last:.2f} s")

@@ -73,3 +73,29 @@ def test_gate_gives_zero_torque_and_disarms(case):
 def test_gate_timeout_must_be_positive():
     with pytest.raises(ValueError):
         CommandGate(0.0, 1.0)
+
+
+def test_monitor_faults_on_errors_and_silence_but_not_on_a_watchdog_expiry():
+    from bridges.monitor import DriverMonitor
+    from bridges.protocol import AXIS_ERROR_WATCHDOG_TIMER_EXPIRED, EncoderEstimate, Heartbeat
+
+    mon = DriverMonitor([0, 1, 2, 3], heartbeat_timeout_s=0.35, started_at=0.0)
+    assert not mon.faulted(0.3)
+    assert mon.faulted(0.4)  # nobody heard since the start
+    for n in range(4):
+        mon.feed(Heartbeat(n, 0, 1), 0.5)
+        mon.feed(EncoderEstimate(n, 1.0, 0.5 * (n + 1)), 0.5)
+    assert not mon.faulted(0.6)
+    assert np.allclose(mon.wheel_speeds_radps(), 2 * math.pi * 0.5 * np.arange(1, 5))
+    # the drive stopped itself because the host fell silent: recoverable by re-arming
+    mon.feed(Heartbeat(2, AXIS_ERROR_WATCHDOG_TIMER_EXPIRED, 1), 0.7)
+    assert not mon.faulted(0.7)
+    mon.feed(Heartbeat(2, 0x1 | AXIS_ERROR_WATCHDOG_TIMER_EXPIRED, 1), 0.8)  # another error
+    assert mon.faulted(0.8) and "node 2" in mon.fault_reasons(0.8)[0]
+    mon.feed(Heartbeat(2, 0, 8), 0.9)
+    for n in (0, 1, 3):
+        mon.feed(Heartbeat(n, 0, 8), 0.9)
+    assert not mon.faulted(1.0)
+    assert mon.faulted(1.3)  # every heartbeat 0.4 s old
+    mon.feed(Heartbeat(9, 0x1, 1), 1.3)  # another node's frame changes nothing
+    assert [a.node for a in mon.axes] == [0, 1, 2, 3]
