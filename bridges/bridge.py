@@ -34,7 +34,7 @@ from bridges.protocol import (
     SetControllerMode,
     SetInputTorque,
 )
-from bridges.safety import ZERO, CommandGate, Decision
+from bridges.safety import CommandGate, Decision
 from deploy.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
 from deploy.scenario import Scenario
 from deploy.transport import Node
@@ -43,9 +43,9 @@ from deploy.wire import (
     Control,
     Perception,
     RobotState,
-    SensedBody,
     WheelCommand,
     agent_role,
+    sensed_bodies,
 )
 from plant.perception import sense
 
@@ -68,8 +68,6 @@ class BridgeNode:
         self.armed = False
         self.last_reason = ""
         self.frames_sent = 0
-        self.zeroed_at: float | None = None  # first zero-torque frames after a command stopped
-        self.last_command_at: float | None = None
         self.torque_sent_at = -1.0
         self.armed_at = -1.0
         self.rearms = 0  # arming frames sent again to an axis that stayed idle
@@ -78,6 +76,8 @@ class BridgeNode:
         self._closing = False
         # the other robots, for perception: their published states (initially the scenario's)
         self.positions, self.velocities = q0[:, :2].copy(), np.zeros((sc.n, 2))
+        self.radii = [sc.spec.robot.body_radius_m] * sc.n
+        self.obstacles = sc.obstacle_bodies()  # the map
         node.subscribe(node.keys.cmd(robot_id), WheelCommand, self._on_cmd, robot=robot_id)
         for j, rid in enumerate(sc.robot_ids):
             if rid != robot_id:
@@ -113,8 +113,6 @@ class BridgeNode:
     def _on_cmd(self, m: WheelCommand) -> None:  # under the mailbox lock
         arrived = time.monotonic()
         self.gate.command(m.torques, arrived)
-        self.last_command_at = arrived
-        self.zeroed_at = None
         if self.armed:  # torque on the bus now, not at the next period
             self._apply(self.gate.decide(arrived, self.monitor.faulted(arrived)))
             self.timing.add_latency(time.monotonic_ns() - int(arrived * 1e9))
@@ -171,8 +169,6 @@ class BridgeNode:
         for n, tau in zip(self.node_ids, d.torques, strict=True):
             self._send(SetInputTorque(n, tau))
         self.torque_sent_at = time.monotonic()
-        if d.torques == ZERO and self.zeroed_at is None and self.last_command_at is not None:
-            self.zeroed_at = time.monotonic()
         self.last_reason = d.reason
 
     # -- the loop ---------------------------------------------------------------------
@@ -241,17 +237,11 @@ class BridgeNode:
         with node.mailbox.lock:
             pos, vel = self.positions.copy(), self.velocities.copy()
         pos[i], vel[i] = q[:2], qd[:2]
-        sc = self.sc
-        robots, obstacles = sense(i, pos, vel, [sc.spec.robot.body_radius_m] * sc.n, sc.robot_ids,
-                                  sc.obstacle_bodies(), sc.spec.behaviors.detection_range_m)
-
-        def bodies(bs):
-            return [SensedBody(b.ident, tuple(b.position.tolist()), tuple(b.velocity.tolist()),
-                               float(b.radius)) for b in bs]
-
+        robots, obstacles = sense(i, pos, vel, self.radii, self.sc.robot_ids, self.obstacles,
+                                  self.sc.spec.behaviors.detection_range_m)
         node.publish(keys.perception(self.rid), lambda seq, stamp: Perception(
-            WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, robots=bodies(robots),
-            obstacles=bodies(obstacles)))
+            WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, robots=sensed_bodies(robots),
+            obstacles=sensed_bodies(obstacles)))
         node.publish(keys.robot_state(self.rid), lambda seq, stamp: RobotState(
             WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, q=tuple(q.tolist()),
             q_dot=tuple(qd.tolist()), faulted=faulted))
@@ -268,5 +258,9 @@ class BridgeNode:
         """Report, then stay until this robot's agent has left (as the plant does),
         so it does not mistake the end of the run for a lost bridge."""
         publish_report(self.node, self.rid, self.steps_done, self.timing)
+        c = self.protocol.counters
+        print(f"{self.node.role}: CAN frames sent {self.frames_sent}, axes re-armed "
+              f"{self.rearms}; received decoded {c.decoded}, rejected {c.rejected}",
+              file=sys.stderr)
         agent = agent_role(self.rid)
         self.node.mailbox.wait_until(lambda: agent not in self.node.peers_alive, linger_s)

@@ -24,34 +24,22 @@ _SIGNAL_EXIT = {"SIGINT": 130, "SIGTERM": 143}
 PROG = "omnifleet emulate"
 
 
-def _probability(text: str) -> float:
-    try:
-        p = float(text)
-    except ValueError:
-        p = math.nan
-    if not 0.0 <= p <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a probability in [0, 1], got {text!r}")
-    return p
+def _number(ok, what: str):
+    """An argparse type: a finite float for which ``ok`` holds, else a clear error."""
+    def parse(text: str) -> float:
+        try:
+            x = float(text)
+        except ValueError:
+            x = math.nan
+        if not (math.isfinite(x) and ok(x)):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return x
+    return parse
 
 
-def _positive(text: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        x = math.nan
-    if not (math.isfinite(x) and x > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return x
-
-
-def _non_negative(text: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        x = math.nan
-    if not (math.isfinite(x) and x >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return x
+_probability = _number(lambda x: 0.0 <= x <= 1.0, "a probability in [0, 1]")
+_positive = _number(lambda x: x > 0, "a positive number")
+_non_negative = _number(lambda x: x >= 0, "a number >= 0")
 
 
 def _configure(p: argparse.ArgumentParser) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -63,11 +63,7 @@ def contact_log(plant) -> list[dict] | None:
     events = getattr(plant, "contacts", None)
     if events is None:
         return None
-    return [
-        {"t_start": e.t_start, "t_end": e.t_end, "body_a": e.body_a, "body_b": e.body_b,
-         "max_depth_m": e.max_depth_m}
-        for e in events
-    ]
+    return [asdict(e) for e in events]
 
 
 def make_agents(sc: Scenario) -> list[AgentCore]:

@@ -84,6 +84,12 @@ class SensedBody(msgspec.Struct, array_like=True, frozen=True):
     radius: float
 
 
+def sensed_bodies(bodies) -> list[SensedBody]:
+    """Wire form of sensed bodies (anything with ident, position, velocity, radius)."""
+    return [SensedBody(b.ident, tuple(b.position.tolist()), tuple(b.velocity.tolist()),
+                       float(b.radius)) for b in bodies]
+
+
 class Perception(Message, frozen=True):
     ROBOT_FIELD: ClassVar[str | None] = "robot"
     robot: int

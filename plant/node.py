@@ -23,7 +23,7 @@ from deploy.node_runtime import (
     Timing,
     publish_report,
 )
-from deploy.runner import make_plant
+from deploy.runner import contact_log, make_plant
 from deploy.scenario import Scenario
 from deploy.transport import Node
 from deploy.wire import (
@@ -35,16 +35,11 @@ from deploy.wire import (
     Control,
     Perception,
     RobotState,
-    SensedBody,
     WheelCommand,
     run_roles,
+    sensed_bodies,
 )
 from plant.perception import sensor_for
-
-
-def _sensed(bodies) -> list[SensedBody]:
-    return [SensedBody(b.ident, tuple(b.position.tolist()), tuple(b.velocity.tolist()),
-                       float(b.radius)) for b in bodies]
 
 
 class PlantNode:
@@ -101,7 +96,7 @@ class PlantNode:
             robots, obstacles = self.sense(i)
             node.publish(keys.perception(rid), lambda seq, stamp, rid=rid, r=robots, o=obstacles:
                          Perception(WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t,
-                                    robots=_sensed(r), obstacles=_sensed(o)))
+                                    robots=sensed_bodies(r), obstacles=sensed_bodies(o)))
             msg = node.publish(keys.robot_state(rid), lambda seq, stamp, i=i, rid=rid: RobotState(
                 WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t,
                 q=tuple(q[i].tolist()), q_dot=tuple(qd[i].tolist())))
@@ -178,12 +173,10 @@ class PlantNode:
     def finish(self, linger_s: float = 5.0) -> None:
         """Report, then stay until the other nodes have left after ``end``, so
         none of them mistakes our leaving for a crash of the plant."""
-        events = getattr(self.plant, "contacts", None)
-        contacts = None if events is None else [
-            ContactRecord(e.t_start, e.t_end, e.body_a, e.body_b, e.max_depth_m)
-            for e in events[:MAX_CONTACTS]]
+        log = contact_log(self.plant)
+        contacts = None if log is None else [ContactRecord(**e) for e in log[:MAX_CONTACTS]]
         getattr(self.plant, "close", lambda: None)()
         publish_report(self.node, -1, self.steps_done, self.timing, contacts=contacts,
-                       contacts_total=0 if events is None else len(events))
+                       contacts_total=0 if log is None else len(log))
         others = set(self.peers) - {LAUNCHER_ROLE}
         self.node.mailbox.wait_until(lambda: not (others & self.node.peers_alive), linger_s)
