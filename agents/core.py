@@ -28,6 +28,15 @@ from agents.controller import (
     matvec3,
     saturate_torques_vec,
 )
+from agents.degradation import (
+    DegradationConfig,
+    InputAges,
+    freshest_source,
+    next_speed_factor,
+    predict,
+    reacquire,
+    slow_down,
+)
 from agents.eso import EsoGains, eso_step_vec
 from agents.estimator import EstimatorGains, estimator_step_vec
 from agents.formation import ScaleChange, desired_formation_vec, offsets_vec, scale_at_vec
@@ -46,6 +55,7 @@ class Share:
     q_dot: np.ndarray
     zeta: np.ndarray
     zeta_dot: np.ndarray
+    info_age_s: float = 0.0  # how old the sender's leader information is (degradation.py)
 
 
 @dataclass(frozen=True)
@@ -86,6 +96,7 @@ class AgentConfig:
     max_speed_mps: float = float("inf")
     max_yaw_rate_radps: float = float("inf")
     max_wheel_torque_nm: float = float("inf")
+    degradation: DegradationConfig = field(default_factory=DegradationConfig)
 
 
 @dataclass
@@ -102,6 +113,10 @@ class AgentOutput:
     task_errors: dict[str, float]
     z2_hat: np.ndarray
     nonfinite: bool  # the law produced a NaN/Inf: torques were zeroed instead
+    # degradation (agents/degradation.py)
+    input_age_s: float = 0.0  # age of the agent's freshest leader information, or its state
+    speed_factor: float = 1.0  # 1: full speed; 0: down to the degraded speed
+    left_out: int = 0  # inputs too old for eq. (14) this step
 
 
 class AgentCore:
@@ -128,6 +143,9 @@ class AgentCore:
         self._v_d_prev: Vec3 | None = None
         self._z1_hat: Vec3 | None = None  # set to the first measurement (see eso.py)
         self._z2_hat: Vec3 = (0.0, 0.0, 0.0)
+        self._speed_factor = 1.0
+        self._info_lost = False  # its information went stale (degradation.py)
+        self._reacquiring = False
         # constants of the step
         self._r_i = (float(cfg.offset[0]), float(cfg.offset[1]))
         self._scale0 = (float(cfg.initial_scale[0]), float(cfg.initial_scale[1]))
@@ -200,16 +218,18 @@ class AgentCore:
         obstacles: Sequence[Body] = (),
         robots: Sequence[Body] = (),
         dt: float | None = None,
+        ages: InputAges | None = None,
     ) -> AgentOutput:
         """One control step. ``dt`` is the time to the next step: the configured
         period unless given (a realtime agent passes the time its plant actually
         advanced, so a missed period does not stretch the observer's clock).
+        ``ages``: how stale the inputs are (None: all fresh); see degradation.py.
 
         A law that diverges gives zero torques and ``nonfinite``, never an
         exception: the float hot path raises where numpy would return inf/NaN
         (x**r overflowing in sig(), cos(inf)), and that is the same outcome."""
         try:
-            return self._step(t, q, q_dot, shares, leader, obstacles, robots, dt)
+            return self._step(t, q, q_dot, shares, leader, obstacles, robots, dt, ages)
         except (ArithmeticError, ValueError):
             return self._diverged(q, q_dot)
 
@@ -235,18 +255,41 @@ class AgentCore:
         obstacles: Sequence[Body],
         robots: Sequence[Body],
         dt: float | None,
+        ages: InputAges | None = None,
     ) -> AgentOutput:
         cfg = self.cfg
         h = cfg.dt if dt is None else dt
         nbr = [shares[j] for j, _ in cfg.neighbours]
-        qv: Vec3 = _vec3(q)
+        nbr_age = [0.0] * len(nbr) if ages is None else [
+            ages.shares_s.get(j, 0.0) for j, _ in cfg.neighbours]
         q_dot_v: Vec3 = _vec3(q_dot)
+        qv: Vec3 = _vec3(q) if ages is None else predict(_vec3(q), q_dot_v, ages.state_s)
+        lead_v3 = (_vec3(leader[0]), _vec3(leader[1])) if leader is not None else None
+        fresh = None
+        info_age = 0.0  # of the freshest leader information
+        if ages is not None:
+            fresh = freshest_source(
+                lead_v3 if cfg.leader_weight != 0.0 else None, ages.leader_s,
+                [(_vec3(sh.q0_hat), _vec3(sh.v0_hat), a, sh.info_age_s)
+                 for sh, a in zip(nbr, nbr_age, strict=True)])
+            info_age = fresh.age_s if fresh is not None else 0.0
+            if info_age > cfg.degradation.stale_after_s:
+                self._info_lost, self._reacquiring = True, False
+            elif self._info_lost:
+                self._info_lost, self._reacquiring = False, True
 
-        # formation reference, eqs. (13), (16)
+        # formation reference, eqs. (13), (16); stale neighbours predicted to now
         zeta, zeta_dot = self._offsets(t)
         if cfg.kappa2 != 0.0:
-            nbr_terms = [[_vec3(sh.q) for sh in nbr], [_vec3(sh.q_dot) for sh in nbr],
-                         [_vec3(sh.zeta) for sh in nbr], [_vec3(sh.zeta_dot) for sh in nbr]]
+            nbr_q_dot = [_vec3(sh.q_dot) for sh in nbr]
+            nbr_zeta_dot = [_vec3(sh.zeta_dot) for sh in nbr]
+            nbr_terms = [
+                [predict(_vec3(sh.q), v, a) for sh, v, a in zip(nbr, nbr_q_dot, nbr_age,
+                                                               strict=True)],
+                nbr_q_dot,
+                [predict(_vec3(sh.zeta), v, a) for sh, v, a in zip(nbr, nbr_zeta_dot, nbr_age,
+                                                                  strict=True)],
+                nbr_zeta_dot]
         else:  # eq. (16) without its neighbour sum
             nbr_terms = [[], [], [], []]
         q_fd, v_fd = desired_formation_vec(
@@ -259,6 +302,11 @@ class AgentCore:
             self._behaviors(qv, q_fd, v_fd, obstacles, robots), cfg.avoidance_engage
         )
         v_d = saturate_velocity_vec(v_fused, cfg.max_speed_mps, cfg.max_yaw_rate_radps)
+        input_age = 0.0 if ages is None else max(info_age, ages.state_s)
+        if ages is not None or self._speed_factor < 1.0:  # degraded, or recovering
+            deg = cfg.degradation
+            self._speed_factor = next_speed_factor(self._speed_factor, input_age, deg, h)
+            v_d = slow_down(v_d, self._speed_factor, deg.degraded_speed_mps)
 
         # dynamic level, eqs. (36), (40)-(42)
         model = self._model
@@ -300,15 +348,37 @@ class AgentCore:
         )
         self._v_d_prev = v_d
 
-        # leader estimator (14), advanced to k+1 and shared
-        lq, lv = (_vec3(leader[0]), _vec3(leader[1])) if leader is not None else (None, None)
+        # leader estimator (14), advanced to k+1 and shared; stale inputs predicted
+        # to now, those older than stale_after_s left out (degradation.py)
+        lq, lv = lead_v3 if lead_v3 is not None else (None, None)
+        nbr_q0 = [_vec3(sh.q0_hat) for sh in nbr]
+        nbr_v0 = [_vec3(sh.v0_hat) for sh in nbr]
+        weights = self._weights
+        left_out = 0
+        if ages is not None:
+            stale_after = cfg.degradation.stale_after_s
+            if lq is not None and lv is not None:
+                if ages.leader_s > stale_after:
+                    lq = lv = None
+                    left_out += 1
+                else:
+                    lq = predict(lq, lv, ages.leader_s)
+            keep = [a <= stale_after for a in nbr_age]
+            left_out += keep.count(False)
+            nbr_q0 = [predict(x, v, a) for x, v, a, ok in zip(nbr_q0, nbr_v0, nbr_age, keep,
+                                                              strict=True) if ok]
+            nbr_v0 = [v for v, ok in zip(nbr_v0, keep, strict=True) if ok]
+            weights = [w for w, ok in zip(weights, keep, strict=True) if ok]
         self._q0_hat, self._v0_hat = estimator_step_vec(
-            self._q0_hat, self._v0_hat, [_vec3(sh.q0_hat) for sh in nbr],
-            [_vec3(sh.v0_hat) for sh in nbr], self._weights, cfg.leader_weight, lq, lv,
+            self._q0_hat, self._v0_hat, nbr_q0, nbr_v0, weights, cfg.leader_weight, lq, lv,
             cfg.estimator, h,
         )
+        if self._reacquiring and fresh is not None:
+            self._q0_hat, self._v0_hat, self._reacquiring = reacquire(
+                self._q0_hat, self._v0_hat, fresh.q0, fresh.v0, cfg.degradation, h)
         share = Share(
-            self.q0_hat, self.v0_hat, q.copy(), q_dot.copy(), np.array(zeta), np.array(zeta_dot)
+            self.q0_hat, self.v0_hat, q.copy(), q_dot.copy(), np.array(zeta), np.array(zeta_dot),
+            info_age,
         )
         if not _finite(v_d):
             nonfinite = True
@@ -320,6 +390,7 @@ class AgentCore:
             order=tuple([b.name for b in chain]),
             task_errors={b.name: b.task_error for b in chain},
             z2_hat=np.array(self._z2_hat), nonfinite=nonfinite,
+            input_age_s=input_age, speed_factor=self._speed_factor, left_out=left_out,
         )
 
 

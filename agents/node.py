@@ -22,7 +22,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.core import AgentCore, AgentOutput, Body, Share
-from deploy.node_runtime import ControlInbox, StopFlag, Timing, publish_report
+from agents.degradation import InputAges, predict
+from deploy.fault_model import FaultModel
+from deploy.fault_plan import FaultPlan
+from deploy.lockstep_inputs import AgentLinks
+from deploy.node_runtime import ControlInbox, FaultGate, StopFlag, Timing, publish_report
 from deploy.scenario import Scenario
 from deploy.transport import Node
 from deploy.wire import (
@@ -46,11 +50,29 @@ TELEMETRY_HZ = 100.0  # realtime telemetry rate (lockstep: every step)
 
 def share_from_msg(m: NeighbourShare) -> Share:
     a = np.array
-    return Share(a(m.q0_hat), a(m.v0_hat), a(m.q), a(m.q_dot), a(m.zeta), a(m.zeta_dot))
+    return Share(a(m.q0_hat), a(m.v0_hat), a(m.q), a(m.q_dot), a(m.zeta), a(m.zeta_dot),
+                 m.info_age_s)
 
 
 def bodies_from_msg(bodies: list[SensedBody]) -> list[Body]:
     return [Body(b.ident, np.array(b.position), np.array(b.velocity), b.radius) for b in bodies]
+
+
+def realtime_ages(state: RobotState, leader: LeaderState | None,
+                  shares: dict[int, NeighbourShare], dt: float) -> InputAges:
+    """Realtime: how much older than one period each input is, by the step
+    indices the messages carry (the leader's and the plant's clocks tick
+    together from the same start)."""
+    leader_s = 0.0 if leader is None else max(0.0, state.t - leader.t - dt)
+    return InputAges(0.0, leader_s, {j: max(0.0, (state.k - 1 - m.k) * dt)
+                                     for j, m in shares.items()})
+
+
+def _stale(ages: InputAges | None) -> int:
+    """Inputs older than in a fault-free run."""
+    if ages is None:
+        return 0
+    return int(ages.state_s > 0) + int(ages.leader_s > 0) + sum(a > 0 for a in ages.shares_s.values())
 
 
 def _t3(x: np.ndarray) -> tuple[float, float, float]:
@@ -78,9 +100,14 @@ class AgentInputs:
 
 class AgentNode:
     def __init__(self, sc: Scenario, robot_id: int, node: Node, stop: StopFlag,
-                 with_recorder: bool = False, plant_role: str = PLANT_ROLE) -> None:
-        """``plant_role``: who publishes this robot's state (the plant, or a CAN bridge)."""
+                 with_recorder: bool = False, plant_role: str = PLANT_ROLE,
+                 faults: FaultPlan | None = None, realtime: bool = False) -> None:
+        """``plant_role``: who publishes this robot's state (the plant, or a CAN bridge);
+        ``faults``: the run's fault plan (this agent applies the faults of the
+        edges it receives on: in lockstep when it picks a step's inputs, in
+        realtime as messages arrive)."""
         self.sc, self.node, self.stop = sc, node, stop
+        self.plant_role = plant_role
         self.index = sc.index_of(robot_id)
         self.rid = robot_id
         q, qd = sc.initial_state()
@@ -90,6 +117,12 @@ class AgentNode:
         self.hears_leader = self.core.cfg.leader_weight != 0.0
         self.inputs = AgentInputs.empty()
         self.last_shares: dict[int, Share] = {}
+        self.faults = FaultModel(faults, sc.dt)
+        self.links: AgentLinks = AgentLinks(self.faults, robot_id, self.neighbours,
+                                            self.hears_leader)
+        self.keep_steps = KEEP_STEPS + self.faults.max_lag_steps
+        self.gate = FaultGate(self.faults, node.mailbox) if realtime and faults else None
+        self._perception_used: Perception | None = None
         self.timing = Timing()
         self.steps_done = 0
         self.telemetry_every = 1  # realtime decimates (see run_realtime)
@@ -128,12 +161,23 @@ class AgentNode:
             if old is None or m.k > old.k:
                 inp.newest_share[m.robot] = m
 
-        self.node.subscribe(keys.robot_state(rid), RobotState, on_state, robot=rid)
-        self.node.subscribe(keys.perception(rid), Perception, on_perception, robot=rid)
+        me, gate = agent_role(rid), self._gated
+        self.node.subscribe(keys.robot_state(rid), RobotState,
+                            gate(self.plant_role, me, on_state), robot=rid)
+        self.node.subscribe(keys.perception(rid), Perception,
+                            gate(self.plant_role, me, on_perception), robot=rid)
         if self.hears_leader:
-            self.node.subscribe(keys.leader_state, LeaderState, on_leader)
+            self.node.subscribe(keys.leader_state, LeaderState, gate(LEADER_ROLE, me, on_leader))
         for j in self.neighbours:
-            self.node.subscribe(keys.share(j), NeighbourShare, on_share, robot=j)
+            self.node.subscribe(keys.share(j), NeighbourShare,
+                                gate(agent_role(j), me, on_share), robot=j)
+
+    def _gated(self, src: str, dst: str, on_message):
+        """Realtime with a fault plan: the edge's faults act as messages arrive
+        (perception shares the state's fate: one decision per edge and step)."""
+        if self.gate is None:
+            return on_message
+        return self.gate.wrap(src, dst, on_message)
 
     # -- start --------------------------------------------------------------------
     def handshake(self, timeout_s: float) -> None:
@@ -151,7 +195,7 @@ class AgentNode:
         self.node.publish(self.node.keys.share(rid), lambda seq, stamp: NeighbourShare(
             WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, q0_hat=_t3(s.q0_hat),
             v0_hat=_t3(s.v0_hat), q=_t3(s.q), q_dot=_t3(s.q_dot), zeta=_t3(s.zeta),
-            zeta_dot=_t3(s.zeta_dot)))
+            zeta_dot=_t3(s.zeta_dot), info_age_s=s.info_age_s))
 
     def _publish_step(self, k: int, t: float, state: RobotState, out: AgentOutput,
                       stale: int) -> None:
@@ -169,17 +213,19 @@ class AgentNode:
             e=_t3(out.tracking_error), s=_t3(out.sliding), v_cmd=_t3(out.v_cmd),
             torques=tuple(out.torques.tolist()), q0_hat=_t3(out.share.q0_hat),
             q_fd=_t3(out.q_fd), fdb_error=None if fdb is None else float(fdb),
-            order=">".join(out.order), nonfinite=out.nonfinite, stale_inputs=stale))
+            order=">".join(out.order), nonfinite=out.nonfinite, stale_inputs=stale,
+            input_age_s=out.input_age_s, speed_factor=out.speed_factor, left_out=out.left_out))
 
     def _compute(self, t: float, state: RobotState, perception: Perception | None,
-                 leader: LeaderState | None, dt: float | None = None) -> AgentOutput:
+                 leader: LeaderState | None, dt: float | None = None,
+                 ages: InputAges | None = None) -> AgentOutput:
         robots = bodies_from_msg(perception.robots) if perception else []
         obstacles = bodies_from_msg(perception.obstacles) if perception else []
         lead = (np.array(leader.q), np.array(leader.q_dot)) if leader is not None else None
         if self.hears_leader and lead is None:  # never heard it yet: use own estimate
             lead = (self.core.q0_hat.copy(), self.core.v0_hat.copy())
         return self.core.step(t, np.array(state.q), np.array(state.q_dot), self.last_shares,
-                              lead, obstacles, robots, dt)
+                              lead, obstacles, robots, dt, ages)
 
     # -- lockstep -----------------------------------------------------------------
     def _lockstep_ready(self, k: int) -> bool:
@@ -205,29 +251,39 @@ class AgentNode:
                 if newest > k:  # we fell behind the plant: skip to its newest step
                     self.node.counters.late += newest - k
                     k = newest
-                state = inp.states[k]
-                perception = inp.perceptions.get(k, inp.newest_perception)
-                leader = inp.leaders.get(k, inp.newest_leader)
-                stale = int(k not in inp.perceptions) + int(
-                    self.hears_leader and k not in inp.leaders)
-                for j in self.neighbours:
-                    msg = inp.shares.get((j, k - 1))
-                    if msg is None:
-                        stale += 1
-                        msg = inp.newest_share.get(j)
-                    if msg is not None:
-                        self.last_shares[j] = share_from_msg(msg)
-                self._forget_before(k - KEEP_STEPS)
-            self.node.counters.late += stale
-            missing = [j for j in self.neighbours if j not in self.last_shares]
-            if missing:  # never heard from a neighbour: cannot compute eq. (16)
-                print(f"{self.node.role}: no share ever received from {missing}", file=sys.stderr)
+                # the arrival of step k's messages is the clock; the links pick
+                # the samples a faulty edge lets through (deploy/lockstep_inputs.py)
+                world, leader, shares, ages = self.links.take(
+                    k, self._world_at, inp.leaders.get, lambda j, idx: inp.shares.get((j, idx)),
+                    self.sc.dt)
+                missing = int(k not in inp.perceptions) + int(
+                    self.hears_leader and k not in inp.leaders) + sum(
+                    (j, k - 1) not in inp.shares for j in self.neighbours)
+                self._forget_before(k - self.keep_steps)
+            self.node.counters.late += missing
+            for j, msg in shares.items():
+                if msg is not None:
+                    self.last_shares[j] = share_from_msg(msg)
+            unheard = [j for j in self.neighbours if j not in self.last_shares]
+            if unheard:  # never heard from a neighbour: cannot compute eq. (16)
+                print(f"{self.node.role}: no share ever received from {unheard}", file=sys.stderr)
                 continue
+            state, perception = world
             t = k * self.sc.dt
-            out = self._compute(t, state, perception, leader)
-            self._publish_step(k, t, state, out, stale)
+            out = self._compute(t, state, perception, leader, ages=ages)
+            self._publish_step(k, t, state, out, missing + _stale(ages))
             self.steps_done += 1
             k += 1
+
+    def _world_at(self, k: int) -> tuple[RobotState, Perception | None] | None:
+        """The plant's state and perception of step k (a perception missed at the
+        deadline: the last one used)."""
+        state = self.inputs.states.get(k)
+        if state is None:
+            return None
+        perception = self.inputs.perceptions.get(k, self._perception_used)
+        self._perception_used = perception
+        return state, perception
 
     def _forget_before(self, k: int) -> None:
         inp = self.inputs
@@ -238,7 +294,11 @@ class AgentNode:
             del inp.shares[key]
 
     # -- realtime -----------------------------------------------------------------
-    def run_realtime(self, t0_mono: float, telemetry_hz: float = TELEMETRY_HZ) -> None:
+    def run_realtime(self, t0_mono: float | None, telemetry_hz: float = TELEMETRY_HZ) -> None:
+        """``t0_mono`` None: this agent rejoins a running fleet (restarted after a
+        crash): t = 0 is read from the plant's first state, and the leader
+        estimate and reference restart from what the leader or neighbours say
+        (:meth:`_resync`)."""
         inp, box, dt = self.inputs, self.node.mailbox, self.sc.dt
         # telemetry is for people and the recorder: at most telemetry_hz, so the
         # control traffic keeps the CPU (the run's series fill the gaps forward)
@@ -246,6 +306,8 @@ class AgentNode:
         last_seq = -1
         last_step = None
         last_t: float | None = None
+        share_msgs: dict[int, NeighbourShare] = {}
+        synced = t0_mono is not None
         while not self.stop():
             box.wait_until(
                 lambda seen=last_seq: self.stop() or (inp.newest_state is not None
@@ -261,8 +323,7 @@ class AgentNode:
                     continue
                 fresh = state.seq > last_seq
                 perception, leader = inp.newest_perception, inp.newest_leader
-                for j, msg in inp.newest_share.items():
-                    self.last_shares[j] = share_from_msg(msg)
+                share_msgs.update(inp.newest_share)
                 for by_step in (inp.states, inp.perceptions, inp.leaders, inp.shares):
                     by_step.clear()  # realtime uses only the newest of each
             if not fresh:
@@ -279,12 +340,44 @@ class AgentNode:
             # between the states we answer (more than dt when we missed some)
             h = dt if last_t is None or state.t <= last_t else state.t - last_t
             last_t = state.t
-            if any(j not in self.last_shares for j in self.neighbours):
+            if any(j not in share_msgs for j in self.neighbours):
                 continue
+            ages = realtime_ages(state, leader, share_msgs, dt)
+            if not synced:
+                if not self._resync(state, leader, share_msgs, ages):
+                    continue
+                t0_mono, synced = now - state.t, True
+            for j, msg in share_msgs.items():
+                self.last_shares[j] = share_from_msg(msg)
             t = now - t0_mono
-            out = self._compute(t, state, perception, leader, h)
-            self._publish_step(state.k, t, state, out, 0)
+            out = self._compute(t, state, perception, leader, h, ages)
+            self._publish_step(state.k, t, state, out, _stale(ages))
             self.steps_done += 1
 
+    def _resync(self, state: RobotState, leader: LeaderState | None,
+                shares: dict[int, NeighbourShare], ages: InputAges) -> bool:
+        """A restarted agent: the leader estimate from the leader (predicted to
+        now) or else the mean of the neighbours' estimates (predicted likewise),
+        the reference and observer from the robot where it stands. False while
+        none of them has been heard."""
+        if self.hears_leader and leader is not None:
+            q0 = predict(leader.q, leader.q_dot, ages.leader_s)
+            v0 = leader.q_dot
+        elif shares:
+            est = [predict(m.q0_hat, m.v0_hat, ages.shares_s.get(j, 0.0))
+                   for j, m in shares.items()]
+            q0 = tuple(np.mean(est, axis=0).tolist())
+            v0 = tuple(np.mean([m.v0_hat for m in shares.values()], axis=0).tolist())
+        else:
+            return False
+        self.core = AgentCore(self.core.cfg, np.array(state.q), np.array(state.q_dot),
+                              np.array(q0), np.array(v0))
+        print(f"{self.node.role}: rejoined at t = {state.t:.3f} s (plant step {state.k})",
+              file=sys.stderr)
+        return True
+
     def finish(self) -> None:
-        publish_report(self.node, self.rid, self.steps_done, self.timing)
+        if self.gate is not None:
+            self.gate.close()
+        publish_report(self.node, self.rid, self.steps_done, self.timing,
+                       faults=self.faults.report())

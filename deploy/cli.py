@@ -12,7 +12,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from deploy.node_cli import CLOCKS, add_node_commands, gui_problem
+from deploy.fault_model import fault_metrics
+from deploy.fault_plan import FaultPlanError
+from deploy.node_cli import CLOCKS, add_node_commands, fault_plan, gui_problem
 from deploy.scenario import PLANT_KINDS, ScenarioError, load_scenario
 from deploy.transport import TransportError
 from deploy.wire import FleetNameError
@@ -48,14 +50,22 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.in_process and args.clock == "realtime":
         print("omnifleet run: --in-process runs lockstep only", file=sys.stderr)
         return EXIT_BAD_INPUT
+    plan = fault_plan(args, sc)
+    if plan is not None and plan.kills and args.clock != "realtime":
+        print("omnifleet run: a fault plan that kills processes needs --clock realtime (in "
+              "lockstep the plant would wait for the dead agent's commands)", file=sys.stderr)
+        return EXIT_BAD_INPUT
     for note in sc.notes:
         print(f"note: {note}", file=sys.stderr)
     out = Path(args.out) if args.out else Path("runs") / sc.name
     label = f"{sc.name} ({plant}, {'in-process' if args.in_process else args.clock})"
     if args.in_process:
-        result = run_in_process(sc, plant, args.duration, terminal_progress(label), gui=args.gui)
+        result = run_in_process(sc, plant, args.duration, terminal_progress(label), gui=args.gui,
+                                faults=plan)
+        extra = {} if plan is None else {"faults": fault_metrics(plan, result.faults or {})}
         metrics = write_run(sc, result.series, out, plant, "lockstep", result.wall_time_s,
-                            figures=not args.no_figures, contact_log=result.contacts)
+                            extra=extra, figures=not args.no_figures,
+                            contact_log=result.contacts)
     else:
         metrics = _run_distributed(sc, args, plant, out, label)
         if metrics is None:
@@ -78,6 +88,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         duration_s=args.duration, control_rate_hz=args.control_rate,
         step_deadline_s=args.step_deadline, startup_timeout_s=args.startup_timeout,
         record=not args.no_record, fleet=args.fleet, endpoint=args.endpoint, gui=args.gui,
+        faults=fault_plan(args, sc),
     )
     launcher = Launcher(sc, opts)
     try:
@@ -197,6 +208,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--control-rate", type=float, metavar="HZ",
                      help="override the scenario's control_rate_hz (see docs/control-rate.md)")
     run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    run.add_argument("--faults", metavar="PLAN",
+                     help="inject the faults of a fault plan (TOML; docs/faults.md): lossy, "
+                     "delayed or partitioned links, killed and restarted processes, CAN frame "
+                     "loss; counted per link in metrics.json")
     run.add_argument("--check", action="store_true",
                      help="exit 1 unless every robot settles before sqrt(2) T_p with no contact")
     run.set_defaults(func=_cmd_run)
@@ -219,6 +234,9 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except ScenarioError as exc:
         print(f"omnifleet: bad scenario: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except FaultPlanError as exc:
+        print(f"omnifleet: bad fault plan: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except (TransportError, FleetNameError) as exc:
         print(f"omnifleet: {exc}", file=sys.stderr)

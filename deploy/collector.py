@@ -111,3 +111,5 @@ def record_telemetry(ts: TimeSeries, k: int, i: int, m: Telemetry) -> None:
     ts.active[k, i] = sum(BEHAVIOR_BITS.get(b, 0) for b in names)
     ts.order[k, i] = m.order
     ts.nonfinite[k, i] = int(m.nonfinite)
+    ts.input_age[k, i] = m.input_age_s
+    ts.speed_factor[k, i] = m.speed_factor

@@ -24,6 +24,9 @@ import msgspec
 import numpy as np
 
 from deploy.collector import Collector
+from deploy.fault_model import fault_metrics, merge_reports
+from deploy.fault_plan import FaultPlan
+from deploy.kill_schedule import KillSchedule
 from deploy.node_runtime import START_LEAD_S, StopFlag, peak_rss_kb
 from deploy.scenario import Scenario
 from deploy.transport import Node, zenoh_config
@@ -70,6 +73,7 @@ class Child:
     log: Any = None
     zenoh: bool = True  # a zenoh peer with liveliness tokens (an emulator speaks CAN only)
     stop_after_run: bool = False  # runs until stopped (an emulator): SIGTERM after the run
+    killed: bool = False  # killed by the fault plan: its exit status is expected
 
     def tail(self, n: int = TAIL_LINES) -> str:
         try:
@@ -94,6 +98,7 @@ class LaunchOptions:
     record: bool = True
     gui: bool = False  # pybullet plant: open its window
     extra_agent_args: list[str] = field(default_factory=list)
+    faults: FaultPlan | None = None  # given to every node; kills done by the launcher
 
 
 def free_udp_port() -> int:
@@ -131,6 +136,8 @@ class Launcher:
         self.collector = Collector(sc, self.steps)
         self.truth_files: dict[int, Path] = {}  # can-emulated: each emulator's ground truth
         self.t0_mono: float | None = None  # can-emulated: t = 0 of the run (this host's clock)
+        self.run_t0: float | None = None  # realtime: t = 0 of the run (from ``ctl/start``)
+        self.kills = KillSchedule(opts.faults.kills if opts.faults else ())
 
     # -- children -------------------------------------------------------------------
     def _common_args(self, endpoint: str) -> list[str]:
@@ -143,6 +150,8 @@ class Launcher:
             args += ["--duration", repr(o.duration_s)]
         if o.control_rate_hz is not None:
             args += ["--control-rate", repr(o.control_rate_hz)]
+        if o.faults is not None:
+            args += ["--faults", str(Path(o.faults.path).resolve())]
         return args
 
     def _plan(self, endpoint: str) -> list[Child]:
@@ -212,6 +221,8 @@ class Launcher:
 
     def _check_children(self) -> None:
         for c in self.children:
+            if c.killed:
+                continue
             if self._reap(c, block=False) and not (self.ended and c.exit_code == 0):
                 if c.exit_code == 0:
                     # a node that ended cleanly after ``end`` raced our flag; the plant
@@ -256,7 +267,9 @@ class Launcher:
         if self.recorder is not None:
             self.recorder.add(key, time.time_ns(), msg)
         if isinstance(msg, Control):
-            if msg.command == "tick":
+            if msg.command == "start" and self.run_t0 is None:
+                self.run_t0 = time.monotonic() + (msg.start_unix_ns - time.time_ns()) * 1e-9
+            elif msg.command == "tick":
                 self.progress_k = max(self.progress_k, msg.k)
             elif msg.command == "end":
                 self.ended = True
@@ -308,9 +321,10 @@ class Launcher:
                 if self.t0_mono is not None and time.monotonic() >= self.t0_mono + self.steps * self.sc.dt:
                     self._control(node, "end")  # no plant: the launcher keeps the run's time
                     self.ended = True
+                self._apply_kills()
                 if progress is not None:
                     progress(self.progress_k + 1, self.steps)
-                time.sleep(0.05)
+                time.sleep(0.05 if not self.kills.pending else 0.005)
             wall = time.perf_counter() - start
             if progress is not None:
                 progress(self.steps, self.steps)
@@ -323,6 +337,32 @@ class Launcher:
             if self.recorder is not None:
                 self.recorder.close()  # flushed, also after Ctrl-C
         return self._figures(wall)
+
+    def _apply_kills(self) -> None:
+        """The fault plan's process kills (SIGKILL: a crash, no goodbye) and
+        restarts (the agent rejoins the running fleet), on the run's clock."""
+        if self.run_t0 is None or not self.kills.pending:
+            return
+        t = time.monotonic() - self.run_t0
+        for event in self.kills.due(t):
+            # kill: the live process of that role; restart: the one killed
+            child = [c for c in self.children if c.role == event.process
+                     and c.killed == event.restart][-1]
+            if event.restart:
+                self.kills.log(event, t, self._restart(child))
+            else:
+                child.killed = True
+                os.kill(child.proc.pid, signal.SIGKILL)
+                self._reap(child, block=True)
+                self.kills.log(event, t, child.proc.pid)
+
+    def _restart(self, dead: Child) -> int:
+        argv = [*dead.argv, "--rejoin"] if dead.role.startswith("agent-") else dead.argv
+        child = Child(dead.role, dead.robot, argv,
+                      dead.log_path.with_name(f"{dead.role}.restart.log"))
+        self._spawn(child)
+        self.children.append(child)
+        return child.proc.pid
 
     def _listened_keys(self) -> list[str]:
         """Recording: every key of the fleet. Otherwise only what the series and
@@ -365,7 +405,7 @@ class Launcher:
                     time.sleep(0.02)
                 if c.exit_code in (-signal.SIGTERM, 143):
                     c.exit_code = 0  # stopped as planned
-        bad = [c for c in self.children if c.exit_code not in (0,)]
+        bad = [c for c in self.children if c.exit_code not in (0,) and not c.killed]
         if bad:
             raise RunFailed("; ".join(
                 f"{c.role} (pid {c.proc.pid}) "
@@ -394,7 +434,7 @@ class Launcher:
             "processes": [
                 {"role": c.role, "robot": c.robot, "pid": c.proc.pid,
                  "peak_rss_mb": None if c.peak_rss_mb is None else round(c.peak_rss_mb, 1),
-                 "exit_code": c.exit_code, "reported": c.role in reports,
+                 "exit_code": c.exit_code, "killed": c.killed, "reported": c.role in reports,
                  "received": dict(reports[c.role].received) if c.role in reports else {}}
                 for c in self.children
             ] + [{"role": LAUNCHER_ROLE, "robot": None, "pid": os.getpid(),
@@ -402,11 +442,18 @@ class Launcher:
                   "reported": True}],
         }
         plant = reports.get(PLANT_ROLE)
+        if plant is not None and plant.command_stops:
+            out["command_stops"] = [{"robot": r, "command_age_s": a, "t_s": t}
+                                    for r, a, t in plant.command_stops]
         if plant is not None and plant.contacts is not None:
             out["contact_log"] = [msgspec.structs.asdict(c) for c in plant.contacts]
             out["contacts_total"] = plant.contacts_total
         if self.recorder is not None:
             out["recording"] = {"file": "recording.mcap", "messages": self.recorder.written}
+        if self.opts.faults is not None:
+            out["faults"] = fault_metrics(self.opts.faults,
+                                          merge_reports([r.faults for r in reports.values()]),
+                                          self.kills.events)
         if self.opts.clock == "realtime":
             out["latency_ms"] = _percentiles_ms(plant.latency_ns if plant else [])
             out["jitter_ms"] = _percentiles_ms([j for r in reports.values() for j in r.jitter_ns])

@@ -12,6 +12,7 @@ import argparse
 import os
 import sys
 
+from deploy.fault_plan import FaultPlan
 from deploy.node_runtime import (
     CLOCKS,
     StopFlag,
@@ -31,6 +32,15 @@ def _scenario(args: argparse.Namespace) -> Scenario:
     if args.control_rate is not None:
         sc = sc.with_control_rate(args.control_rate)
     return sc
+
+
+def fault_plan(args: argparse.Namespace, sc: Scenario) -> FaultPlan | None:
+    """The ``--faults`` plan validated for ``sc`` (FaultPlanError: exit 2)."""
+    if not getattr(args, "faults", None):
+        return None
+    from deploy.fault_plan import load_plan
+
+    return load_plan(args.faults, sc)
 
 
 def _steps(sc: Scenario, args: argparse.Namespace) -> int:
@@ -104,11 +114,21 @@ def _cmd_agent(args: argparse.Namespace) -> int:
     sc = _scenario(args)
     sc.index_of(args.robot)  # fail fast, before opening a session
 
+    if args.rejoin and args.clock != "realtime":
+        print("omnifleet agent: --rejoin joins a running realtime fleet (--clock realtime)",
+              file=sys.stderr)
+        return 2
+    plan = fault_plan(args, sc)
+
     def build(sc, node, stop):
         node.required, node.on_lost = {args.plant_role}, _lost(stop, node)
-        return AgentNode(sc, args.robot, node, stop, args.with_recorder, args.plant_role)
+        return AgentNode(sc, args.robot, node, stop, args.with_recorder, args.plant_role,
+                         plan, realtime=args.clock == "realtime")
 
     def realtime(obj, sc):
+        if args.rejoin:  # the start was announced long ago: t = 0 comes from the plant
+            obj.run_realtime(None)
+            return
         t0 = obj.control.wait_for_start(args.startup_timeout)
         if t0 is not None:
             obj.run_realtime(t0)
@@ -125,9 +145,12 @@ def _cmd_plant(args: argparse.Namespace) -> int:
         print(f"omnifleet plant: {problem}", file=sys.stderr)
         return 2
 
+    plan = fault_plan(args, _scenario(args))
+
     def build(sc, node, stop):
         return PlantNode(sc, args.plant or sc.spec.plant.kind, node, stop, args.with_recorder,
-                         args.command_timeout, gui=args.gui)
+                         args.command_timeout, gui=args.gui, faults=plan,
+                         realtime=args.clock == "realtime")
 
     return _run_node(args, PLANT_ROLE, 0, build,
                      lambda obj, sc: obj.run_lockstep(_steps(sc, args), args.step_deadline),
@@ -165,6 +188,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="lockstep: wait this long for a step's inputs (default: 2)")
     p.add_argument("--startup-timeout", type=float, default=60.0, metavar="S",
                    help="wait this long for the peers to appear (default: 60)")
+    p.add_argument("--faults", metavar="PLAN",
+                   help="a fault plan (TOML, docs/faults.md): this node applies the faults of "
+                   "the links it receives on; give every node of a run the same plan")
     p.add_argument("--with-recorder", action="store_true",
                    help="started by `omnifleet run`: wait for its recorder, die with it")
 
@@ -179,6 +205,10 @@ def add_node_commands(sub: argparse._SubParsersAction) -> None:
     agent.add_argument("--plant-role", default=PLANT_ROLE, metavar="ROLE",
                        help="the node that publishes this robot's state: plant (default), or "
                        "bridge-<ID> when the robot is on CAN; losing it ends the agent")
+    agent.add_argument("--rejoin", action="store_true",
+                       help="realtime: join a fleet that is already running (an agent "
+                       "restarted after a crash): t = 0 and the leader estimate come from the "
+                       "plant, the leader and the neighbours")
     agent.set_defaults(func=_cmd_agent)
 
     plant = sub.add_parser("plant", help="run the simulated plant of every robot",

@@ -5,6 +5,8 @@ and the end-of-run report."""
 from __future__ import annotations
 
 import ctypes
+import heapq
+import itertools
 import signal
 import threading
 import time
@@ -12,7 +14,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from deploy.transport import Node
+from deploy.fault_model import FaultModel
+from deploy.transport import Mailbox, Node
 from deploy.wire import WIRE_VERSION, Control, NodeReport
 
 START_LEAD_S = 0.3  # realtime: t = 0 this long after ``start`` is sent
@@ -131,6 +134,74 @@ class ControlInbox:
         if self.start is None:
             return None
         return time.monotonic() + (self.start.start_unix_ns - time.time_ns()) * 1e-9
+
+
+class FaultGate:
+    """Realtime faults on the edges a node receives on: each message is judged
+    as it arrives (by its step index, once per edge and step, so a robot's state
+    and perception share one fate), and a delayed one is handed over later by
+    a timer thread. Callbacks run under the mailbox lock, as without faults."""
+
+    KEEP = 256  # decisions remembered per edge
+
+    def __init__(self, model: FaultModel, mailbox: Mailbox) -> None:
+        self.model, self.mailbox = model, mailbox
+        self._decided: dict[str, dict[int, bool]] = {}
+        self._heap: list[tuple[float, int, Callable[[Any], None], Any]] = []
+        self._order = itertools.count()
+        self._wake = threading.Condition()
+        self._closed = False
+        self._thread: threading.Thread | None = None
+
+    def wrap(self, src: str, dst: str, on_message: Callable[[Any], None]
+             ) -> Callable[[Any], None]:
+        edge = self.model.edge(src, dst)
+        if edge is None:
+            return on_message
+        decided = self._decided.setdefault(edge.name, {})
+
+        def gated(msg: Any) -> None:  # under the mailbox lock
+            k = msg.k
+            ok = decided.get(k)
+            if ok is None:
+                ok = self.model.judge(edge, k)
+                decided[k] = ok
+                if len(decided) > self.KEEP:
+                    del decided[min(decided)]
+            if not ok:
+                return
+            if edge.spec.delay_s > 0.0:
+                self._later(time.monotonic() + edge.spec.delay_s, on_message, msg)
+            else:
+                on_message(msg)
+        return gated
+
+    def _later(self, due: float, fn: Callable[[Any], None], msg: Any) -> None:
+        with self._wake:
+            heapq.heappush(self._heap, (due, next(self._order), fn, msg))
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._deliver, daemon=True,
+                                                name="fault-delay")
+                self._thread.start()
+            self._wake.notify()
+
+    def _deliver(self) -> None:
+        while True:
+            with self._wake:
+                while not self._closed and (not self._heap or self._heap[0][0] > time.monotonic()):
+                    timeout = self._heap[0][0] - time.monotonic() if self._heap else None
+                    self._wake.wait(timeout)
+                if self._closed:
+                    return
+                _, _, fn, msg = heapq.heappop(self._heap)
+            with self.mailbox.changed:
+                fn(msg)
+                self.mailbox.changed.notify_all()
+
+    def close(self) -> None:
+        with self._wake:
+            self._closed = True
+            self._wake.notify()
 
 
 def peak_rss_kb() -> int:

@@ -14,11 +14,15 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from agents.core import AgentCore
+from agents.core import AgentCore, Share
 from agents.formation import offsets, scale_at
 from agents.leader import LeaderGenerator
+from deploy.fault_model import FaultModel
+from deploy.fault_plan import FaultPlan
+from deploy.lockstep_inputs import AgentLinks, HeldInput
 from deploy.scenario import PLANT_KINDS, Scenario
 from deploy.timeseries import TimeSeries
+from deploy.wire import PLANT_ROLE, agent_role
 from plant.disturbance import make_disturbance
 from plant.model_plant import KinematicPlant, ModelPlant
 from plant.perception import sensor_for
@@ -33,6 +37,7 @@ class RunResult:
     series: TimeSeries
     wall_time_s: float
     contacts: list[dict] | None = None  # physical contact events (pybullet); None: not simulated
+    faults: dict[str, dict[str, int]] | None = None  # injected faults per edge (with a plan)
 
 
 def make_plant(sc: Scenario, kind: str, gui: bool = False):
@@ -100,57 +105,85 @@ def run_in_process(
     duration_s: float | None = None,
     progress: Callable[[int, int], None] | None = None,
     gui: bool = False,
+    faults: FaultPlan | None = None,
 ) -> RunResult:
+    """The lockstep reference run; ``faults``: a fault plan (no process kills),
+    applied exactly as the distributed run applies it."""
+    if faults is not None and faults.kills:
+        raise ValueError("process kills need separate processes: run without --in-process")
     plant_kind = plant_kind or sc.spec.plant.kind
     dt = sc.dt
     steps = sc.steps if duration_s is None else int(round(duration_s / dt))
     plant = make_plant(sc, plant_kind, gui=gui)
     try:
-        return _run(sc, plant, plant_kind, steps, progress)
+        return _run(sc, plant, plant_kind, steps, progress, FaultModel(faults, dt))
     finally:
         getattr(plant, "close", lambda: None)()
 
 
 def _run(sc: Scenario, plant, plant_kind: str, steps: int,
-         progress: Callable[[int, int], None] | None) -> RunResult:
+         progress: Callable[[int, int], None] | None, model: FaultModel) -> RunResult:
     dt = sc.dt
     agents = make_agents(sc)
     leader = LeaderGenerator(sc.leader_spec(), dt)
     sense = sensor_for(plant, sc)
     ids = sc.robot_ids
-    shares = {rid: a.initial_share for rid, a in zip(ids, agents, strict=False)}
     series = TimeSeries.allocate(steps, sc.n)
     b = sc.leader_weights
     torques = np.zeros((sc.n, 4))
     v_cmd = np.zeros((sc.n, 3))
     targets = FormationTargets(sc)
+    # what was sent, by step: the links pick from these (a delay reaches back)
+    keep = model.max_lag_steps + 2
+    worlds: dict[int, list[tuple]] = {}  # k -> per robot (q, q_dot, robots, obstacles)
+    leaders: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    shares: dict[tuple[int, int], Share] = {
+        (rid, -1): a.initial_share for rid, a in zip(ids, agents, strict=True)}
+    commands: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    links = [AgentLinks(model, rid, [j for j, _ in a.cfg.neighbours], b[i] != 0.0)
+             for i, (rid, a) in enumerate(zip(ids, agents, strict=True))]
+    command_links = [HeldInput(model, model.edge(agent_role(rid), PLANT_ROLE), exempt_first=False)
+                     for rid in ids]
 
     start = time.perf_counter()
     for k in range(steps):
         t = k * dt
         q0, v0 = leader.state()
-        new_shares = {}
+        leaders[k] = (q0, v0)
+        worlds[k] = [(plant.q[i].copy(), plant.q_dot[i].copy(), *sense(i)) for i in range(sc.n)]
         for i, agent in enumerate(agents):
-            robots_seen, obstacles_seen = sense(i)
-            out = agent.step(
-                t, plant.q[i].copy(), plant.q_dot[i].copy(),
-                {j: shares[j] for j, _ in agent.cfg.neighbours},
-                (q0, v0) if b[i] != 0.0 else None,
-                obstacles_seen, robots_seen,
-            )
-            torques[i], v_cmd[i] = out.torques, out.v_cmd
-            new_shares[ids[i]] = out.share
+            rid = ids[i]
+            world, lead, shs, ages = links[i].take(
+                k, lambda idx, i=i: worlds[idx][i] if idx in worlds else None, leaders.get,
+                lambda j, idx: shares.get((j, idx)), dt)
+            q, q_dot, robots_seen, obstacles_seen = world
+            out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
+            commands[(rid, k)] = (out.torques, out.v_cmd)
+            shares[(rid, k)] = out.share
             series.record_agent(k, i, out, agent)
         series.record_world(
             k, t, q0, v0, plant.q, plant.q_dot, targets.at(t, q0, v0)
         )
+        for i, rid in enumerate(ids):
+            cmd, _ = command_links[i].take(k, lambda idx, rid=rid: commands.get((rid, idx)))
+            if cmd is not None:
+                torques[i], v_cmd[i] = cmd
         plant.step(t, dt, torques, v_cmd)
         leader.advance()
-        shares = new_shares
+        _forget(k - keep, worlds, leaders, shares, commands)
         if progress is not None:
             progress(k + 1, steps)
     wall = time.perf_counter() - start
-    return RunResult(sc, plant_kind, series, wall, contact_log(plant))
+    return RunResult(sc, plant_kind, series, wall, contact_log(plant), model.report()
+                     if model.plan is not None else None)
+
+
+def _forget(before: int, by_step: dict, leaders: dict, *by_robot_step: dict) -> None:
+    for d in (by_step, leaders):
+        d.pop(before, None)
+    for d in by_robot_step:
+        for key in [key for key in d if key[1] == before]:
+            del d[key]
 
 
 def terminal_progress(total_label: str) -> Callable[[int, int], None] | None:

@@ -19,6 +19,7 @@ import numpy as np
 
 from agents.controller import ControllerGains
 from agents.core import AgentConfig, Body
+from agents.degradation import DegradationConfig
 from agents.eso import EsoGains
 from agents.estimator import EstimatorGains
 from agents.formation import ScaleChange
@@ -158,6 +159,17 @@ class PlantSection(_S, kw_only=True):
     substeps: int = 4
 
 
+class Degradation(_S, kw_only=True):
+    """How an agent degrades when its inputs go stale (agents/degradation.py)."""
+
+    stale_after_s: float = 0.2  # older inputs are left out of eq. (14)
+    slow_after_s: float = 0.5  # older leader information: slow down
+    slow_ramp_s: float = 1.0  # from full speed to the degraded speed, and back
+    degraded_speed_mps: float = 0.3
+    reacquire_tau_s: float = 0.25  # blend toward the leader when its link returns
+    reacquire_tol_m: float = 0.05  # ... until the estimate is this close
+
+
 class Metrics(_S, kw_only=True):
     settle_threshold: float = 0.05
 
@@ -180,6 +192,7 @@ class ScenarioFile(_S, kw_only=True):
     limits: Limits = msgspec.field(default_factory=Limits)
     disturbance: Disturbance = msgspec.field(default_factory=Disturbance)
     plant: PlantSection = msgspec.field(default_factory=PlantSection)
+    degradation: Degradation = msgspec.field(default_factory=Degradation)
     metrics: Metrics = msgspec.field(default_factory=Metrics)
 
 
@@ -316,6 +329,7 @@ class Scenario:
             max_speed_mps=lim.max_speed_mps,
             max_yaw_rate_radps=lim.max_yaw_rate_radps,
             max_wheel_torque_nm=lim.max_wheel_torque_nm,
+            degradation=DegradationConfig(**msgspec.structs.asdict(s.degradation)),
         )
 
 
@@ -451,6 +465,11 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
         if getattr(s.limits, key) <= 0:
             raise _fail(path, f"limits.{key}", "must be positive (inf for none)")
     _check_len(path, "disturbance.constant_nm", s.disturbance.constant_nm, 4)
+    d = s.degradation
+    if d.stale_after_s <= 0 or d.slow_after_s <= 0 or d.slow_ramp_s < 0 \
+            or d.degraded_speed_mps < 0 or d.reacquire_tau_s < 0 or d.reacquire_tol_m <= 0:
+        raise _fail(path, "degradation", "need stale_after_s, slow_after_s > 0 and "
+                    "slow_ramp_s, degraded_speed_mps, reacquire_tau_s >= 0, reacquire_tol_m > 0")
     if s.plant.substeps < 1:
         raise _fail(path, "plant.substeps", "must be >= 1")
     p = s.robot

@@ -32,6 +32,8 @@ COLUMNS = {
     "active": "(k,n) active behaviors bitmask FDB=1 FOCB=2 FRCB=4",
     "order": "(k,n) active behaviors, highest priority first, as text",
     "nonfinite": "(k,n) 1 where the law gave NaN/Inf and torques were zeroed",
+    "input_age": "(k,n) age of the agent's freshest leader information (or its state), s",
+    "speed_factor": "(k,n) degradation speed factor: 1 full speed, 0 degraded speed",
 }
 
 
@@ -54,6 +56,8 @@ class TimeSeries:
     active: np.ndarray
     order: np.ndarray
     nonfinite: np.ndarray
+    input_age: np.ndarray
+    speed_factor: np.ndarray
 
     @classmethod
     def allocate(cls, steps: int, n: int) -> TimeSeries:
@@ -65,7 +69,8 @@ class TimeSeries:
             torque=z((steps, n, 4)), q0_hat=z((steps, n, 3)), q_fd=z((steps, n, 3)),
             target=z((steps, n, 2)), fdb_error=z((steps, n)),
             active=z((steps, n), dtype=np.int8), order=np.full((steps, n), "", dtype="<U16"),
-            nonfinite=z((steps, n), dtype=np.int8),
+            nonfinite=z((steps, n), dtype=np.int8), input_age=z((steps, n)),
+            speed_factor=np.ones((steps, n)),
         )
 
     @property
@@ -84,6 +89,8 @@ class TimeSeries:
         self.active[k, i] = sum(BEHAVIOR_BITS[b] for b in out.order)
         self.order[k, i] = ">".join(out.order)
         self.nonfinite[k, i] = int(out.nonfinite)
+        self.input_age[k, i] = out.input_age_s
+        self.speed_factor[k, i] = out.speed_factor
 
     def record_world(self, k, t, q0, v0, q, q_dot, target) -> None:
         self.t[k] = t

@@ -125,6 +125,7 @@ class NeighbourShare(Message, frozen=True):
     q_dot: Vec3
     zeta: Vec3
     zeta_dot: Vec3
+    info_age_s: float = 0.0  # how old the sender's leader information is (s)
 
 
 class Telemetry(Message, frozen=True):
@@ -142,7 +143,10 @@ class Telemetry(Message, frozen=True):
     fdb_error: float | None  # None when FDB is not active
     order: str  # active behaviors, highest priority first, joined by '>'
     nonfinite: bool
-    stale_inputs: int = 0  # inputs the step went without (deadline passed)
+    stale_inputs: int = 0  # inputs older than in a fault-free run (held or delayed)
+    input_age_s: float = 0.0  # age of the freshest leader information, or the state (s)
+    speed_factor: float = 1.0  # degradation: 1 full speed, 0 down to the degraded speed
+    left_out: int = 0  # inputs too old for eq. (14) this step
 
     def __post_init__(self) -> None:
         if len(self.order) > MAX_ORDER_CHARS:
@@ -192,6 +196,10 @@ class NodeReport(Message, frozen=True):
     received: dict[str, int] = {}  # valid messages received, per key expression
     contacts: list[ContactRecord] | None = None  # plant: physical contacts (None: not simulated)
     contacts_total: int = 0  # every contact event, also those beyond MAX_CONTACTS
+    faults: dict[str, dict[str, int]] = {}  # injected faults per edge this node received on
+    # plant (realtime): robots whose torques were zeroed for want of a fresh command,
+    # as (robot, age of its newest command then, s; plant time, s)
+    command_stops: list[tuple[int, float, float]] = []
 
     def __post_init__(self) -> None:
         if len(self.role) > MAX_ROLE_CHARS:

@@ -15,9 +15,13 @@ import time
 
 import numpy as np
 
+from deploy.fault_model import FaultModel
+from deploy.fault_plan import FaultPlan
+from deploy.lockstep_inputs import HeldInput
 from deploy.node_runtime import (
     START_LEAD_S,
     ControlInbox,
+    FaultGate,
     Periodic,
     StopFlag,
     Timing,
@@ -36,6 +40,7 @@ from deploy.wire import (
     Perception,
     RobotState,
     WheelCommand,
+    agent_role,
     run_roles,
     sensed_bodies,
 )
@@ -45,7 +50,8 @@ from plant.perception import sensor_for
 class PlantNode:
     def __init__(self, sc: Scenario, kind: str, node: Node, stop: StopFlag,
                  with_recorder: bool = False, command_timeout_s: float = 0.1,
-                 gui: bool = False) -> None:
+                 gui: bool = False, faults: FaultPlan | None = None,
+                 realtime: bool = False) -> None:
         self.sc, self.node, self.stop, self.kind = sc, node, stop, kind
         self.plant = make_plant(sc, kind, gui=gui)
         self.sense = sensor_for(self.plant, sc)
@@ -62,15 +68,29 @@ class PlantNode:
         self.peers = [r for r in run_roles(self.ids) if r != PLANT_ROLE]
         if with_recorder:
             self.peers.append(LAUNCHER_ROLE)
+        # faults on the agent -> plant edges: lockstep picks each step's command
+        # through the links, realtime judges commands as they arrive
+        self.faults = FaultModel(faults, sc.dt)
+        self.command_links = [
+            HeldInput(self.faults, self.faults.edge(agent_role(rid), PLANT_ROLE),
+                      exempt_first=False) for rid in self.ids]
+        self.keep_steps = 1 + self.faults.max_lag_steps
+        self.gate = FaultGate(self.faults, node.mailbox) if realtime and faults else None
+        self.unpowered: set[int] = set()  # realtime: robots whose commands stopped coming
+        self.command_stops: list[tuple[int, float, float]] = []  # (robot, command age, t)
         for rid in self.ids:
-            node.subscribe(node.keys.cmd(rid), WheelCommand, self._on_cmd, robot=rid)
+            on_cmd = self._on_cmd if self.gate is None else self.gate.wrap(
+                agent_role(rid), PLANT_ROLE, self._on_cmd)
+            node.subscribe(node.keys.cmd(rid), WheelCommand, on_cmd, robot=rid)
         self.control = ControlInbox(node, stop)
         node.declare_alive()
 
     def _on_cmd(self, m: WheelCommand) -> None:  # under the mailbox lock
         self.commands[(m.robot, m.k)] = m
         old = self.newest.get(m.robot)
-        if old is None or m.seq > old.seq:
+        # newer by step, then by sequence (an agent restarted after a crash
+        # numbers its messages from 0 again, but answers the current step)
+        if old is None or (m.k, m.seq) > (old.k, old.seq):
             self.newest[m.robot] = m
             self.newest_at[m.robot] = time.monotonic()
             if m.state_seq == self.last_state_seq.get(m.robot):
@@ -94,6 +114,9 @@ class PlantNode:
         q, qd = self.plant.q, self.plant.q_dot
         for i, rid in enumerate(self.ids):
             robots, obstacles = self.sense(i)
+            if self.unpowered:  # a robot nobody drives is an obstacle to the others
+                obstacles = [*obstacles, *(b for b in robots if b.ident in self.unpowered)]
+                robots = [b for b in robots if b.ident not in self.unpowered]
             node.publish(keys.perception(rid), lambda seq, stamp, rid=rid, r=robots, o=obstacles:
                          Perception(WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t,
                                     robots=sensed_bodies(r), obstacles=sensed_bodies(o)))
@@ -122,14 +145,15 @@ class PlantNode:
                 step_deadline_s)
             with box.lock:
                 for i, rid in enumerate(self.ids):
-                    cmd = self.commands.pop((rid, k), None)
-                    if cmd is None:
+                    if (rid, k) not in self.commands:
                         self.node.counters.late += 1  # hold the last command
-                        continue
-                    self.torques[i], self.v_cmd[i] = cmd.torques, cmd.v_cmd
-                for key in [key for key in self.commands if key[1] <= k]:
+                    # a faulty link may hold an older command (lockstep_inputs.py)
+                    cmd, _ = self.command_links[i].take(
+                        k, lambda idx, rid=rid: self.commands.get((rid, idx)))
+                    if cmd is not None:
+                        self.torques[i], self.v_cmd[i] = cmd.torques, cmd.v_cmd
+                for key in [key for key in self.commands if key[1] <= k - self.keep_steps]:
                     del self.commands[key]
-                    self.node.counters.late += 1
             self.plant.step(t, dt, self.torques, self.v_cmd)
             self.steps_done += 1
         self._control("end", steps, steps * dt)
@@ -164,8 +188,16 @@ class PlantNode:
                 if cmd is None or now - self.newest_at[rid] > self.command_timeout_s:
                     self.torques[i] = 0.0  # no command, or a stale one: stop pushing
                     self.v_cmd[i] = 0.0
+                    if cmd is not None and rid not in self.unpowered:
+                        self.unpowered.add(rid)
+                        age, t = now - self.newest_at[rid], self.steps_done * self.sc.dt
+                        self.command_stops.append((rid, age, t))
+                        print(f"plant: t = {t:.3f} s: newest command from {agent_role(rid)} is "
+                              f"{age * 1e3:.1f} ms old: torques zeroed; the others now perceive "
+                              f"robot {rid} as an obstacle", flush=True)
                 else:
                     self.torques[i], self.v_cmd[i] = cmd.torques, cmd.v_cmd
+                    self.unpowered.discard(rid)
                 if cmd is None or cmd.state_seq != self.last_state_seq.get(rid):
                     self.timing.deadline_misses += 1  # the latest state went unanswered
             self.commands.clear()
@@ -176,7 +208,10 @@ class PlantNode:
         log = contact_log(self.plant)
         contacts = None if log is None else [ContactRecord(**e) for e in log[:MAX_CONTACTS]]
         getattr(self.plant, "close", lambda: None)()
+        if self.gate is not None:
+            self.gate.close()
         publish_report(self.node, -1, self.steps_done, self.timing, contacts=contacts,
-                       contacts_total=0 if log is None else len(log))
+                       contacts_total=0 if log is None else len(log),
+                       faults=self.faults.report(), command_stops=self.command_stops[:1000])
         others = set(self.peers) - {LAUNCHER_ROLE}
         self.node.mailbox.wait_until(lambda: not (others & self.node.peers_alive), linger_s)

@@ -1,0 +1,130 @@
+"""Graceful degradation of one agent when its inputs go stale (DESIGN §9).
+
+Every input reaches the step with its age: how much older it is than what a
+fault-free run would use at that step (0 in a fault-free lockstep run; in
+realtime, measured on the step indices of the messages). The agent then:
+
+1. **Predicts** a stale sample to the present with the velocity it carries
+   (first-order hold): the leader's pose q0 + v0 a, a neighbour's estimate
+   q0_hat_j + v0_hat_j a and pose q_j + q_dot_j a. Eq. (14) then compares
+   estimates of the same instant.
+2. **Leaves out** of eq. (14) an input older than ``stale_after_s``: with no
+   input left the estimator integrates its own velocity estimate
+   (q0_hat' = v0_hat, v0_hat' = 0), which is what eq. (14) gives with an empty
+   neighbour set and b_i = 0.
+3. **Slows down** when its freshest information about the leader (the leader
+   itself, or any neighbour, whose share says how old its own information is:
+   ages add up along the graph) or its own state is older than ``slow_after_s``:
+   the speed factor f falls linearly to 0 over ``slow_ramp_s``, and the fused
+   velocity v_d (after eq. 26 and the speed limits) is scaled so that its
+   planar speed tends to ``degraded_speed_mps`` (never raised). When the inputs
+   come back f rises at the same rate, no faster, so the reference q_d, and with
+   it the torque of eq. (40), does not jump.
+4. **Re-acquires** when fresh information comes back after a loss (its
+   information was older than ``stale_after_s``):
+   eq. (14)'s position gains are made for an estimate that starts right (with
+   the paper's iota1 = iota2 = 0.1 a 50 m error takes about 11 s to close), so
+   for as long as the estimate is farther than ``reacquire_tol_m`` from the
+   freshest source's, it is also blended toward it with time constant
+   ``reacquire_tau_s`` (a first-order filter: fast, but no jump). This is ours,
+   not the paper's, and runs only after a loss.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from math import hypot
+
+from agents.signals import Vec3
+
+
+@dataclass(frozen=True)
+class DegradationConfig:
+    stale_after_s: float = 0.2
+    slow_after_s: float = 0.5
+    slow_ramp_s: float = 1.0
+    degraded_speed_mps: float = 0.3
+    reacquire_tau_s: float = 0.25
+    reacquire_tol_m: float = 0.05
+
+
+@dataclass(frozen=True)
+class InputAges:
+    """Ages of the inputs of one step, s (0: as fresh as in a fault-free run)."""
+
+    state_s: float = 0.0
+    leader_s: float = 0.0
+    shares_s: Mapping[int, float] = field(default_factory=dict)
+
+    @property
+    def fresh(self) -> bool:
+        return self.state_s == 0.0 and self.leader_s == 0.0 and not any(self.shares_s.values())
+
+
+def predict(x: Vec3, x_dot: Vec3, age_s: float) -> Vec3:
+    """x + x_dot age: a sample carried forward by the velocity it was taken with."""
+    if age_s == 0.0:
+        return x
+    return x[0] + x_dot[0] * age_s, x[1] + x_dot[1] * age_s, x[2] + x_dot[2] * age_s
+
+
+@dataclass(frozen=True)
+class Freshest:
+    """The agent's freshest source of leader information."""
+
+    age_s: float  # link age plus the age of the source's own information
+    q0: Vec3  # its leader pose (estimate), predicted to now over the link age
+    v0: Vec3
+
+
+def freshest_source(leader: tuple[Vec3, Vec3] | None, leader_age_s: float,
+                    shares: list[tuple[Vec3, Vec3, float, float]]) -> Freshest | None:
+    """Among the leader sample (if heard) and the neighbours' estimates, given as
+    (q0_hat, v0_hat, link age, the neighbour's own information age), the one
+    whose information is freshest. A neighbour's estimate is only as fresh as
+    what it was built from: ages add up along the graph."""
+    best: Freshest | None = None
+    if leader is not None:
+        best = Freshest(leader_age_s, predict(leader[0], leader[1], leader_age_s), leader[1])
+    for q0, v0, link_age, info_age in shares:
+        age = link_age + info_age
+        if best is None or age < best.age_s:
+            best = Freshest(age, predict(q0, v0, link_age), v0)
+    return best
+
+
+def next_speed_factor(f: float, age_s: float, cfg: DegradationConfig, h: float) -> float:
+    """The speed factor after a step of h with information ``age_s`` old:
+    down as fast as the age says, up by at most h / slow_ramp_s."""
+    if cfg.slow_ramp_s <= 0.0:
+        target = 0.0 if age_s > cfg.slow_after_s else 1.0
+    else:
+        target = min(1.0, max(0.0, 1.0 - (age_s - cfg.slow_after_s) / cfg.slow_ramp_s))
+    if target < f:
+        return target
+    step = h / cfg.slow_ramp_s if cfg.slow_ramp_s > 0.0 else 1.0
+    return min(target, f + step)
+
+
+def slow_down(v: Vec3, f: float, degraded_speed: float) -> Vec3:
+    """v_d scaled so that its planar speed blends from |v| (f = 1) to
+    min(|v|, degraded_speed) (f = 0); yaw rate scaled alike."""
+    if f >= 1.0:
+        return v
+    speed = hypot(v[0], v[1])
+    cap = 1.0 if speed <= degraded_speed else degraded_speed / speed
+    s = f + (1.0 - f) * cap
+    return v[0] * s, v[1] * s, v[2] * s
+
+
+def reacquire(q_hat: Vec3, v_hat: Vec3, q0: Vec3, v0: Vec3, cfg: DegradationConfig,
+              h: float) -> tuple[Vec3, Vec3, bool]:
+    """One step of the blend toward the leader (q0, v0); the third value is
+    False once the position estimate is within ``reacquire_tol_m``."""
+    a = min(1.0, h / cfg.reacquire_tau_s) if cfg.reacquire_tau_s > 0.0 else 1.0
+    q = (q_hat[0] + a * (q0[0] - q_hat[0]), q_hat[1] + a * (q0[1] - q_hat[1]),
+         q_hat[2] + a * (q0[2] - q_hat[2]))
+    v = (v_hat[0] + a * (v0[0] - v_hat[0]), v_hat[1] + a * (v0[1] - v_hat[1]),
+         v_hat[2] + a * (v0[2] - v_hat[2]))
+    return q, v, hypot(q0[0] - q[0], q0[1] - q[1]) > cfg.reacquire_tol_m
