@@ -146,6 +146,7 @@ class AgentCore:
         self._speed_factor = 1.0
         self._info_lost = False  # its information went stale (degradation.py)
         self._reacquiring = False
+        self._reacquire_s = 0.0  # time spent re-acquiring
         # constants of the step
         self._r_i = (float(cfg.offset[0]), float(cfg.offset[1]))
         self._scale0 = (float(cfg.initial_scale[0]), float(cfg.initial_scale[1]))
@@ -276,7 +277,7 @@ class AgentCore:
             if info_age > cfg.degradation.stale_after_s:
                 self._info_lost, self._reacquiring = True, False
             elif self._info_lost:
-                self._info_lost, self._reacquiring = False, True
+                self._info_lost, self._reacquiring, self._reacquire_s = False, True, 0.0
 
         # formation reference, eqs. (13), (16); stale neighbours predicted to now
         zeta, zeta_dot = self._offsets(t)
@@ -374,8 +375,10 @@ class AgentCore:
             cfg.estimator, h,
         )
         if self._reacquiring and fresh is not None:
-            self._q0_hat, self._v0_hat, self._reacquiring = reacquire(
+            self._q0_hat, self._v0_hat, far = reacquire(
                 self._q0_hat, self._v0_hat, fresh.q0, fresh.v0, cfg.degradation, h)
+            self._reacquire_s += h
+            self._reacquiring = far or self._reacquire_s < cfg.degradation.reacquire_min_s
         share = Share(
             self.q0_hat, self.v0_hat, q.copy(), q_dot.copy(), np.array(zeta), np.array(zeta_dot),
             info_age,

@@ -26,8 +26,9 @@ realtime, measured on the step indices of the messages). The agent then:
    the paper's iota1 = iota2 = 0.1 a 50 m error takes about 11 s to close), so
    for as long as the estimate is farther than ``reacquire_tol_m`` from the
    freshest source's, it is also blended toward it with time constant
-   ``reacquire_tau_s`` (a first-order filter: fast, but no jump). This is ours,
-   not the paper's, and runs only after a loss.
+   ``reacquire_tau_s`` (a first-order filter: fast, but no jump), for at least
+   ``reacquire_min_s`` (a neighbour that is itself re-acquiring starts next to
+   us and moves away). This is ours, not the paper's, and runs only after a loss.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ class DegradationConfig:
     degraded_speed_mps: float = 0.3
     reacquire_tau_s: float = 0.25
     reacquire_tol_m: float = 0.05
+    reacquire_min_s: float = 1.0
 
 
 @dataclass(frozen=True)

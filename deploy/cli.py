@@ -220,11 +220,13 @@ def build_parser() -> argparse.ArgumentParser:
     from bridges.can_check import add_can_check_command
     from bridges.emulator_cli import add_emulate_command
     from deploy.bench import add_bench_command
+    from deploy.fault_sweep import add_faults_command
 
     add_bridge_commands(sub)
     add_emulate_command(sub)
     add_can_check_command(sub)
     add_bench_command(sub)
+    add_faults_command(sub)
     return p
 
 

@@ -142,6 +142,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     commands: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
     links = [AgentLinks(model, rid, [j for j, _ in a.cfg.neighbours], b[i] != 0.0)
              for i, (rid, a) in enumerate(zip(ids, agents, strict=True))]
+    zero_missed = sc.spec.plant.missed_command == "zero"
     command_links = [HeldInput(model, model.edge(agent_role(rid), PLANT_ROLE), exempt_first=False)
                      for rid in ids]
 
@@ -165,8 +166,10 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
             k, t, q0, v0, plant.q, plant.q_dot, targets.at(t, q0, v0)
         )
         for i, rid in enumerate(ids):
-            cmd, _ = command_links[i].take(k, lambda idx, rid=rid: commands.get((rid, idx)))
-            if cmd is not None:
+            cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get((rid, idx)))
+            if age > 0 and zero_missed:
+                torques[i], v_cmd[i] = 0.0, 0.0
+            elif cmd is not None:
                 torques[i], v_cmd[i] = cmd
         plant.step(t, dt, torques, v_cmd)
         leader.advance()

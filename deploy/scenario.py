@@ -157,6 +157,10 @@ PLANT_KINDS: tuple[str, ...] = get_args(PlantKind)
 class PlantSection(_S, kw_only=True):
     kind: PlantKind = "pybullet"
     substeps: int = 4
+    # lockstep, a step whose command was lost (fault injection) or late: "hold"
+    # the last command (a driver's input persists), or "zero" the torques for
+    # that step (a command is valid for one period only)
+    missed_command: Literal["hold", "zero"] = "hold"
 
 
 class Degradation(_S, kw_only=True):
@@ -168,6 +172,7 @@ class Degradation(_S, kw_only=True):
     degraded_speed_mps: float = 0.3
     reacquire_tau_s: float = 0.25  # blend toward the leader when its link returns
     reacquire_tol_m: float = 0.05  # ... until the estimate is this close
+    reacquire_min_s: float = 1.0  # ... and for at least this long
 
 
 class Metrics(_S, kw_only=True):
@@ -467,7 +472,8 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
     _check_len(path, "disturbance.constant_nm", s.disturbance.constant_nm, 4)
     d = s.degradation
     if d.stale_after_s <= 0 or d.slow_after_s <= 0 or d.slow_ramp_s < 0 \
-            or d.degraded_speed_mps < 0 or d.reacquire_tau_s < 0 or d.reacquire_tol_m <= 0:
+            or d.degraded_speed_mps < 0 or d.reacquire_tau_s < 0 or d.reacquire_tol_m <= 0 \
+            or d.reacquire_min_s < 0:
         raise _fail(path, "degradation", "need stale_after_s, slow_after_s > 0 and "
                     "slow_ramp_s, degraded_speed_mps, reacquire_tau_s >= 0, reacquire_tol_m > 0")
     if s.plant.substeps < 1:

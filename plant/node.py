@@ -148,9 +148,11 @@ class PlantNode:
                     if (rid, k) not in self.commands:
                         self.node.counters.late += 1  # hold the last command
                     # a faulty link may hold an older command (lockstep_inputs.py)
-                    cmd, _ = self.command_links[i].take(
+                    cmd, age = self.command_links[i].take(
                         k, lambda idx, rid=rid: self.commands.get((rid, idx)))
-                    if cmd is not None:
+                    if age > 0 and self.sc.spec.plant.missed_command == "zero":
+                        self.torques[i], self.v_cmd[i] = 0.0, 0.0
+                    elif cmd is not None:
                         self.torques[i], self.v_cmd[i] = cmd.torques, cmd.v_cmd
                 for key in [key for key in self.commands if key[1] <= k - self.keep_steps]:
                     del self.commands[key]
