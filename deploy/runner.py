@@ -19,6 +19,7 @@ from agents.formation import offsets, scale_at
 from agents.leader import LeaderGenerator
 from deploy.scenario import PLANT_KINDS, Scenario
 from deploy.timeseries import TimeSeries
+from plant.command import applied_command
 from plant.disturbance import make_disturbance
 from plant.model_plant import KinematicPlant, ModelPlant
 from plant.perception import sensor_for
@@ -138,7 +139,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                 (q0, v0) if b[i] != 0.0 else None,
                 obstacles_seen, robots_seen,
             )
-            torques[i], v_cmd[i] = out.torques, out.v_cmd
+            torques[i], v_cmd[i] = applied_command(out.torques, out.v_cmd, sc.spec.limits)
             new_shares[ids[i]] = out.share
             series.record_agent(k, i, out, agent)
         series.record_world(

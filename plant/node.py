@@ -8,11 +8,9 @@ command is held), then integrates to t_{k+1}. In realtime it steps on its own
 monotonic clock, uses the newest command of each robot, and zeroes a robot's
 torques when its newest command is older than the command timeout.
 
-A command is applied as the drives of a real robot would take it: each wheel
-torque clamped to ``limits.max_wheel_torque_nm`` (as the CAN bridge and the drive
-emulator do), the velocity command (the kinematic plant moves at it) saturated to
-``max_speed_mps`` / ``max_yaw_rate_radps``. The agents already respect the limits;
-this holds for any bytes that decode as a command.
+A command is applied through :func:`plant.command.applied_command` (each wheel
+torque clamped to the scenario's limit, v_cmd to the speed limits), whatever the
+bytes that decoded as a command.
 """
 
 from __future__ import annotations
@@ -21,7 +19,6 @@ import time
 
 import numpy as np
 
-from agents.fusion import saturate_velocity_vec
 from deploy.node_runtime import (
     START_LEAD_S,
     ControlInbox,
@@ -31,7 +28,7 @@ from deploy.node_runtime import (
     publish_report,
 )
 from deploy.runner import contact_log, make_plant
-from deploy.scenario import Limits, Scenario
+from deploy.scenario import Scenario
 from deploy.transport import Node
 from deploy.wire import (
     LAUNCHER_ROLE,
@@ -46,14 +43,8 @@ from deploy.wire import (
     run_roles,
     sensed_bodies,
 )
+from plant.command import applied_command
 from plant.perception import sensor_for
-
-
-def applied_command(cmd: WheelCommand, limits: Limits) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """(torques, v_cmd) the plant applies for ``cmd`` (finite: validated on the wire)."""
-    lim = limits.max_wheel_torque_nm
-    torques = tuple(max(-lim, min(lim, x)) for x in cmd.torques)
-    return torques, saturate_velocity_vec(cmd.v_cmd, limits.max_speed_mps, limits.max_yaw_rate_radps)
 
 
 class PlantNode:
@@ -147,7 +138,7 @@ class PlantNode:
                 if cmd is None:
                     self.node.counters.late += 1  # hold the last command
                     continue
-                self.torques[i], self.v_cmd[i] = applied_command(cmd, self.sc.spec.limits)
+                self.torques[i], self.v_cmd[i] = applied_command(cmd.torques, cmd.v_cmd, self.sc.spec.limits)
             for key in [key for key in self.commands if key[1] <= k]:
                 del self.commands[key]
                 self.node.counters.late += 1
@@ -183,7 +174,8 @@ class PlantNode:
                     self.torques[i] = 0.0  # no command, or a stale one: stop pushing
                     self.v_cmd[i] = 0.0
                 else:
-                    self.torques[i], self.v_cmd[i] = applied_command(cmd, self.sc.spec.limits)
+                    self.torques[i], self.v_cmd[i] = applied_command(cmd.torques, cmd.v_cmd,
+                                                                     self.sc.spec.limits)
                 if cmd is None or cmd.state_seq != self.last_state_seq.get(rid):
                     self.timing.deadline_misses += 1  # the latest state went unanswered
             self.commands.clear()
