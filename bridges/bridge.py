@@ -2,7 +2,8 @@
 plant for that robot (DESIGN §8). Realtime only: hardware has no lockstep.
 
 - ``robot/i/cmd`` -> torque frames, sent as the command arrives (the gate of
-  :mod:`bridges.safety` clamps them to the scenario's limit);
+  :mod:`bridges.safety` clamps them to the scenario's limit, or to the protocol's
+  torque bound when that is lower);
 - every period: frames from the drivers -> :class:`DriverMonitor`; wheel speeds
   -> odometry (eq. 1) -> ``robot/i/state`` (``faulted`` set on a driver error or
   a missing heartbeat); ``robot/i/perception`` from the scenario's obstacles (the
@@ -61,7 +62,10 @@ class BridgeNode:
         self.bus, self.protocol, self.node_ids = bus, protocol, list(node_ids)
         q0, _ = sc.initial_state()
         self.odometry = Odometry(sc.model(), q0[self.index])
-        self.gate = CommandGate(command_timeout_s, sc.spec.limits.max_wheel_torque_nm)
+        # the scenario's limit, and never beyond what the protocol can encode (paper.toml
+        # has no limit: a 1001 N m command made the frame encoder raise in the callback)
+        self.gate = CommandGate(command_timeout_s, min(sc.spec.limits.max_wheel_torque_nm,
+                                                       protocol.max_abs_torque_nm))
         self.monitor = DriverMonitor(self.node_ids, heartbeat_timeout_s, time.monotonic())
         self.timing = Timing()
         self.steps_done = 0

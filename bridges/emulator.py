@@ -116,6 +116,7 @@ class EmulatorCounters:
     corrupted_by_fault: int = 0  # outgoing frames with flipped bits
     silenced: int = 0  # frames the silent node did not send, plus commands it ignored
     send_errors: int = 0  # bus.send raised (buffer full, bus off)
+    unencodable: int = 0  # a value the protocol cannot carry (a bus current beyond its bound)
     protocol: FrameCounters = field(default_factory=FrameCounters)
 
     def summary(self) -> str:
@@ -125,7 +126,7 @@ class EmulatorCounters:
                 f"other direction {p.ignored_direction}, other frames {p.other_frame}), "
                 f"dropped by fault {self.dropped_by_fault}, corrupted by fault "
                 f"{self.corrupted_by_fault}, silenced {self.silenced}, send errors "
-                f"{self.send_errors}")
+                f"{self.send_errors}, unencodable {self.unencodable}")
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -303,7 +304,11 @@ class DriverEmulator:
         if self._silent(msg.node):
             self.counters.silenced += 1
             return
-        frame = self.protocol.encode(msg)
+        try:
+            frame = self.protocol.encode(msg)
+        except ValueError:  # e.g. the bus current of wheels driven hard with no torque limit
+            self.counters.unencodable += 1
+            return
         frame.timestamp = self.t
         rng = self._rng
         if self.faults.drop_rate > 0 and rng.random() < self.faults.drop_rate:

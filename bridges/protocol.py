@@ -199,6 +199,7 @@ class DriverProtocol(Protocol):
 
     name: str
     counters: FrameCounters
+    max_abs_torque_nm: float  # the largest |torque| encode accepts
 
     def encode(self, msg: Any) -> can.Message: ...
 

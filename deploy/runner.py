@@ -23,6 +23,7 @@ from deploy.lockstep_inputs import AgentLinks, HeldInput
 from deploy.scenario import PLANT_KINDS, Scenario
 from deploy.timeseries import TimeSeries
 from deploy.wire import PLANT_ROLE, agent_role
+from plant.command import applied_command
 from plant.disturbance import make_disturbance
 from plant.model_plant import KinematicPlant, ModelPlant
 from plant.perception import sensor_for
@@ -159,7 +160,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                 lambda j, idx: shares.get((j, idx)), dt)
             q, q_dot, robots_seen, obstacles_seen = world
             out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
-            commands[(rid, k)] = (out.torques, out.v_cmd)
+            commands[(rid, k)] = applied_command(out.torques, out.v_cmd, sc.spec.limits)
             shares[(rid, k)] = out.share
             series.record_agent(k, i, out, agent)
         series.record_world(

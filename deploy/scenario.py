@@ -404,9 +404,11 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
             _check_len(path, f"robots[{k}].estimate_position", r.estimate_position, 3)
         if r.estimate_velocity is not None:
             _check_len(path, f"robots[{k}].estimate_velocity", r.estimate_velocity, 3)
-    A = np.array(s.graph.adjacency, dtype=float) if s.graph.adjacency else np.zeros((0, 0))
-    if A.shape != (n, n):
-        raise _fail(path, "graph.adjacency", f"must be {n}x{n} for {n} robots, got {list(A.shape)}")
+    rows = s.graph.adjacency
+    if len(rows) != n or any(len(row) != n for row in rows):  # ragged rows: numpy would raise
+        got = f"{len(rows)} rows of {sorted({len(row) for row in rows})} numbers"
+        raise _fail(path, "graph.adjacency", f"must be {n}x{n} for {n} robots, got {got}")
+    A = np.array(rows, dtype=float).reshape(n, n)
     _check_len(path, "graph.leader", s.graph.leader, n)
     b = np.array(s.graph.leader, dtype=float)
     _check_finite(path, "graph.adjacency", A)
@@ -505,13 +507,20 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         raw = path.read_bytes()
     except OSError as exc:
         raise ScenarioError(f"{path}: cannot read: {exc}") from exc
+    return parse_scenario(raw, str(path))
+
+
+def parse_scenario(raw: bytes | str, path: str = "<scenario>") -> Scenario:
+    """Decode and validate a scenario's TOML text; ``path`` names it in errors."""
     try:
         spec = msgspec.toml.decode(raw, type=ScenarioFile)
     except msgspec.ValidationError as exc:
         raise ScenarioError(f"{path}: {_readable(str(exc))}") from exc
     except msgspec.DecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
-    return _validate(str(path), spec)
+    except UnicodeDecodeError as exc:  # msgspec decodes bytes as UTF-8 before parsing
+        raise ScenarioError(f"{path}: not valid TOML (not UTF-8 text): {exc}") from exc
+    return _validate(path, spec)
 
 
 def _readable(msg: str) -> str:

@@ -7,6 +7,10 @@ of step k (per-step deadline; a missing one is counted late and the last
 command is held), then integrates to t_{k+1}. In realtime it steps on its own
 monotonic clock, uses the newest command of each robot, and zeroes a robot's
 torques when its newest command is older than the command timeout.
+
+A command is applied through :func:`plant.command.applied_command` (each wheel
+torque clamped to the scenario's limit, v_cmd to the speed limits), whatever the
+bytes that decoded as a command.
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ from deploy.wire import (
     run_roles,
     sensed_bodies,
 )
+from plant.command import applied_command
 from plant.perception import sensor_for
 
 
@@ -143,22 +148,29 @@ class PlantNode:
             box.wait_until(
                 lambda k=k: self.stop() or all((r, k) in self.commands for r in self.ids),
                 step_deadline_s)
-            with box.lock:
-                for i, rid in enumerate(self.ids):
-                    if (rid, k) not in self.commands:
-                        self.node.counters.late += 1  # hold the last command
-                    # a faulty link may hold an older command (lockstep_inputs.py)
-                    cmd, age = self.command_links[i].take(
-                        k, lambda idx, rid=rid: self.commands.get((rid, idx)))
-                    if age > 0 and self.sc.spec.plant.missed_command == "zero":
-                        self.torques[i], self.v_cmd[i] = 0.0, 0.0
-                    elif cmd is not None:
-                        self.torques[i], self.v_cmd[i] = cmd.torques, cmd.v_cmd
-                for key in [key for key in self.commands if key[1] <= k - self.keep_steps]:
-                    del self.commands[key]
+            self._take_lockstep_commands(k)
             self.plant.step(t, dt, self.torques, self.v_cmd)
             self.steps_done += 1
         self._control("end", steps, steps * dt)
+
+    def _take_lockstep_commands(self, k: int) -> None:
+        """Each robot's command of step k; a missing one (late: counted) or one a
+        faulty link lost (lockstep_inputs.py) leaves the last command held, or
+        zero torque with ``plant.missed_command = "zero"``."""
+        zero_missed = self.sc.spec.plant.missed_command == "zero"
+        with self.node.mailbox.lock:
+            for i, rid in enumerate(self.ids):
+                if (rid, k) not in self.commands:
+                    self.node.counters.late += 1
+                cmd, age = self.command_links[i].take(
+                    k, lambda idx, rid=rid: self.commands.get((rid, idx)))
+                if age > 0 and zero_missed:
+                    self.torques[i], self.v_cmd[i] = 0.0, 0.0
+                elif cmd is not None:
+                    self.torques[i], self.v_cmd[i] = applied_command(cmd.torques, cmd.v_cmd,
+                                                                     self.sc.spec.limits)
+            for key in [key for key in self.commands if key[1] <= k - self.keep_steps]:
+                del self.commands[key]
 
     # -- realtime -------------------------------------------------------------------
     def run_realtime(self, steps: int) -> None:
@@ -198,7 +210,8 @@ class PlantNode:
                               f"{age * 1e3:.1f} ms old: torques zeroed; the others now perceive "
                               f"robot {rid} as an obstacle", flush=True)
                 else:
-                    self.torques[i], self.v_cmd[i] = cmd.torques, cmd.v_cmd
+                    self.torques[i], self.v_cmd[i] = applied_command(cmd.torques, cmd.v_cmd,
+                                                                     self.sc.spec.limits)
                     self.unpowered.discard(rid)
                 if cmd is None or cmd.state_seq != self.last_state_seq.get(rid):
                     self.timing.deadline_misses += 1  # the latest state went unanswered

@@ -19,3 +19,13 @@ def cached_run(name: str, duration_s: float | None, plant: str | None = None):
 @pytest.fixture(scope="session")
 def paper():
     return load_scenario("paper")
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    """Inputs tried per decoder by the fuzz tests (tests/fuzzing.py), when any ran."""
+    from fuzzing import TALLY
+
+    if TALLY.by_decoder:
+        terminalreporter.section("fuzz: inputs per decoder")
+        for line in TALLY.lines():
+            terminalreporter.write_line(line)

@@ -1,0 +1,98 @@
+"""Hypothesis strategies for wire messages (deploy/wire.py), by message type.
+
+A message is a msgpack array of its fields (``array_like`` structs), so inputs
+are built as field lists from the type hints: ``sane`` lists are valid messages
+(the decoder must accept them), otherwise any field may be out of range, of the
+wrong type or non-finite, and the array may be cut short or run long.
+"""
+
+from __future__ import annotations
+
+import types
+import typing
+from typing import Any
+
+import msgspec
+from fuzzing import any_float, any_int, any_msgpack, nasty_ints
+from hypothesis import strategies as st
+
+from deploy.wire import (
+    CONTROL_COMMANDS,
+    MAX_ORDER_CHARS,
+    MAX_ROLE_CHARS,
+    WIRE_VERSION,
+    Message,
+)
+
+ROBOT_IDS = (1, 2, 3)  # the bundled scenarios' robots
+
+sane_float = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
+sane_int = st.integers(0, 2**62)
+
+
+def _robot_id(sane: bool) -> st.SearchStrategy[int]:
+    ids = st.sampled_from(ROBOT_IDS)
+    return ids if sane else st.one_of(ids, any_int, st.sampled_from([0, -1, 4, 64, 2**31]))
+
+
+def _of_type(tp: Any, name: str, sane: bool) -> st.SearchStrategy[Any]:
+    """Field values of annotation ``tp`` (the field ``name`` picks the ranges)."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (types.UnionType, typing.Union):
+        return st.one_of(*(st.none() if a is type(None) else _of_type(a, name, sane) for a in args))
+    if tp is bool:
+        return st.booleans()
+    if tp is int:
+        if name == "v":
+            return st.just(WIRE_VERSION) if sane else st.one_of(st.just(WIRE_VERSION), any_int)
+        if name in ("robot",):
+            return _robot_id(sane)
+        if name == "ident":
+            return st.one_of(st.sampled_from(ROBOT_IDS), st.integers(-50, -1)) if sane \
+                else st.one_of(_robot_id(False), st.integers(-2**63, -1))
+        return sane_int if sane else st.one_of(sane_int, any_int, nasty_ints)
+    if tp is float:
+        return sane_float if sane else st.one_of(sane_float, any_float)
+    if tp is str:
+        if name == "command":
+            cmds = st.sampled_from(CONTROL_COMMANDS)
+            return cmds if sane else st.one_of(cmds, st.text(max_size=12))
+        limit = MAX_ORDER_CHARS if name == "order" else MAX_ROLE_CHARS
+        return st.text(max_size=limit) if sane else st.text(max_size=2 * limit)
+    if origin is tuple:
+        items = [_of_type(a, name, sane) for a in args]
+        if sane:
+            return st.tuples(*items).map(list)
+        return st.one_of(st.tuples(*items).map(list),
+                         st.lists(_of_type(args[0], name, sane), max_size=len(args) + 2))
+    if origin is list:
+        return st.lists(_of_type(args[0], name, sane), max_size=4 if sane else 6)
+    if origin is dict:
+        return st.dictionaries(st.text(max_size=20), _of_type(args[1], name, sane), max_size=4)
+    if isinstance(tp, type) and issubclass(tp, msgspec.Struct):
+        return struct_fields(tp, sane)
+    raise TypeError(f"no strategy for {tp!r}")
+
+
+@st.composite
+def struct_fields(draw: st.DrawFn, kind: type[msgspec.Struct], sane: bool) -> list[Any]:
+    """The field list of one ``kind`` value (what its msgpack array holds)."""
+    hints = typing.get_type_hints(kind)
+    values = []
+    for name in kind.__struct_fields__:
+        if not sane and draw(st.integers(0, 11)) == 0:
+            values.append(draw(any_msgpack))  # any type at all
+        else:
+            values.append(draw(_of_type(hints[name], name, sane)))
+    if not sane:
+        shape = draw(st.sampled_from(["keep"] * 6 + ["cut", "extend"]))
+        if shape == "cut":
+            values = values[:draw(st.integers(0, len(values)))]
+        elif shape == "extend":
+            values += draw(st.lists(any_msgpack, min_size=1, max_size=3))
+    return values
+
+
+def message_bytes(kind: type[Message], sane: bool) -> st.SearchStrategy[bytes]:
+    """Encoded field lists of ``kind`` (valid when ``sane``)."""
+    return struct_fields(kind, sane).map(msgspec.msgpack.encode)
