@@ -48,7 +48,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         print(f"omnifleet deploy plan: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     run = RunOptions(args.scenario, args.clock, args.duration, args.control_rate,
-                     args.lost_peer_grace, args.record_out)
+                     args.lost_peer_grace, args.record_out, args.plant, args.step_deadline)
     if args.write:
         for path in write_configs(hosts, sc, args.write):
             print(f"wrote {path}", file=sys.stderr)
@@ -76,6 +76,7 @@ def _cmd_certs(args: argparse.Namespace) -> int:
 
 def add_deploy_commands(sub: argparse._SubParsersAction) -> None:
     from deploy.node_cli import CLOCKS
+    from deploy.scenario import PLANT_KINDS
 
     deploy = sub.add_parser(
         "deploy", help="run a fleet across machines: certificates and per-machine commands",
@@ -97,6 +98,10 @@ def add_deploy_commands(sub: argparse._SubParsersAction) -> None:
                       help="override control_rate_hz")
     plan.add_argument("--lost-peer-grace", type=float, metavar="S",
                       help="agents and leader wait this long for a lost plant to come back")
+    plan.add_argument("--plant", choices=PLANT_KINDS, default=None,
+                      help="the plant's kind (default: the scenario's plant.kind)")
+    plan.add_argument("--step-deadline", type=float, metavar="S",
+                      help="lockstep: how long a node waits for a step's inputs (default: 2)")
     plan.add_argument("--record-out", default="runs/{fleet}", metavar="DIR",
                       help="the recorder's output folder on its machine (default: runs/{fleet})")
     plan.set_defaults(func=_cmd_plan)

@@ -31,6 +31,8 @@ class RunOptions:
     duration_s: float | None = None
     control_rate_hz: float | None = None
     lost_peer_grace_s: float | None = None
+    plant_kind: str | None = None  # default: the scenario's plant.kind
+    step_deadline_s: float | None = None  # lockstep: default 2 s
     record_out: str = "runs/{fleet}"
 
 
@@ -66,15 +68,18 @@ def command_for(hosts: Hosts, sc: Scenario, p: Placement, run: RunOptions) -> li
         common += ["--duration", repr(run.duration_s)]
     if run.control_rate_hz is not None:
         common += ["--control-rate", repr(run.control_rate_hz)]
+    plant = [] if run.plant_kind is None else ["--plant", run.plant_kind]
     if p.role == RECORDER:
         out = run.record_out.replace("{fleet}", hosts.fleet)
-        return [*exe, "record", *common, "--out", out]
+        return [*exe, "record", *common, *plant, "--out", out]
+    if run.step_deadline_s is not None:
+        common += ["--step-deadline", repr(run.step_deadline_s)]
     if hosts.find(RECORDER) is not None:
         common.append("--wait-recorder")
     grace = [] if run.lost_peer_grace_s is None else ["--lost-peer-grace",
                                                        repr(run.lost_peer_grace_s)]
     if p.role == PLANT_ROLE:
-        return [*exe, "plant", *common]
+        return [*exe, "plant", *common, *plant]
     if p.role == LEADER_ROLE:
         return [*exe, "leader", *common, *grace]
     kind, robot = p.role.split("-", 1)

@@ -27,6 +27,13 @@ from deploy.wire import LAUNCHER_ROLE, run_roles
 class Recorder(Launcher):
     """A :class:`Launcher` that starts no process: the nodes run elsewhere."""
 
+    end_ns: int | None = None  # when the plant's ``end`` arrived (wall clock)
+
+    def _on_sample(self, key: str, data: bytes) -> None:
+        super()._on_sample(key, data)
+        if self.ended and self.end_ns is None:
+            self.end_ns = time.time_ns()  # tokens that go after this are nodes leaving
+
     def run(self, progress=None) -> dict[str, Any]:
         from deploy.recorder import McapRecorder
 
@@ -68,26 +75,49 @@ class Recorder(Launcher):
             if self.recorder is not None:
                 self.recorder.close()
         out = self._figures(wall)
-        out["liveliness"] = liveliness_summary(node.peer_events)
+        out["processes"] += [  # the nodes ran elsewhere: what each reported
+            {"role": r.role, "robot": None if r.robot < 0 else r.robot, "pid": None,
+             "peak_rss_mb": round(r.peak_rss_kb / 1024.0, 1) if r.peak_rss_kb else None,
+             "exit_code": None, "reported": True, "steps": r.steps, "sent": r.sent,
+             "late": r.late, "received": dict(r.received)}
+            for r in sorted(self.collector.reports.values(), key=lambda r: r.role)]
+        out["liveliness"] = liveliness_summary(node.peer_events, self.end_ns or time.time_ns())
         return out
 
 
-def liveliness_summary(events: list[tuple[int, str, bool]]) -> dict[str, Any]:
-    """Per role: how often its token went away, and when it went and came back
-    (wall clock, ns), from the node's liveliness events (time, role, alive)."""
+def liveliness_summary(events: list[tuple[int, str, bool]], end_ns: int) -> dict[str, Any]:
+    """Per role: how often its token went away during the run, and when it went
+    and came back (wall clock, ns), from the node's liveliness events (time,
+    role, alive). Tokens that go after ``end_ns`` are nodes leaving: not counted."""
     out: dict[str, Any] = {}
     for t, role, alive in events:
+        if t >= end_ns:
+            continue
         r = out.setdefault(role, {"lost": 0, "lost_at_unix_ns": [], "back_at_unix_ns": []})
         if not alive:
             r["lost"] += 1
             r["lost_at_unix_ns"].append(t)
         elif r["lost"]:  # a return after a loss (the first appearance is not one)
             r["back_at_unix_ns"].append(t)
-    return out
+    return {role: r for role, r in out.items() if r["lost"]}
+
+
+def log_progress(every_s: float = 1.0):
+    """Progress as log lines (``record: step K/N``), at most one per ``every_s``:
+    a recorder under systemd or in a test has no terminal."""
+    last = [0.0]
+
+    def update(done: int, total: int) -> None:
+        now = time.monotonic()
+        if now - last[0] >= every_s or done >= total:
+            last[0] = now
+            print(f"record: step {done}/{total}", file=sys.stderr, flush=True)
+    return update
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
     from deploy.outputs import write_run
+    from deploy.runner import terminal_progress
 
     sc: Scenario = load_scenario(args.scenario)
     if args.control_rate is not None:
@@ -101,7 +131,8 @@ def _cmd_record(args: argparse.Namespace) -> int:
     rec = Recorder(sc, opts)
     rec.zenoh_file, rec.listen, rec.connect = args.zenoh_config, args.listen, args.connect
     try:
-        extra = rec.run()
+        extra = rec.run(terminal_progress(f"{sc.name} ({plant}, {args.clock})")
+                        or log_progress())
     except TimeoutError as exc:
         print(f"omnifleet record: {exc}", file=sys.stderr)
         return 4
