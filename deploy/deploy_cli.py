@@ -47,8 +47,10 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     except HostsError as exc:
         print(f"omnifleet deploy plan: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    run = RunOptions(args.scenario, args.clock, args.duration, args.control_rate,
-                     args.lost_peer_grace, args.record_out, args.plant, args.step_deadline)
+    run = RunOptions(args.scenario, clock=args.clock, duration_s=args.duration,
+                     control_rate_hz=args.control_rate, lost_peer_grace_s=args.lost_peer_grace,
+                     plant_kind=args.plant, step_deadline_s=args.step_deadline,
+                     record_out=args.record_out)
     if args.write:
         for path in write_configs(hosts, sc, args.write):
             print(f"wrote {path}", file=sys.stderr)

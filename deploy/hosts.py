@@ -136,14 +136,12 @@ def load_hosts(path: str | Path, sc: Scenario) -> Hosts:
         raise HostsError(f"{path}: cannot read: {exc.strerror}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise HostsError(f"{path}: not valid TOML: {exc}") from exc
-    try:
-        spec = msgspec.convert(raw, HostsFileSpec)
-    except msgspec.ValidationError as exc:
-        # msgspec says e.g. "Object contains unknown field `adress` - at `$.machines.base`"
-        msg = str(exc)
-        where = msg.rsplit(" - at `$", 1)
-        key = where[1].rstrip("`").lstrip(".") if len(where) == 2 else "(top level)"
-        raise _fail(path, key or "(top level)", where[0]) from exc
+    machines = raw.pop("machines", None)
+    if not isinstance(machines, dict):
+        raise _fail(path, "machines", "missing: a [machines.<name>] table per machine")
+    spec = _convert(path, "", raw | {"machines": {}}, HostsFileSpec)
+    spec.machines = {name: _convert(path, f"machines.{name}", m, MachineEntry)
+                     for name, m in machines.items()}
     try:
         Keys(spec.fleet)
     except FleetNameError as exc:
@@ -171,6 +169,16 @@ def load_hosts(path: str | Path, sc: Scenario) -> Hosts:
             _check_port(path, f"{key}.roles", port + i)
     _check_complete(path, seen, sc)
     return Hosts(path, spec, placements)
+
+
+def _convert(path: Path, prefix: str, raw: object, kind: type):
+    try:
+        return msgspec.convert(raw, kind)
+    except msgspec.ValidationError as exc:
+        # msgspec says e.g. "Object contains unknown field `adress`" or "... - at `$.port`"
+        msg, _, where = str(exc).partition(" - at `$")
+        key = ".".join(x for x in (prefix, where.rstrip("`").lstrip(".")) if x)
+        raise _fail(path, key or "(top level)", msg) from exc
 
 
 def _check_port(path: Path, key: str, port: int) -> None:
