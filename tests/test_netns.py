@@ -31,34 +31,38 @@ pytestmark = pytest.mark.skipif(problem is not None, reason=problem or "")
 MACHINES = ["base", "robot1", "robot2", "robot3"]
 ROLES = {"base": ["recorder", "plant", "leader"], "robot1": ["agent-1"],
          "robot2": ["agent-2"], "robot3": ["agent-3"]}
+ORDER = ["router", "recorder", "plant", "leader", "agent-1", "agent-2", "agent-3"]
 
 
-def _hosts_file(path: Path, ms, fleet: str, deploy_dir: Path, lease_ms: int | None) -> Path:
-    lines = [f'fleet = "{fleet}"', "port = 7447", "tls = true",
+def _hosts_file(path: Path, ms, fleet: str, deploy_dir: Path, lease_ms: int | None,
+                tls: bool = True, router: bool = False) -> Path:
+    lines = [f'fleet = "{fleet}"', "port = 7447", f"tls = {str(tls).lower()}",
              f'dir = "{deploy_dir}/{{machine}}"']
     if lease_ms is not None:
         lines.append(f"lease_ms = {lease_ms}")
     for name in MACHINES:
-        roles = ", ".join(f'"{r}"' for r in ROLES[name])
+        roles = ", ".join(f'"{r}"' for r in (["router"] if router and name == "base" else [])
+                          + ROLES[name])
         lines += [f"[machines.{name}]", f'address = "{ms[name].address}"', f"roles = [{roles}]"]
     path.write_text("\n".join(lines) + "\n")
     return path
 
 
-def _run_fleet(ms, tmp: Path, fleet: str, run: RunOptions, lease_ms: int | None = None):
+def _run_fleet(ms, tmp: Path, fleet: str, run: RunOptions, lease_ms: int | None = None,
+               tls: bool = True, router: bool = False):
     """Certificates, configs and one process per node, each in its machine's
     namespace with the plan's command; returns {role: Popen} and the logs' folder."""
     sc = load_scenario(run.scenario)
     deploy_dir = tmp / "deploy"
-    hosts = load_hosts(_hosts_file(tmp / "hosts.toml", ms, fleet, deploy_dir, lease_ms), sc)
+    hosts = load_hosts(_hosts_file(tmp / "hosts.toml", ms, fleet, deploy_dir, lease_ms, tls, router),
+                       sc)
     make_hosts_certs(hosts, deploy_dir)
     write_configs(hosts, sc, deploy_dir)
     hosts.spec.command = " ".join(omnifleet())
     logs = tmp / "logs"
     logs.mkdir()
     procs = {}
-    order = ["recorder", "plant", "leader", "agent-1", "agent-2", "agent-3"]
-    for p in sorted(hosts.placements, key=lambda p: order.index(p.role)):
+    for p in sorted(hosts.placements, key=lambda p: ORDER.index(p.role)):
         procs[p.role] = ms[p.machine].start(command_for(hosts, sc, p, run), logs / f"{p.role}.log")
     return procs, logs
 
@@ -82,9 +86,12 @@ def _logs(logs: Path) -> str:
 DURATION = "0.3"
 
 
-def test_lockstep_across_namespaces_equals_the_single_host_run(tmp_path):
+@pytest.mark.parametrize("router", [False, True], ids=["peers", "router"])
+def test_lockstep_across_namespaces_equals_the_single_host_run(tmp_path, router):
     """Leader, plant and recorder on one machine, each agent on its own, over mutual
-    TLS with the ACL: the same time series and metrics as `omnifleet run` on one host."""
+    TLS with the ACL (every node connecting to the plant, or to `omnifleet router`
+    on the base machine): the same time series and metrics as `omnifleet run` on
+    one host."""
     rc, _, err = finish(start("run", "paper", "--plant", "model", "--duration", DURATION,
                               "--out", str(tmp_path / "ref"), "--no-figures", "--no-record"))
     assert rc == 0, err
@@ -92,11 +99,13 @@ def test_lockstep_across_namespaces_equals_the_single_host_run(tmp_path):
     run = RunOptions("paper", duration_s=float(DURATION), plant_kind="model",
                      record_out=str(out))
     with machines(MACHINES) as ms:
-        procs, logs = _run_fleet(ms, tmp_path, f"nsq{int(time.time()) % 100000}", run)
+        procs, logs = _run_fleet(ms, tmp_path, f"nsq{int(time.time()) % 100000}", run,
+                                 router=router)
+        router_proc = procs.pop("router", None)
         try:
             codes = _wait_all(procs, 120)
         finally:
-            stop(list(procs.values()))
+            stop(list(procs.values()) + ([router_proc] if router_proc else []))
     assert all(c == 0 for c in codes.values()), f"{codes}\n{_logs(logs)}"
     a = TimeSeries.load(out / "timeseries.npz")
     b = TimeSeries.load(tmp_path / "ref" / "timeseries.npz")
