@@ -27,18 +27,23 @@ from deploy.wire import LAUNCHER_ROLE, run_roles
 class Recorder(Launcher):
     """A :class:`Launcher` that starts no process: the nodes run elsewhere."""
 
-    end_ns: int | None = None  # when the plant's ``end`` arrived (wall clock)
-
     def _on_sample(self, key: str, data: bytes) -> None:
         super()._on_sample(key, data)
         if self.ended and self.end_ns is None:
-            self.end_ns = time.time_ns()  # tokens that go after this are nodes leaving
+            self.end_ns = time.time_ns()
+        role = key.rsplit("/", 1)[-1]
+        if key == self.keys.report(role):
+            # a node reports as it leaves, on the same link as its token: a token
+            # that goes after the report is a departure, not a loss
+            self.reported_ns.setdefault(role, time.time_ns())
 
     def run(self, progress=None) -> dict[str, Any]:
         from deploy.recorder import McapRecorder
 
         o = self.opts
         o.out.mkdir(parents=True, exist_ok=True)
+        self.reported_ns: dict[str, int] = {}
+        self.end_ns: int | None = None  # when the plant's ``end`` was heard
         node = Node(LAUNCHER_ROLE, self.keys, self.codec,
                     zenoh_config(self.zenoh_file, self.listen, self.connect))
         self.node = node
@@ -71,6 +76,7 @@ class Recorder(Launcher):
         finally:
             for s, h in previous.items():
                 signal.signal(s, h)
+            closing_ns = time.time_ns()  # tokens seen to go after this: our own closing
             node.close()
             if self.recorder is not None:
                 self.recorder.close()
@@ -81,17 +87,24 @@ class Recorder(Launcher):
              "exit_code": None, "reported": True, "steps": r.steps, "sent": r.sent,
              "late": r.late, "received": dict(r.received)}
             for r in sorted(self.collector.reports.values(), key=lambda r: r.role)]
-        out["liveliness"] = liveliness_summary(node.peer_events, self.end_ns or time.time_ns())
+        out["liveliness"] = liveliness_summary(
+            [e for e in node.peer_events if e[0] < min(closing_ns, self.end_ns or closing_ns)
+             and e[1] != LAUNCHER_ROLE],
+            self.reported_ns)
         return out
 
 
-def liveliness_summary(events: list[tuple[int, str, bool]], end_ns: int) -> dict[str, Any]:
+def liveliness_summary(events: list[tuple[int, str, bool]],
+                       reported_ns: dict[str, int]) -> dict[str, Any]:
     """Per role: how often its token went away during the run, and when it went
     and came back (wall clock, ns), from the node's liveliness events (time,
-    role, alive). Tokens that go after ``end_ns`` are nodes leaving: not counted."""
+    role, alive), those after the run's end already left out. A token that goes
+    after the role's report arrived is the node leaving: not counted either. (A
+    node that leaves before the recorder has read ``end`` — a recorder behind on
+    traffic — is still counted once, with no return.)"""
     out: dict[str, Any] = {}
     for t, role, alive in events:
-        if t >= end_ns:
+        if t >= reported_ns.get(role, 1 << 62):
             continue
         r = out.setdefault(role, {"lost": 0, "lost_at_unix_ns": [], "back_at_unix_ns": []})
         if not alive:
