@@ -240,11 +240,18 @@ class AgentNode:
         inp, box = self.inputs, self.node.mailbox
         k = 0
         while not self.stop():
-            # wait for the plant's step k (with no deadline: the plant may be slow
-            # to start or to step; it ends the run with ``end``)
-            box.wait_until(lambda k=k: k in inp.states or self.stop(), 3600.0)
+            # wait for the plant's step k or a later one (with no deadline: the plant
+            # may be slow to start or to step; it ends the run with ``end``). A later
+            # one: step k's state was lost (a cut link): catch up, counted late.
+            box.wait_until(lambda k=k: self.stop() or (
+                inp.newest_state is not None and inp.newest_state.k >= k), 3600.0)
             if self.stop():
                 break
+            with box.lock:
+                newest = max(inp.states, default=k)
+            if newest > k:
+                self.node.counters.late += newest - k
+                k = newest
             box.wait_until(lambda k=k: self._lockstep_ready(k), step_deadline_s)
             with box.lock:
                 newest = max(inp.states)

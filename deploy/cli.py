@@ -227,6 +227,13 @@ def build_parser() -> argparse.ArgumentParser:
     add_can_check_command(sub)
     add_bench_command(sub)
     add_faults_command(sub)
+    from deploy.deploy_cli import add_deploy_commands
+    from deploy.record import add_record_command
+    from deploy.router import add_router_command
+
+    add_record_command(sub)
+    add_router_command(sub)
+    add_deploy_commands(sub)
     return p
 
 

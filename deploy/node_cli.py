@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import threading
 
 from deploy.fault_plan import FaultPlan
 from deploy.node_runtime import (
@@ -101,11 +102,30 @@ def _run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep,
     return _exit_code(stop)
 
 
-def _lost(stop: StopFlag, node: Node):
+def _lost(stop: StopFlag, node: Node, grace_s: float = 0.0):
+    """Losing a required peer ends the node: at once, or after ``grace_s`` if the
+    peer's token has not come back by then (a link cut between machines)."""
+    def give_up(role: str) -> None:  # under the mailbox lock
+        if role not in node.peers_alive:
+            stop.set(f"lost {role}")
+            node.mailbox.changed.notify_all()
+
+    def give_up_later(role: str) -> None:
+        with node.mailbox.changed:
+            give_up(role)
+
     def on_lost(role: str) -> None:  # called under the mailbox lock
-        stop.set(f"lost {role}")
-        node.mailbox.changed.notify_all()
+        if grace_s <= 0:
+            give_up(role)
+            return
+        timer = threading.Timer(grace_s, give_up_later, (role,))
+        timer.daemon = True
+        timer.start()
     return on_lost
+
+
+def _waits_for_recorder(args: argparse.Namespace) -> bool:
+    return args.with_recorder or args.wait_recorder
 
 
 def _cmd_agent(args: argparse.Namespace) -> int:
@@ -121,9 +141,9 @@ def _cmd_agent(args: argparse.Namespace) -> int:
     plan = fault_plan(args, sc)
 
     def build(sc, node, stop):
-        node.required, node.on_lost = {args.plant_role}, _lost(stop, node)
-        return AgentNode(sc, args.robot, node, stop, args.with_recorder, args.plant_role,
-                         plan, realtime=args.clock == "realtime")
+        node.required, node.on_lost = {args.plant_role}, _lost(stop, node, args.lost_peer_grace)
+        return AgentNode(sc, args.robot, node, stop, _waits_for_recorder(args),
+                         args.plant_role, plan, realtime=args.clock == "realtime")
 
     def realtime(obj, sc):
         if args.rejoin:  # the start was announced long ago: t = 0 comes from the plant
@@ -148,9 +168,9 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     plan = fault_plan(args, _scenario(args))
 
     def build(sc, node, stop):
-        return PlantNode(sc, args.plant or sc.spec.plant.kind, node, stop, args.with_recorder,
-                         args.command_timeout, gui=args.gui, faults=plan,
-                         realtime=args.clock == "realtime")
+        return PlantNode(sc, args.plant or sc.spec.plant.kind, node, stop,
+                         _waits_for_recorder(args), args.command_timeout, gui=args.gui,
+                         faults=plan, realtime=args.clock == "realtime")
 
     return _run_node(args, PLANT_ROLE, 0, build,
                      lambda obj, sc: obj.run_lockstep(_steps(sc, args), args.step_deadline),
@@ -161,8 +181,8 @@ def _cmd_leader(args: argparse.Namespace) -> int:
     from agents.leader_node import LeaderNode
 
     def build(sc, node, stop):
-        node.required, node.on_lost = {args.plant_role}, _lost(stop, node)
-        return LeaderNode(sc, node, stop, args.with_recorder)
+        node.required, node.on_lost = {args.plant_role}, _lost(stop, node, args.lost_peer_grace)
+        return LeaderNode(sc, node, stop, _waits_for_recorder(args))
 
     def realtime(obj, sc):
         t0 = obj.control.wait_for_start(args.startup_timeout)
@@ -193,6 +213,11 @@ def _common(p: argparse.ArgumentParser) -> None:
                    "the links it receives on; give every node of a run the same plan")
     p.add_argument("--with-recorder", action="store_true",
                    help="started by `omnifleet run`: wait for its recorder, die with it")
+    p.add_argument("--wait-recorder", action="store_true",
+                   help="wait for `omnifleet record` (on any machine) before starting")
+    p.add_argument("--lost-peer-grace", type=float, default=0.0, metavar="S",
+                   help="agent/leader: when the plant's liveliness token goes (a cut link), "
+                   "wait this long for it to come back before giving up (default: 0, at once)")
 
 
 def add_node_commands(sub: argparse._SubParsersAction) -> None:

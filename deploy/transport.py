@@ -20,6 +20,8 @@ from typing import Any
 
 from deploy.wire import Codec, Keys, Message, encode
 
+MAX_PEER_EVENTS = 10_000
+
 
 class TransportError(RuntimeError):
     """Bad endpoint or zenoh configuration (exit code 2 at the CLI)."""
@@ -110,6 +112,8 @@ class Node:
         self._seq: dict[str, int] = {}
         self._tokens: list[Any] = []
         self.peers_alive: set[str] = set()
+        # (unix ns, role, alive): every appearance and loss of a peer's alive token
+        self.peer_events: list[tuple[int, str, bool]] = []
         self.peers_ready: set[str] = set()
         self.required: set[str] = set()  # roles whose disappearance ends this node
         self.on_lost: Callable[[str], None] = lambda role: None
@@ -122,7 +126,10 @@ class Node:
         def on_token(sample: Any, bag: set[str]) -> None:
             role = keys.role_of(str(sample.key_expr))
             with self.mailbox.changed:
-                if sample.kind == self._zenoh.SampleKind.PUT:
+                alive = sample.kind == self._zenoh.SampleKind.PUT
+                if bag is self.peers_alive and len(self.peer_events) < MAX_PEER_EVENTS:
+                    self.peer_events.append((time.time_ns(), role, alive))
+                if alive:
                     bag.add(role)
                 else:
                     bag.discard(role)
