@@ -399,7 +399,9 @@ class DriverEmulator:
         qd = np.array([s[2] for s in self.truth], float).reshape(-1, 3)
         np.savez(path, t=t, q=q, q_dot=qd, robot_id=self.robot_id,
                  node_ids=np.array(self.node_ids),
-                 monotonic_origin_s=getattr(self, "monotonic_origin_s", np.nan))
+                 monotonic_origin_s=getattr(self, "monotonic_origin_s", np.nan),
+                 dropped_by_fault=self.counters.dropped_by_fault,
+                 corrupted_by_fault=self.counters.corrupted_by_fault)
 
 
 def flip_bits(data: bytes, rng: np.random.Generator) -> bytes:

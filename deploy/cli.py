@@ -104,12 +104,29 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
 
         extra["odometry_drift"] = odometry_drift(series, sc.robot_ids, launcher.truth_files,
                                                  launcher.t0_mono)
+        if "faults" in extra:
+            extra["faults"]["can"] = can_fault_counts(launcher.truth_files)
     wall = extra.pop("wall_time_s")
     messages = extra.pop("messages")
     contact_log, contacts_total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
     return write_run(sc, series, out, plant, args.clock, wall, messages, extra,
                      figures=not args.no_figures, contact_log=contact_log,
                      contacts_total=contacts_total)
+
+
+def can_fault_counts(truth_files: dict[int, Path]) -> dict[str, dict[str, int]]:
+    """Frames each robot's driver emulator lost or corrupted (the plan's [can])."""
+    import numpy as np
+
+    out = {}
+    for robot, path in truth_files.items():
+        try:
+            with np.load(path) as d:
+                out[f"robot-{robot}"] = {"dropped": int(d["dropped_by_fault"]),
+                                         "corrupted": int(d["corrupted_by_fault"])}
+        except (OSError, KeyError, ValueError):
+            out[f"robot-{robot}"] = {"dropped": -1, "corrupted": -1}  # no truth file: unknown
+    return out
 
 
 def meets_paper_criteria(m: dict) -> bool:

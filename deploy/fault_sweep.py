@@ -114,7 +114,8 @@ def run_sweep(scenario: str, drops: list[float], seeds: int, out: Path, jobs: in
               distributed: bool = False, duration: float | None = None,
               plant: str | None = None,
               progress: Callable[[int, int, SweepRow], None] | None = None) -> list[SweepRow]:
-    grid = [(d, s) for d in drops for s in range(1, seeds + 1)]
+    # without loss the seed decides nothing: one run stands for all
+    grid = [(d, s) for d in drops for s in (range(1, seeds + 1) if d > 0.0 else (1,))]
     fn = _run_distributed if distributed else _run_in_process
     rows: list[SweepRow] = []
 
@@ -234,7 +235,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     out = Path(args.out or f"runs/{sc.name}-fault-sweep")
     out.mkdir(parents=True, exist_ok=True)
     jobs = args.jobs or os.cpu_count() or 1
-    n = len(args.drop) * args.seeds
+    n = sum(args.seeds if d > 0.0 else 1 for d in args.drop)
     how = "distributed, one at a time" if args.distributed else f"in-process, {jobs} at a time"
     print(f"faults sweep: {sc.name}, drop {args.drop}, {args.seeds} seeds: {n} runs ({how})",
           file=sys.stderr)

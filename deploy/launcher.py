@@ -188,11 +188,20 @@ class Launcher:
             self.truth_files[r] = truth
             plan.append(Child(f"emulator-{r}", r, [
                 *cmd, "emulate", "--scenario", self.opts.scenario_arg, "--robot", str(r), *bus,
-                "--encoder-rate", repr(rate), "--truth-out", str(truth)],
+                "--encoder-rate", repr(rate), "--truth-out", str(truth), *self._can_faults(i)],
                 logs / f"emulator-{r}.log", zenoh=False, stop_after_run=True))
             plan.append(Child(bridge_role(r), r, [*cmd, "bridge", *common, "--robot", str(r),
                                                   *bus], logs / f"{bridge_role(r)}.log"))
         return plan
+
+    def _can_faults(self, index: int) -> list[str]:
+        """The fault plan's [can] section for robot ``index``'s emulator: frames
+        it loses or corrupts (each emulator seeded apart, from the plan's seed)."""
+        plan = self.opts.faults
+        if plan is None or not (plan.can.frame_loss or plan.can.corrupt):
+            return []
+        return ["--drop-rate", repr(plan.can.frame_loss), "--corrupt-rate",
+                repr(plan.can.corrupt), "--seed", str(plan.seed * 1000 + index)]
 
     def _spawn(self, child: Child) -> None:
         child.log_path.parent.mkdir(parents=True, exist_ok=True)

@@ -131,3 +131,22 @@ def test_the_restarted_agent_rejoins_and_settles(killed_run):
     print(f"\nagent-2 rejoined at t = {rejoined:.2f} s, its tracking error within {band} m "
           f"from t = {settled_at:.2f} s ({settled_at - rejoined:.2f} s after)")
     assert settled_at < ts.t[-1] - 2.0  # settled, and stayed so for the last 2 s
+
+
+def test_can_faults_reach_every_emulator(tmp_path):
+    """--plant can-emulated: the plan's [can] section becomes each driver
+    emulator's frame loss and corruption, seeded apart per robot."""
+    from deploy.launcher import LaunchOptions, Launcher
+
+    sc = load_scenario("lab")
+    plan_file = tmp_path / "can.toml"
+    plan_file.write_text("seed = 4\n[can]\nframe_loss = 0.02\ncorrupt = 0.001\n")
+    opts = LaunchOptions("lab", "can-emulated", "realtime", tmp_path,
+                         faults=load_plan(plan_file, sc))
+    emulators = [c.argv for c in Launcher(sc, opts)._plan("tcp/127.0.0.1:7447")
+                 if c.role.startswith("emulator-")]
+    assert len(emulators) == 3
+    for argv in emulators:
+        assert argv[argv.index("--drop-rate") + 1] == "0.02"
+        assert argv[argv.index("--corrupt-rate") + 1] == "0.001"
+    assert len({argv[argv.index("--seed") + 1] for argv in emulators}) == 3
