@@ -163,16 +163,19 @@ class PlantSection(_S, kw_only=True):
     missed_command: Literal["hold", "zero"] = "hold"
 
 
+_DEGRADATION = DegradationConfig()  # the defaults live with the math
+
+
 class Degradation(_S, kw_only=True):
     """How an agent degrades when its inputs go stale (agents/degradation.py)."""
 
-    stale_after_s: float = 0.2  # older inputs are left out of eq. (14)
-    slow_after_s: float = 0.5  # older leader information: slow down
-    slow_ramp_s: float = 1.0  # from full speed to the degraded speed, and back
-    degraded_speed_mps: float = 0.3
-    reacquire_tau_s: float = 0.25  # blend toward the leader when its link returns
-    reacquire_tol_m: float = 0.05  # ... until the estimate is this close
-    reacquire_min_s: float = 1.0  # ... and for at least this long
+    stale_after_s: float = _DEGRADATION.stale_after_s  # older inputs are left out of eq. (14)
+    slow_after_s: float = _DEGRADATION.slow_after_s  # older leader information: slow down
+    slow_ramp_s: float = _DEGRADATION.slow_ramp_s  # full speed to degraded speed, and back
+    degraded_speed_mps: float = _DEGRADATION.degraded_speed_mps
+    reacquire_tau_s: float = _DEGRADATION.reacquire_tau_s  # blend toward the source ...
+    reacquire_tol_m: float = _DEGRADATION.reacquire_tol_m  # ... until this close
+    reacquire_min_s: float = _DEGRADATION.reacquire_min_s  # ... and at least this long
 
 
 class Metrics(_S, kw_only=True):
