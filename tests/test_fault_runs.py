@@ -86,19 +86,21 @@ def test_a_killed_agent_is_killed_and_restarted_on_time(killed_run):
 
 def test_its_robot_gets_zero_torque_within_the_command_timeout(killed_run):
     _, m = killed_run
-    stops = [s for s in m["command_stops"] if s["robot"] == 2]
-    assert len(stops) == 1
+    # (a loaded machine may also stall a live agent past the timeout: those stops
+    # are recorded too, and are not this one)
+    stops = [s for s in m["command_stops"] if s["robot"] == 2 and s["t_s"] >= KILL_AT]
+    assert stops
     dt = 1.0 / m["control_rate_hz"]
     # the plant looks once per step: timeout (0.1 s) plus at most one period
     assert 0.1 <= stops[0]["command_age_s"] <= 0.1 + dt + 0.01
-    assert KILL_AT <= stops[0]["t_s"] <= KILL_AT + 0.1 + 2 * dt + 0.05
+    assert stops[0]["t_s"] <= KILL_AT + 0.1 + 2 * dt + 0.05
 
 
 def test_the_others_see_it_as_an_obstacle_and_keep_clear(killed_run):
     from mcap.reader import make_reader
 
     out, m = killed_run
-    stop_t = m["command_stops"][0]["t_s"]
+    stop_t = next(s["t_s"] for s in m["command_stops"] if s["robot"] == 2 and s["t_s"] >= KILL_AT)
     seen_as_obstacle = seen_as_robot = 0
     with open(out / "recording.mcap", "rb") as f:
         for _s, ch, msg in make_reader(f).iter_messages():
