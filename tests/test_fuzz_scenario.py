@@ -87,9 +87,19 @@ def replacement(draw: st.DrawFn, old: Any) -> Any:
 
 
 @st.composite
+def edited_document(draw: st.DrawFn, text: str) -> bytes:
+    """A TOML document with 1-3 keys deleted, replaced or added (any TOML file)."""
+    return _edited(draw, tomllib.loads(text))
+
+
+@st.composite
 def edited_scenario(draw: st.DrawFn) -> bytes:
     doc = json.loads(json.dumps(PARSED[draw(st.sampled_from(sorted(PARSED)))],
                                 allow_nan=True))  # a deep copy
+    return _edited(draw, doc)
+
+
+def _edited(draw: st.DrawFn, doc: dict[str, Any]) -> bytes:
     for _ in range(draw(st.integers(1, 3))):
         where = draw(st.sampled_from(paths(doc)))
         parent = doc
