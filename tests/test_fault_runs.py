@@ -136,7 +136,7 @@ def test_the_restarted_agent_rejoins_and_settles(killed_run):
 def test_can_faults_reach_every_emulator(tmp_path):
     """--plant can-emulated: the plan's [can] section becomes each driver
     emulator's frame loss and corruption, seeded apart per robot."""
-    from deploy.launcher import LaunchOptions, Launcher
+    from deploy.launcher import Launcher, LaunchOptions
 
     sc = load_scenario("lab")
     plan_file = tmp_path / "can.toml"
