@@ -200,8 +200,10 @@ class DriverEmulator:
         self._heartbeat_period = 1.0 / heartbeat_rate_hz
         self._next_encoder = 0.0
         self._next_heartbeat = 0.0
+        self._row = 0  # this robot's row in self.plant (shared by a FleetEmulator)
         self._wheel_speed = self.model.wheel_speeds(float(self.q[2]), self.q_dot)
         self.truth: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self.lag: list[tuple[float, float]] = []  # realtime: (t, how far behind the wall clock)
         self._started = False
 
     # --- state ------------------------------------------------------------------------
@@ -212,11 +214,11 @@ class DriverEmulator:
 
     @property
     def q(self) -> np.ndarray:
-        return self.plant.q[0]
+        return self.plant.q[self._row]
 
     @property
     def q_dot(self) -> np.ndarray:
-        return self.plant.q_dot[0]
+        return self.plant.q_dot[self._row]
 
     def wheel_torques(self) -> np.ndarray:
         """Torques applied to the wheels now (N m): setpoint in closed loop, clamped; else 0."""
@@ -259,9 +261,13 @@ class DriverEmulator:
                 time.sleep(delay)
 
     def _tick(self) -> None:
-        t, h = self.t, self._h
-        torques = self.wheel_torques()
-        self.plant.step(t, h, torques[None, :], None)
+        self.plant.step(self.t, self._h, self.wheel_torques()[None, :], None)
+        self._after_physics()
+
+    def _after_physics(self) -> None:
+        """One tick's bookkeeping once the physics has advanced: encoder angles,
+        watchdogs, the cyclic frames due."""
+        h = self._h
         self._ticks += 1
         w_old, w_new = self._wheel_speed, self.model.wheel_speeds(float(self.q[2]), self.q_dot)
         self._wheel_speed = w_new
@@ -397,11 +403,132 @@ class DriverEmulator:
         t = np.array([s[0] for s in self.truth], float)
         q = np.array([s[1] for s in self.truth], float).reshape(-1, 3)
         qd = np.array([s[2] for s in self.truth], float).reshape(-1, 3)
+        lag = np.array(self.lag, float).reshape(-1, 2)
         np.savez(path, t=t, q=q, q_dot=qd, robot_id=self.robot_id,
                  node_ids=np.array(self.node_ids),
                  monotonic_origin_s=getattr(self, "monotonic_origin_s", np.nan),
+                 lag_t=lag[:, 0], lag_s=lag[:, 1],
                  dropped_by_fault=self.counters.dropped_by_fault,
                  corrupted_by_fault=self.counters.corrupted_by_fault)
+
+
+class FleetEmulator:
+    """Several robots' driver emulators in one process: each robot keeps its own bus
+    (its own four drives, frames, faults, ground truth), and one :class:`ModelPlant`
+    integrates every robot's eq. (4) at once (the same equations row by row as a
+    one-robot emulator's; numpy's cost is per call, not per robot).
+
+    Why: on a small host one process per robot, each waking at the physics rate,
+    cost more CPU than the host had (docs/hardware.md). :meth:`run` waits on every
+    bus's socket at once (``select``) until the next physics tick, so frames are
+    applied as they arrive instead of after a sleep.
+    """
+
+    def __init__(self, sc: Scenario, robots: Sequence[tuple[int, can.BusABC]],
+                 node_ids: Sequence[int] = (0, 1, 2, 3), encoder_rate_hz: float = 200.0,
+                 heartbeat_rate_hz: float = 10.0, watchdog_timeout_s: float = 0.2,
+                 physics_rate_hz: float = 1000.0,
+                 faults: Sequence[EmulatorFaults] | EmulatorFaults = EmulatorFaults()) -> None:  # noqa: B008
+        if not robots:
+            raise ValueError("a fleet emulator needs at least one robot")
+        ids = [rid for rid, _ in robots]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"robot ids must be distinct, got {ids}")
+        if isinstance(faults, EmulatorFaults):
+            faults = [faults] * len(robots)
+        if len(faults) != len(robots):
+            raise ValueError("give one EmulatorFaults per robot")
+        self.sc = sc
+        self.emulators = [
+            DriverEmulator(sc, rid, bus, node_ids, encoder_rate_hz, heartbeat_rate_hz,
+                           watchdog_timeout_s, physics_rate_hz, f)
+            for (rid, bus), f in zip(robots, faults, strict=True)]
+        q, qd = sc.initial_state()
+        rows = [sc.index_of(rid) for rid in ids]
+        d = sc.spec.disturbance
+        self.plant = ModelPlant([e.model for e in self.emulators], q[rows], qd[rows],
+                                make_disturbance(d.kind, d.scale, tuple(d.constant_nm)),
+                                substeps=1)
+        for row, e in enumerate(self.emulators):
+            e.plant, e._row = self.plant, row
+        self._h = self.emulators[0]._h
+        self._torques = np.zeros((len(robots), 4))
+
+    @property
+    def t(self) -> float:
+        return self.emulators[0].t
+
+    def step(self, now_s: float) -> None:
+        """Every robot as :meth:`DriverEmulator.step`: frames received so far, then
+        the physics tick by tick."""
+        for e in self.emulators:
+            if not e._started:
+                e._started = True
+                e._send_due()
+            e._receive()
+        first = self.emulators[0]
+        n = math.floor(now_s / self._h + 1e-9) - first._ticks
+        torques = self._torques
+        for _ in range(max(n, 0)):
+            for row, e in enumerate(self.emulators):
+                torques[row] = e.wheel_torques()
+            self.plant.step(first.t, self._h, torques, None)
+            for e in self.emulators:
+                e._after_physics()
+
+    def run(self, stop: Callable[[], bool], duration_s: float | None = None,
+            lag_every_s: float = 0.01) -> None:
+        """Realtime on ``time.monotonic`` until ``stop()`` or ``duration_s``; between
+        ticks, wait on the buses (a bus without a file descriptor: sleep). Records
+        how far behind the wall clock the physics was, every ``lag_every_s``."""
+        import select
+
+        origin = time.monotonic() - self.t
+        for e in self.emulators:
+            e.monotonic_origin_s = origin
+        fds = [_fileno(e.bus) for e in self.emulators]
+        can_select = all(fd >= 0 for fd in fds)
+        next_lag = self.t
+        lag_log = self.emulators[0].lag
+        while not stop():
+            now = time.monotonic() - origin
+            if duration_s is not None and now >= duration_s:
+                self.step(duration_s)
+                return
+            if now >= next_lag:
+                lag_log.append((self.t, now - self.t))
+                next_lag = self.t + lag_every_s
+            self.step(now)
+            delay = (self.emulators[0]._ticks + 1) * self._h - (time.monotonic() - origin)
+            if delay > 0:
+                if can_select:
+                    select.select(fds, [], [], delay)
+                else:
+                    time.sleep(delay)
+
+    def lag_stats(self) -> dict[str, float]:
+        """Median, 99th percentile and largest lag behind the wall clock (s)."""
+        lag = np.array([x for _, x in self.emulators[0].lag], float)
+        if not len(lag):
+            return {"p50": math.nan, "p99": math.nan, "max": math.nan}
+        return {"p50": float(np.median(lag)), "p99": float(np.percentile(lag, 99)),
+                "max": float(lag.max())}
+
+    def save_truth(self, paths: Sequence[str | Path]) -> None:
+        """Each robot's ground truth (:meth:`DriverEmulator.save_truth`), with the
+        fleet's lag log in every file."""
+        for e, path in zip(self.emulators, paths, strict=True):
+            e.lag = self.emulators[0].lag
+            e.save_truth(path)
+
+
+def _fileno(bus: can.BusABC) -> int:
+    """The bus's file descriptor to wait on, or -1 (a virtual bus has none)."""
+    try:
+        fd = bus.fileno()
+    except (NotImplementedError, OSError):
+        return -1
+    return fd if isinstance(fd, int) else -1
 
 
 def flip_bits(data: bytes, rng: np.random.Generator) -> bytes:
