@@ -117,6 +117,7 @@ class EmulatorCounters:
     silenced: int = 0  # frames the silent node did not send, plus commands it ignored
     send_errors: int = 0  # bus.send raised (buffer full, bus off)
     unencodable: int = 0  # a value the protocol cannot carry (a bus current beyond its bound)
+    shed: int = 0  # encoder frames not sent: stale, the realtime emulator was catching up
     protocol: FrameCounters = field(default_factory=FrameCounters)
 
     def summary(self) -> str:
@@ -126,7 +127,8 @@ class EmulatorCounters:
                 f"other direction {p.ignored_direction}, other frames {p.other_frame}), "
                 f"dropped by fault {self.dropped_by_fault}, corrupted by fault "
                 f"{self.corrupted_by_fault}, silenced {self.silenced}, send errors "
-                f"{self.send_errors}, unencodable {self.unencodable}")
+                f"{self.send_errors}, unencodable {self.unencodable}, shed while behind "
+                f"{self.shed}")
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -264,11 +266,12 @@ class DriverEmulator:
         self.plant.step(self.t, self._h, self.wheel_torques()[None, :], None)
         self._after_physics()
 
-    def _after_physics(self) -> None:
-        """One tick's bookkeeping once the physics has advanced: encoder angles,
-        watchdogs, the cyclic frames due."""
-        h = self._h
-        self._ticks += 1
+    def _after_physics(self, send_encoders: bool = True, ticks: int = 1) -> None:
+        """Bookkeeping once the physics has advanced ``ticks`` ticks: encoder angles,
+        watchdogs, the cyclic frames due (encoder estimates only if ``send_encoders``:
+        a realtime emulator catching up skips the stale ones)."""
+        h = self._h * ticks
+        self._ticks += ticks
         w_old, w_new = self._wheel_speed, self.model.wheel_speeds(float(self.q[2]), self.q_dot)
         self._wheel_speed = w_new
         for a, wo, wn in zip(self.axes, w_old, w_new, strict=True):
@@ -278,16 +281,19 @@ class DriverEmulator:
             for a in self.axes:
                 if a.armed and now - a.last_torque_s > self.watchdog_timeout_s + 1e-12:
                     self._disarm(a, AXIS_ERROR_WATCHDOG_TIMER_EXPIRED)
-        self._send_due()
+        self._send_due(send_encoders)
 
-    def _send_due(self) -> None:
+    def _send_due(self, send_encoders: bool = True) -> None:
         """The cyclic frames due at the current time (and a truth sample with the encoders)."""
         now = self.t
         if now >= self._next_encoder - 1e-9:
             self._next_encoder = max(self._next_encoder + self._encoder_period, now)
             self.truth.append((now, self.q.copy(), self.q_dot.copy()))
-            for a in self.axes:
-                self._send(self._encoder_frame(a))
+            if send_encoders:
+                for a in self.axes:
+                    self._send(self._encoder_frame(a))
+            else:
+                self.counters.shed += len(self.axes)
         if now >= self._next_heartbeat - 1e-9:
             self._next_heartbeat = max(self._next_heartbeat + self._heartbeat_period, now)
             for a in self.axes:
@@ -453,52 +459,76 @@ class FleetEmulator:
             e.plant, e._row = self.plant, row
         self._h = self.emulators[0]._h
         self._torques = np.zeros((len(robots), 4))
+        self._origin: float | None = None  # realtime: time.monotonic() at t = 0
+        self._lag_every_s = 0.01
+        self._next_lag = 0.0
 
     @property
     def t(self) -> float:
         return self.emulators[0].t
 
-    def step(self, now_s: float) -> None:
+    def step(self, now_s: float, behind_s: float | None = None) -> None:
         """Every robot as :meth:`DriverEmulator.step`: frames received so far, then
-        the physics tick by tick."""
+        the physics tick by tick.
+
+        ``behind_s`` (realtime): catching up more than this, the physics advances
+        ``behind_s`` at a time in one RK4 step (a host that took the CPU away gets
+        the emulator back in step at a fraction of the cost; RK4 over 20 ms is still
+        accurate for time constants of 0.1 s and more), the buses are read between
+        those steps (so commands queued meanwhile are applied and do not trip the
+        watchdogs), and the encoder estimates older than ``behind_s`` are not sent
+        (shed: stale, and sending them costs what let the emulator fall behind).
+        Heartbeats are always sent."""
         for e in self.emulators:
             if not e._started:
                 e._started = True
                 e._send_due()
-            e._receive()
         first = self.emulators[0]
-        n = math.floor(now_s / self._h + 1e-9) - first._ticks
+        target = math.floor(now_s / self._h + 1e-9)
+        batch = target if behind_s is None else max(1, int(behind_s / self._h + 1e-9))
         torques = self._torques
-        for _ in range(max(n, 0)):
-            for row, e in enumerate(self.emulators):
-                torques[row] = e.wheel_torques()
-            self.plant.step(first.t, self._h, torques, None)
+        while True:
             for e in self.emulators:
-                e._after_physics()
+                e._receive()
+            left = target - first._ticks
+            if left <= 0:
+                return
+            # behind by more than behind_s: one RK4 step over a whole batch (the torques
+            # are held over it anyway), frames out only for the newest ticks
+            k = batch if behind_s is not None and left > batch else 1
+            for _ in range(min(left, batch) // k):
+                for row, e in enumerate(self.emulators):
+                    torques[row] = e.wheel_torques()
+                self.plant.step(first.t, k * self._h, torques, None)
+                send = behind_s is None or (target - first._ticks - k) * self._h <= behind_s
+                for e in self.emulators:
+                    e._after_physics(send, k)
+                if self._origin is not None and first.t >= self._next_lag:
+                    # how late this tick was computed (sampled in emulator time, so a
+                    # long catch-up weighs as long as it lasted)
+                    first.lag.append((first.t, time.monotonic() - self._origin - first.t))
+                    self._next_lag = first.t + self._lag_every_s
 
     def run(self, stop: Callable[[], bool], duration_s: float | None = None,
-            lag_every_s: float = 0.01) -> None:
+            lag_every_s: float = 0.01, behind_s: float = 0.02) -> None:
         """Realtime on ``time.monotonic`` until ``stop()`` or ``duration_s``; between
         ticks, wait on the buses (a bus without a file descriptor: sleep). Records
-        how far behind the wall clock the physics was, every ``lag_every_s``."""
+        how far behind the wall clock the physics was, every ``lag_every_s``; see
+        :meth:`step` for ``behind_s``."""
         import select
 
         origin = time.monotonic() - self.t
+        self._origin, self._lag_every_s, self._next_lag = origin, lag_every_s, self.t
         for e in self.emulators:
             e.monotonic_origin_s = origin
         fds = [_fileno(e.bus) for e in self.emulators]
         can_select = all(fd >= 0 for fd in fds)
-        next_lag = self.t
-        lag_log = self.emulators[0].lag
         while not stop():
             now = time.monotonic() - origin
             if duration_s is not None and now >= duration_s:
                 self.step(duration_s)
                 return
-            if now >= next_lag:
-                lag_log.append((self.t, now - self.t))
-                next_lag = self.t + lag_every_s
-            self.step(now)
+            self.step(now, behind_s)
             delay = (self.emulators[0]._ticks + 1) * self._h - (time.monotonic() - origin)
             if delay > 0:
                 if can_select:
