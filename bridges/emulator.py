@@ -467,7 +467,8 @@ class FleetEmulator:
     def t(self) -> float:
         return self.emulators[0].t
 
-    def step(self, now_s: float, behind_s: float | None = None) -> None:
+    def step(self, now_s: float, behind_s: float | None = None,
+             ready: Sequence[int] | None = None) -> None:
         """Every robot as :meth:`DriverEmulator.step`: frames received so far, then
         the physics tick by tick.
 
@@ -478,7 +479,8 @@ class FleetEmulator:
         those steps (so commands queued meanwhile are applied and do not trip the
         watchdogs), and the encoder estimates older than ``behind_s`` are not sent
         (shed: stale, and sending them costs what let the emulator fall behind).
-        Heartbeats are always sent."""
+        Heartbeats are always sent. ``ready``: the robots whose bus has frames (from
+        ``select``; None: read every bus)."""
         for e in self.emulators:
             if not e._started:
                 e._started = True
@@ -487,9 +489,11 @@ class FleetEmulator:
         target = math.floor(now_s / self._h + 1e-9)
         batch = target if behind_s is None else max(1, int(behind_s / self._h + 1e-9))
         torques = self._torques
+        readers = self.emulators if ready is None else [self.emulators[i] for i in ready]
         while True:
-            for e in self.emulators:
+            for e in readers:
                 e._receive()
+            readers = self.emulators
             left = target - first._ticks
             if left <= 0:
                 return
@@ -508,6 +512,8 @@ class FleetEmulator:
                     # long catch-up weighs as long as it lasted)
                     first.lag.append((first.t, time.monotonic() - self._origin - first.t))
                     self._next_lag = first.t + self._lag_every_s
+            if first._ticks >= target:
+                return
 
     def run(self, stop: Callable[[], bool], duration_s: float | None = None,
             lag_every_s: float = 0.01, behind_s: float = 0.02) -> None:
@@ -523,16 +529,19 @@ class FleetEmulator:
             e.monotonic_origin_s = origin
         fds = [_fileno(e.bus) for e in self.emulators]
         can_select = all(fd >= 0 for fd in fds)
+        ready: list[int] | None = None  # the buses with frames (None: read them all)
         while not stop():
             now = time.monotonic() - origin
             if duration_s is not None and now >= duration_s:
                 self.step(duration_s)
                 return
-            self.step(now, behind_s)
+            self.step(now, behind_s, ready)
+            ready = None
             delay = (self.emulators[0]._ticks + 1) * self._h - (time.monotonic() - origin)
             if delay > 0:
-                if can_select:
-                    select.select(fds, [], [], delay)
+                if can_select:  # an empty read costs a select per bus: read only the ready ones
+                    readable = select.select(fds, [], [], delay)[0]
+                    ready = [fds.index(fd) for fd in readable]
                 else:
                     time.sleep(delay)
 
