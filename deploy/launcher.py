@@ -45,6 +45,7 @@ from deploy.wire import (
 )
 
 STOP_GRACE_S = 3.0
+EMULATOR_PRIORITY = 10  # nice -10 for the driver emulator (can-emulated), where permitted
 CAN_EMULATED = "can-emulated"  # every robot through a CAN bridge + driver emulator
 TAIL_LINES = 15
 
@@ -186,7 +187,10 @@ class Launcher:
                              "--encoder-rate", repr(1.0 / self.sc.dt),
                              # physics at the control rate: RK4 at 5 ms is within 5 mm of 1 ms
                              # over 10 s of random 2 N m torques, at a fifth of the CPU
-                             "--physics-rate", repr(1.0 / self.sc.dt)]
+                             "--physics-rate", repr(1.0 / self.sc.dt),
+                             # the physics must not lag the wall clock when the host is short
+                             # of CPU (best effort: needs CAP_SYS_NICE, else the log says so)
+                             "--priority", str(EMULATOR_PRIORITY)]
         for i, r in enumerate(self.sc.robot_ids):
             group, port = f"239.74.{os.getpid() % 250 + 1}.{i + 1}", f"port={free_udp_port()}"
             truth = self.opts.out / f"truth-{r}.npz"
