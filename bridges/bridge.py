@@ -50,6 +50,9 @@ from deploy.wire import (
 )
 from plant.perception import sense
 
+# a wheel turning more than this between two updates is a drive that restarted (its angle
+# went back to 0) or an implausible estimate: that update falls back to speed x dt
+MAX_TURNS_PER_UPDATE = 10.0
 REARM_AFTER_S = 0.25  # an axis still idle this long after arming (heartbeats at 10 Hz) is asked again
 
 
@@ -62,6 +65,7 @@ class BridgeNode:
         self.bus, self.protocol, self.node_ids = bus, protocol, list(node_ids)
         q0, _ = sc.initial_state()
         self.odometry = Odometry(sc.model(), q0[self.index])
+        self._last_positions: np.ndarray | None = None  # wheel angles (turns) at the last update
         # the scenario's limit, and never beyond what the protocol can encode (paper.toml
         # has no limit: a 1001 N m command made the frame encoder raise in the callback)
         self.gate = CommandGate(command_timeout_s, min(sc.spec.limits.max_wheel_torque_nm,
@@ -186,7 +190,16 @@ class BridgeNode:
             msg = self.protocol.decode(frame)
             if msg is not None:
                 self.monitor.feed(msg, at)
-        self.odometry.update(self.monitor.wheel_speeds_radps(), dt)
+        # the wheels' rotation from the drives' angle estimates: a lost or late encoder
+        # frame adds no drift (the next carries the whole rotation); speed x dt until
+        # every drive has reported, or after a drive restarted
+        speeds = self.monitor.wheel_speeds_radps()
+        pos, last = self.monitor.wheel_positions_rev(), self._last_positions
+        if pos is not None and last is not None and np.all(np.abs(pos - last) <= MAX_TURNS_PER_UPDATE):
+            self.odometry.advance((pos - last) * (2.0 * np.pi), speeds)
+        else:
+            self.odometry.update(speeds, dt)
+        self._last_positions = pos
 
     def idle_until_start(self, timeout_s: float) -> float | None:
         """Before the run: keep the odometry going (the robot may be pushed) and the

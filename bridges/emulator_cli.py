@@ -1,8 +1,11 @@
-"""``omnifleet emulate``: one robot's four motor drivers and dynamics on a CAN bus.
+"""``omnifleet emulate``: robots' four motor drivers and dynamics, each robot on a
+CAN bus of its own.
 
-Runs :class:`bridges.emulator.DriverEmulator` in real time until --duration, SIGINT
-or SIGTERM; then shuts the bus down, saves the ground truth (--truth-out) and
-prints a one-line summary of the frame counters on stderr.
+One process plays one or several robots (``--robot`` repeated, with one
+``--can-channel`` and ``--truth-out`` per robot): :class:`bridges.emulator.FleetEmulator`
+in real time until --duration, SIGINT or SIGTERM; then shuts the buses down, saves
+the ground truth (--truth-out) and prints a one-line summary of each robot's frame
+counters and of the lag behind the wall clock on stderr.
 
 Exit codes: 0 done (duration reached), 2 bad input (arguments, scenario, a bus
 that cannot be opened), 130 SIGINT, 143 SIGTERM. Also runnable alone:
@@ -13,11 +16,12 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import signal
 import sys
 from pathlib import Path
 
-from bridges.can_options import CanBusError, add_can_options, open_bus
+from bridges.can_options import CanBusError, add_can_options, open_buses
 
 EXIT_BAD_INPUT = 2
 _SIGNAL_EXIT = {"SIGINT": 130, "SIGTERM": 143}
@@ -46,8 +50,10 @@ def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", required=True, metavar="S",
                    help="scenario file or bundled scenario name (the robot's physics, initial "
                    "state, torque limit and disturbance come from it)")
-    p.add_argument("--robot", type=int, required=True, metavar="ID", help="the robot's id in the scenario")
-    add_can_options(p)
+    p.add_argument("--robot", type=int, required=True, action="append", metavar="ID",
+                   help="a robot's id in the scenario; repeat it to emulate several robots in this "
+                   "process (each on its own bus: one --can-channel per robot, in the same order)")
+    add_can_options(p, per_robot=True)
     p.add_argument("--encoder-rate", type=_positive, default=200.0, metavar="HZ",
                    help="Get_Encoder_Estimates rate per axis (default: 200)")
     p.add_argument("--heartbeat-rate", type=_positive, default=10.0, metavar="HZ",
@@ -63,21 +69,31 @@ def _configure(p: argparse.ArgumentParser) -> None:
                    help="fault: this node id stops sending and ignores commands ...")
     p.add_argument("--silent-after", type=_non_negative, default=None, metavar="S",
                    help="... from S seconds after start (default: 0; needs --silent-node)")
-    p.add_argument("--seed", type=int, default=0, metavar="N", help="fault random seed (default: 0)")
+    p.add_argument("--seed", type=int, default=0, metavar="N",
+                   help="fault random seed; the i-th --robot (from 0) uses N + i (default: 0)")
+    p.add_argument("--physics-rate", type=_positive, default=1000.0, metavar="HZ",
+                   help="RK4 physics ticks per second (default: 1000)")
     p.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds (default: run "
                    "until SIGINT/SIGTERM)")
-    p.add_argument("--truth-out", metavar="FILE.npz",
+    p.add_argument("--priority", type=int, default=0, choices=range(0, 21), metavar="N",
+                   help="raise this process's CPU priority by N (nice -N, and its session's "
+                   "autogroup where Linux groups processes by session): the emulator plays the "
+                   "physics, which must not be starved by the software under test. Needs "
+                   "CAP_SYS_NICE or RLIMIT_NICE; without it the emulator says so and runs at "
+                   "normal priority (default: 0)")
+    p.add_argument("--truth-out", metavar="FILE.npz", action="append",
                    help="write the robot's true pose and velocity (t, q, q_dot at the encoder "
-                   "rate) here on exit")
+                   "rate) here on exit; once per --robot, in the same order")
 
 
 def add_emulate_command(sub: argparse._SubParsersAction) -> None:
     """Register ``emulate`` on an ``omnifleet`` sub-command parser."""
     p = sub.add_parser(
-        "emulate", help="emulate one robot's four ODrive drivers and its dynamics on a CAN bus",
+        "emulate", help="emulate robots' four ODrive drivers and dynamics, each on its CAN bus",
         description="Play four ODrive CANSimple drives (arming, torque control, watchdog, Estop, "
         "heartbeats, encoder estimates) and the robot's dynamics (eq. 4) on a python-can bus, so "
-        "a bridge runs without hardware. Runs in real time until --duration or SIGINT/SIGTERM.",
+        "a bridge runs without hardware; several robots in one process, each on its own bus. Runs "
+        "in real time until --duration or SIGINT/SIGTERM.",
     )
     _configure(p)
     p.set_defaults(func=run_emulate)
@@ -86,54 +102,94 @@ def add_emulate_command(sub: argparse._SubParsersAction) -> None:
 def run_emulate(args: argparse.Namespace) -> int:
     """The ``emulate`` command; returns the exit code."""
 
-    from bridges.emulator import DriverEmulator, EmulatorFaults
+    from bridges.emulator import EmulatorFaults, FleetEmulator
     from deploy.scenario import ScenarioError, load_scenario
 
     def bad(msg: str) -> int:
         print(f"{PROG}: {msg}", file=sys.stderr)
         return EXIT_BAD_INPUT
 
+    robots: list[int] = list(args.robot)
+    if len(set(robots)) != len(robots):
+        return bad(f"--robot given twice for the same robot: {robots}")
     if args.silent_after is not None and args.silent_node is None:
         return bad("--silent-after needs --silent-node")
     if args.silent_node is not None and args.silent_node not in args.node_ids:
         return bad(f"--silent-node {args.silent_node} is not one of --node-ids "
                    f"{','.join(map(str, args.node_ids))}")
-    truth = Path(args.truth_out) if args.truth_out else None
-    if truth is not None and not truth.parent.is_dir():
-        return bad(f"--truth-out: no such directory {str(truth.parent)!r}")
+    truths = [Path(t) for t in args.truth_out or []]
+    if truths and len(truths) != len(robots):
+        return bad(f"give --truth-out once per --robot ({len(robots)}), or not at all")
+    for truth in truths:
+        if not truth.parent.is_dir():
+            return bad(f"--truth-out: no such directory {str(truth.parent)!r}")
     try:
         sc = load_scenario(args.scenario)
-        sc.index_of(args.robot)
+        for r in robots:
+            sc.index_of(r)
     except ScenarioError as exc:
         return bad(f"bad scenario: {exc}")
-    faults = EmulatorFaults(args.drop_rate, args.corrupt_rate, args.silent_node,
-                            args.silent_after or 0.0, args.seed)
+    faults = [EmulatorFaults(args.drop_rate, args.corrupt_rate, args.silent_node,
+                             args.silent_after or 0.0, args.seed + i) for i in range(len(robots))]
     try:
-        bus = open_bus(args)
+        buses = open_buses(args, len(robots))
     except CanBusError as exc:
         return bad(str(exc))
     try:
-        emu = DriverEmulator(sc, args.robot, bus, args.node_ids, args.encoder_rate,
-                             args.heartbeat_rate, args.watchdog_timeout, faults=faults)
+        fleet = FleetEmulator(sc, list(zip(robots, buses, strict=True)), args.node_ids,
+                              args.encoder_rate, args.heartbeat_rate, args.watchdog_timeout,
+                              args.physics_rate, faults=faults)
     except ValueError as exc:
-        bus.shutdown()
+        for bus in buses:
+            bus.shutdown()
         return bad(str(exc))
     stop_reason: list[str] = []
     previous = _install_signal_handlers(stop_reason)
-    print(f"{PROG}: robot {args.robot} of {sc.name!r}, drives {','.join(map(str, args.node_ids))} "
-          f"on {args.can_interface}:{args.can_channel}", file=sys.stderr, flush=True)
+    if args.priority:
+        print(f"{PROG}: {raise_priority(args.priority)}", file=sys.stderr, flush=True)
+    for r, ch in zip(robots, args.can_channel, strict=True):
+        print(f"{PROG}: robot {r} of {sc.name!r}, drives {','.join(map(str, args.node_ids))} "
+              f"on {args.can_interface}:{ch}", file=sys.stderr, flush=True)
     try:
-        emu.run(lambda: bool(stop_reason), args.duration)
-    finally:  # also when the bus fails: shut it down and keep what was simulated
-        bus.shutdown()
+        fleet.run(lambda: bool(stop_reason), args.duration)
+    finally:  # also when a bus fails: shut them down and keep what was simulated
+        for bus in buses:
+            bus.shutdown()
         _restore_signal_handlers(previous)
-        if truth is not None:
-            emu.save_truth(truth)
+        if truths:
+            fleet.save_truth(truths)
     reason = stop_reason[0] if stop_reason else "end"
-    print(f"{PROG}: t = {emu.t:.3f} s ({reason}); {emu.counters.summary()}; axes "
-          + ", ".join(f"{a.node}: state {a.state} error 0x{a.axis_error:x}" for a in emu.axes),
-          file=sys.stderr)
+    lag = fleet.lag_stats()
+    for emu in fleet.emulators:
+        print(f"{PROG}: robot {emu.robot_id}: t = {emu.t:.3f} s ({reason}); "
+              f"{emu.counters.summary()}; axes "
+              + ", ".join(f"{a.node}: state {a.state} error 0x{a.axis_error:x}" for a in emu.axes),
+              file=sys.stderr)
+    print(f"{PROG}: lag behind the wall clock p50 {lag['p50'] * 1e3:.1f} ms, p99 "
+          f"{lag['p99'] * 1e3:.1f} ms, max {lag['max'] * 1e3:.1f} ms", file=sys.stderr)
     return _SIGNAL_EXIT.get(reason, 0)
+
+
+def raise_priority(n: int) -> str:
+    """nice -n for this process and, on Linux with autogroups (every session one
+    scheduling group, so a process's nice counts only inside its session), for its
+    autogroup too; what was done, as a sentence."""
+    done, refused = [], []
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, -n)
+        done.append(f"nice -{n}")
+    except OSError as exc:
+        refused.append(f"nice -{n} ({exc.strerror})")
+    try:
+        with open("/proc/self/autogroup", "w") as f:
+            f.write(str(-n))
+        done.append(f"autogroup nice -{n}")
+    except FileNotFoundError:
+        pass  # no autogroups: nothing to do
+    except OSError as exc:
+        refused.append(f"autogroup nice -{n} ({exc.strerror})")
+    return ("priority raised: " + ", ".join(done) if done else "priority not raised") + (
+        "; refused: " + ", ".join(refused) if refused else "")
 
 
 def _install_signal_handlers(reasons: list[str]) -> dict:

@@ -64,6 +64,13 @@ class DriverMonitor:
         """Last reported wheel speeds, in the wheel order of eq. (1)."""
         return np.array([a.velocity_rev_s for a in self.axes]) * (2.0 * pi)
 
+    def wheel_positions_rev(self) -> np.ndarray | None:
+        """Last reported wheel angles (turns), in the wheel order of eq. (1); None
+        until every axis has sent an encoder estimate."""
+        if any(a.encoder_at is None for a in self.axes):
+            return None
+        return np.array([a.position_rev for a in self.axes])
+
     def fault_reasons(self, now_s: float) -> list[str]:
         out = []
         for a in self.axes:

@@ -104,6 +104,11 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
 
         extra["odometry_drift"] = odometry_drift(series, sc.robot_ids, launcher.truth_files,
                                                  launcher.t0_mono)
+        extra["emulator_lag_ms"] = emulator_lag_ms(launcher.truth_files)
+        c = launcher.collector
+        got = c.have_state.sum(axis=0)
+        extra["bridge_faulted_fraction"] = [
+            float(f) / g if g else None for f, g in zip(c.faulted.sum(axis=0), got, strict=True)]
         if "faults" in extra:
             extra["faults"]["can"] = can_fault_counts(launcher.truth_files)
     wall = extra.pop("wall_time_s")
@@ -112,6 +117,23 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     return write_run(sc, series, out, plant, args.clock, wall, messages, extra,
                      figures=not args.no_figures, contact_log=contact_log,
                      contacts_total=contacts_total)
+
+
+def emulator_lag_ms(truth_files: dict[int, Path]) -> dict[str, float | None]:
+    """How far the driver emulator's physics was behind the wall clock during the
+    run (sampled every 10 ms; every robot's truth file carries the same log)."""
+    import numpy as np
+
+    for path in truth_files.values():
+        try:
+            with np.load(path) as d:
+                lag = np.asarray(d["lag_s"], float) * 1e3
+        except (OSError, KeyError, ValueError):
+            continue
+        if len(lag):
+            return {"p50": float(np.median(lag)), "p99": float(np.percentile(lag, 99)),
+                    "max": float(lag.max())}
+    return {"p50": None, "p99": None, "max": None}
 
 
 def can_fault_counts(truth_files: dict[int, Path]) -> dict[str, dict[str, int]]:

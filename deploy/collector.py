@@ -30,6 +30,7 @@ class Collector:
         self.have_state = np.zeros((steps, sc.n), bool)
         self.have_telemetry = np.zeros((steps, sc.n), bool)
         self.have_leader = np.zeros(steps, bool)
+        self.faulted = np.zeros((steps, sc.n), bool)  # a bridge's state said faulted (CAN)
         self.reports: dict[str, NodeReport] = {}
         self.newest_k = -1
         self.out_of_range = 0  # messages stamped with a step outside the run
@@ -52,6 +53,7 @@ class Collector:
                 i = self.row[msg.robot]
                 ts.q[k, i], ts.q_dot[k, i] = msg.q, msg.q_dot
                 self.have_state[k, i] = True
+                self.faulted[k, i] = msg.faulted
                 self.newest_k = max(self.newest_k, k)
             elif isinstance(msg, Telemetry):
                 i = self.row[msg.robot]

@@ -99,3 +99,25 @@ def test_monitor_faults_on_errors_and_silence_but_not_on_a_watchdog_expiry():
     assert mon.faulted(1.3)  # every heartbeat 0.4 s old
     mon.feed(Heartbeat(9, 0x1, 1), 1.3)  # another node's frame changes nothing
     assert [a.node for a in mon.axes] == [0, 1, 2, 3]
+
+
+def test_advance_by_wheel_rotation_equals_speed_times_dt_and_ignores_skipped_samples(model):
+    """Position-based odometry: the same pose as speed x dt for the same motion, and
+    an update that covers two periods (a lost encoder frame) lands where two do."""
+    speeds = wheel_speeds_of(model, [0.8, -0.3, 0.0])
+    by_speed, by_angle, skipping = (Odometry(model, np.array([1.0, -1.0, 0.4])) for _ in range(3))
+    for k in range(200):
+        by_speed.update(speeds, 0.005)
+        by_angle.advance(speeds * 0.005, speeds)
+        if k % 2:
+            skipping.advance(speeds * 0.010, speeds)
+    assert np.allclose(by_angle.q, by_speed.q, atol=1e-12)
+    assert np.allclose(skipping.q, by_speed.q, atol=1e-12)  # straight line: exact
+    assert np.allclose(by_angle.q_dot, by_speed.q_dot, atol=1e-12)
+    turning = wheel_speeds_of(model, [1.0, 0.0, 0.5])
+    a, b = Odometry(model, np.zeros(3)), Odometry(model, np.zeros(3))
+    for k in range(400):
+        a.update(turning, 0.005)
+        if k % 2:
+            b.advance(turning * 0.010, turning)
+    assert np.abs(a.q - b.q).max() < 1e-4  # on an arc: second order in the interval

@@ -22,7 +22,7 @@ import msgspec
 import numpy as np
 import pytest
 
-from bridges.emulator import DriverEmulator, EmulatorFaults, flip_bits
+from bridges.emulator import DriverEmulator, EmulatorFaults, FleetEmulator, flip_bits
 from bridges.emulator_cli import main as emulate_main
 from bridges.protocol import (
     AXIS_ERROR_ESTOP_REQUESTED,
@@ -337,6 +337,101 @@ def test_constructor_rejects_bad_arguments(lab):
         bus.shutdown()
 
 
+# --- several robots in one process ----------------------------------------------------
+def _fleet_rigs(sc, robots):
+    """A host bus and an emulator bus per robot, each pair on a virtual channel of its own."""
+    chans = [f"test-{uuid.uuid4()}" for _ in robots]
+    hosts = [can.Bus(interface="virtual", channel=c) for c in chans]
+    emus = [can.Bus(interface="virtual", channel=c) for c in chans]
+    return hosts, emus
+
+
+@pytest.mark.parametrize("physics_rate_hz", [1000.0, 200.0])
+def test_fleet_emulator_equals_one_emulator_per_robot_each_on_its_bus(lab, calm, physics_rate_hz):
+    """One process for the fleet: each robot's frames stay on its own bus, and every
+    robot moves exactly as a one-robot emulator driven with the same frames."""
+    robots = lab.robot_ids
+    patterns = {1: FORWARD * 0.4, 2: STRAFE_LEFT * 0.3, 3: None}  # robot 3: never armed
+    for sc in (lab, calm):
+        hosts, emus = _fleet_rigs(sc, robots)
+        s_hosts, s_emus = _fleet_rigs(sc, robots)
+        fleet = FleetEmulator(sc, list(zip(robots, emus, strict=True)),
+                              physics_rate_hz=physics_rate_hz)
+        singles = [DriverEmulator(sc, r, b, physics_rate_hz=physics_rate_hz)
+                   for r, b in zip(robots, s_emus, strict=True)]
+        codec = OdriveCanSimple(NODES)
+        try:
+            for r, h, sh in zip(robots, hosts, s_hosts, strict=True):
+                if patterns[r] is not None:
+                    for bus in (h, sh):
+                        for n in NODES:
+                            for f in codec.arm_frames(n):
+                                bus.send(f)
+            heard: dict[int, list] = {r: [] for r in robots}
+            for k in range(1, 201):  # 1 s at 200 Hz
+                for r, h, sh in zip(robots, hosts, s_hosts, strict=True):
+                    if patterns[r] is not None:
+                        for bus in (h, sh):
+                            for n, tq in zip(NODES, patterns[r], strict=True):
+                                bus.send(codec.torque_frame(n, float(tq)))
+                now = round(k * DT, 9)
+                fleet.step(now)
+                for e in singles:
+                    e.step(now)
+                for r, h in zip(robots, hosts, strict=True):
+                    while (f := h.recv(timeout=0)) is not None:
+                        heard[r].append(codec.decode(f))
+            for r, e, one in zip(robots, fleet.emulators, singles, strict=True):
+                assert e.robot_id == r and e.t == one.t == pytest.approx(1.0)
+                np.testing.assert_allclose(e.q, one.q, rtol=0, atol=1e-12)
+                np.testing.assert_allclose(e.q_dot, one.q_dot, rtol=0, atol=1e-12)
+                assert [a.position_rev for a in e.axes] == pytest.approx(
+                    [a.position_rev for a in one.axes], abs=1e-12)
+                assert e.counters.sent == one.counters.sent
+                # what robot r's bus carried is robot r's: its encoder angles, its states
+                last = {m.node: m for m in heard[r] if isinstance(m, EncoderEstimate)}
+                assert [last[n].position_rev for n in NODES] == pytest.approx(
+                    [a.position_rev for a in e.axes], abs=1e-6)
+                armed = patterns[r] is not None
+                assert all(a.armed == armed for a in e.axes)
+            if sc is calm:  # never armed, no disturbance: robot 3 has not moved at all
+                q0, _ = sc.initial_state()
+                assert np.array_equal(fleet.emulators[2].q, q0[2])
+        finally:
+            for b in (*hosts, *emus, *s_hosts, *s_emus):
+                b.shutdown()
+
+
+def test_fleet_emulator_catching_up_sheds_stale_encoder_frames(lab):
+    """Realtime catch-up (behind_s): the physics advances in 20 ms RK4 steps, only the
+    newest encoder estimates go out, heartbeats all do, and the result stays close to
+    the tick-by-tick physics."""
+    hosts, emus = _fleet_rigs(lab, [1])
+    ref_hosts, ref_emus = _fleet_rigs(lab, [1])
+    fleet = FleetEmulator(lab, [(1, emus[0])], physics_rate_hz=200.0, watchdog_timeout_s=0.0)
+    ref = FleetEmulator(lab, [(1, ref_emus[0])], physics_rate_hz=200.0, watchdog_timeout_s=0.0)
+    codec = OdriveCanSimple(NODES)
+    try:
+        for h in (hosts[0], ref_hosts[0]):
+            for n in NODES:
+                for f in [*codec.arm_frames(n), codec.torque_frame(n, 0.5)]:
+                    h.send(f)
+        fleet.step(1.0, behind_s=0.02)  # 1 s late at once
+        ref.step(1.0)
+        e, r = fleet.emulators[0], ref.emulators[0]
+        assert e.t == r.t == pytest.approx(1.0)
+        assert e.counters.shed > 0 and e.counters.sent < r.counters.sent
+        sent = []
+        while (f := hosts[0].recv(timeout=0)) is not None:
+            sent.append(codec.decode(f))
+        beats = [m for m in sent if isinstance(m, Heartbeat)]
+        assert len(beats) == 11 * 4  # 10 Hz from t = 0 to 1 s, every one of them
+        assert np.linalg.norm(e.q[:2] - r.q[:2]) < 1e-3, (e.q, r.q)
+    finally:
+        for b in (*hosts, *emus, *ref_hosts, *ref_emus):
+            b.shutdown()
+
+
 # --- the command line --------------------------------------------------------------
 @pytest.mark.parametrize("argv", [
     ["--drop-rate", "2"],
@@ -370,6 +465,30 @@ def test_cli_runs_for_a_duration_in_process(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "(end); sent " in err
     assert len(np.load(out)["t"]) == 21
+
+
+def test_cli_several_robots_in_one_process(tmp_path, capsys):
+    outs = [tmp_path / f"truth-{r}.npz" for r in (1, 3)]
+    base = ["--scenario", "lab", "--can-interface", "virtual", "--duration", "0.1"]
+    code = emulate_main([*base, "--robot", "1", "--can-channel", f"a-{uuid.uuid4()}",
+                         "--truth-out", str(outs[0]), "--robot", "3",
+                         "--can-channel", f"b-{uuid.uuid4()}", "--truth-out", str(outs[1])])
+    assert code == 0
+    err = capsys.readouterr().err
+    assert "robot 1: t = 0.100 s (end); sent " in err and "robot 3: t = 0.100 s" in err
+    assert "lag behind the wall clock" in err
+    for r, out in zip((1, 3), outs, strict=True):
+        d = np.load(out)
+        assert int(d["robot_id"]) == r and len(d["t"]) == 21
+    q0, _ = load_scenario("lab").initial_state()
+    assert np.allclose(np.load(outs[1])["q"][0], q0[2])  # robot 3's own initial pose
+    # one channel per robot, and a per-robot --can-arg once or once per robot
+    for extra in (["--robot", "1", "--robot", "2", "--can-channel", "x"],
+                  ["--robot", "1", "--robot", "1", "--can-channel", "x", "--can-channel", "y"],
+                  ["--robot", "1", "--robot", "2", "--can-channel", "x", "--can-channel", "y",
+                   "--truth-out", str(outs[0])]):
+        assert emulate_main([*base, *extra]) == 2
+    assert "once per --robot" in capsys.readouterr().err
 
 
 def test_cli_sigterm_exits_cleanly_and_saves_truth(tmp_path):
