@@ -246,8 +246,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
               f"{r.formation_rms_m:.3f} m, contacts {r.contacts} ({r.wall_time_s:.0f} s)",
               file=sys.stderr, flush=True)
 
-    rows = run_sweep(args.scenario, args.drop, args.seeds, out, jobs, args.distributed,
-                     args.duration, args.plant, progress)
+    try:
+        rows = run_sweep(args.scenario, args.drop, args.seeds, out, jobs, args.distributed,
+                         args.duration, args.plant, progress)
+    except RuntimeError as exc:  # a distributed run failed: its log is named
+        print(f"faults sweep: {exc}", file=sys.stderr)
+        return 1
     write_csv(rows, out / "sweep.csv")
     table = markdown(rows, sc.name)
     (out / "sweep.md").write_text(table)

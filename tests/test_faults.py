@@ -320,3 +320,42 @@ def test_partition_of_the_leader_degrades_then_recovers(lab):
         for j in range(i + 1, 3):
             gap = np.linalg.norm(cut.q[:, i, :2] - cut.q[:, j, :2], axis=1) - radii
             assert gap.min() > 0.0
+
+
+# -- the sweep and show commands ------------------------------------------------------------
+def test_sweep_writes_table_csv_and_plot(tmp_path, capsys):
+    import csv
+
+    out = tmp_path / "sweep"
+    assert main(["faults", "sweep", "lab", "--drop", "0,0.5", "--seeds", "2", "--duration",
+                 "0.5", "--plant", "model", "--jobs", "2", "--out", str(out)]) == 0
+    rows = list(csv.DictReader(open(out / "sweep.csv")))
+    assert [(r["drop"], r["seed"]) for r in rows] == [("0.0", "1"), ("0.5", "1"), ("0.5", "2")]
+    assert int(rows[0]["messages_judged"]) == 0  # no loss: nothing judged, nothing lost
+    for r in rows[1:]:
+        judged, lost = int(r["messages_judged"]), int(r["messages_lost"])
+        assert abs(lost / judged - 0.5) < 0.05
+    assert rows[1]["formation_rms_m"] != rows[2]["formation_rms_m"]  # the seeds differ
+    table = (out / "sweep.md").read_text()
+    assert "| 0.5 | 2 |" in table and "| 0 | 1 |" in table
+    assert (out / "sweep.png").stat().st_size > 10_000
+    assert (out / "runs" / "drop-0.5-seed-2" / "metrics.json").exists()
+
+
+@pytest.mark.parametrize("args", [["--drop", "0,1.5"], ["--drop", "a,b"], ["--seeds", "0"]])
+def test_sweep_rejects_bad_arguments(args, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["faults", "sweep", "lab", *args])
+    assert exc.value.code == 2
+
+
+def test_show_lists_every_edge_of_the_run(tmp_path, capsys):
+    plan = tmp_path / "p.toml"
+    plan.write_text("seed = 2\n[[link]]\nfrom = 'agent-1'\ndrop = 0.25\n"
+                    "[[kill]]\nprocess = 'agent-3'\nat_s = 5.0\n")
+    assert main(["faults", "show", str(plan), "--scenario", "paper"]) == 0
+    lines = {ln.split()[0]: " ".join(ln.split()[1:]) for ln in
+             capsys.readouterr().out.splitlines()[1:]}
+    assert lines["agent-1->agent-2"] == lines["agent-1->plant"] == "drop 0.25"
+    assert sum(v == "perfect" for v in lines.values()) == 10 - 3
+    assert lines["kill"] == "agent-3 at 5 s"
