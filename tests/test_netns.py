@@ -137,7 +137,10 @@ def _wait_for_step(log: Path, k: int, proc: subprocess.Popen, timeout: float) ->
 
 CUT_S = 3.0
 LEASE_MS = 1000
-CUT_DURATION = 0.5  # s of scenario time: 500 steps, the cut after step 150
+# s of scenario time: the cut after step 150; the steps after it take a few seconds
+# of wall time once agent-2 is back, so the run's end (everybody leaving) comes well
+# after the cut's window
+CUT_DURATION = 4.0
 
 
 def test_a_cut_agent_link_is_detected_counted_and_the_run_goes_on(tmp_path):
@@ -169,17 +172,27 @@ def test_a_cut_agent_link_is_detected_counted_and_the_run_goes_on(tmp_path):
             stop(list(procs.values()))
     assert all(c == 0 for c in codes.values()), f"{codes}\n{_logs(logs)}"
     m = json.loads((out / "metrics.json").read_text())
-    assert m["steps"] == 500  # the run went on to its end
+    assert m["steps"] == round(CUT_DURATION * 1000)  # the run went on to its end
     with open(out / "recording.mcap", "rb") as f:
         messages = [(ch.topic, msg.log_time) for _s, ch, msg in make_reader(f).iter_messages()]
     cmd_times = [t for topic, t in messages if topic.endswith("/robot/2/cmd")]
     end_ns = min([t for topic, t in messages if topic.endswith("/ctl/end")] or [2**63])
     live = m["liveliness"]["agent-2"]
-    # losses between the cut and the run's end (nodes leave after it)
-    window_end = min(restored_ns + 2e9, end_ns)
+    # losses between the cut and one lease after the link is back (the run's end,
+    # when nodes leave, comes later)
+    assert end_ns > restored_ns + 2e9, "the run ended too soon after the cut to judge"
+    window_end = restored_ns + 2e9
     during = {role: [t for t in r["lost_at_unix_ns"] if cut_ns < t < window_end]
               for role, r in m["liveliness"].items()}
-    assert {r: ts for r, ts in during.items() if ts} == {"agent-2": during["agent-2"]}
+    # Nobody else is cut off. A token the recorder heard relayed through agent-2's
+    # session (zenoh linked those two peers through it) goes at the same lease
+    # expiry: seen once in about six runs, for agent-1. Such a loss must come back;
+    # it is printed, and docs/multihost.md says so.
+    relayed = {r: ts for r, ts in during.items() if ts and r != "agent-2"}
+    for role, ts in relayed.items():
+        assert all(any(b > t for b in m["liveliness"][role]["back_at_unix_ns"]) for t in ts), role
+    if relayed:
+        print(f"\nalso lost during the cut (relayed through agent-2): {sorted(relayed)}")
     assert len(during["agent-2"]) == 1, live  # detected once, during the cut (lease expiry)
     lost_at = during["agent-2"][0]
     assert lost_at < restored_ns
