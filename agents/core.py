@@ -266,13 +266,15 @@ class AgentCore:
         q_dot_v: Vec3 = _vec3(q_dot)
         qv: Vec3 = _vec3(q) if ages is None else predict(_vec3(q), q_dot_v, ages.state_s)
         lead_v3 = (_vec3(leader[0]), _vec3(leader[1])) if leader is not None else None
+        nbr_q0 = [_vec3(sh.q0_hat) for sh in nbr]  # the neighbours' leader estimates
+        nbr_v0 = [_vec3(sh.v0_hat) for sh in nbr]
         fresh = None
         info_age = 0.0  # of the freshest leader information
         if ages is not None:
             fresh = freshest_source(
                 lead_v3 if cfg.leader_weight != 0.0 else None, ages.leader_s,
-                [(_vec3(sh.q0_hat), _vec3(sh.v0_hat), a, sh.info_age_s)
-                 for sh, a in zip(nbr, nbr_age, strict=True)])
+                [(x, v, a, sh.info_age_s)
+                 for x, v, a, sh in zip(nbr_q0, nbr_v0, nbr_age, nbr, strict=True)])
             info_age = fresh.age_s if fresh is not None else 0.0
             if info_age > cfg.degradation.stale_after_s:
                 self._info_lost, self._reacquiring = True, False
@@ -352,8 +354,6 @@ class AgentCore:
         # leader estimator (14), advanced to k+1 and shared; stale inputs predicted
         # to now, those older than stale_after_s left out (degradation.py)
         lq, lv = lead_v3 if lead_v3 is not None else (None, None)
-        nbr_q0 = [_vec3(sh.q0_hat) for sh in nbr]
-        nbr_v0 = [_vec3(sh.v0_hat) for sh in nbr]
         weights = self._weights
         left_out = 0
         if ages is not None:

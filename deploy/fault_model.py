@@ -133,7 +133,9 @@ class FaultModel:
     def judge(self, edge: EdgeFaults, k: int) -> bool:
         """Decide and count the message of step k; True when it gets through."""
         outcome = edge.outcome(k)
-        count = self.counts.setdefault(edge.name, EdgeCount())
+        count = self.counts.get(edge.name)
+        if count is None:
+            count = self.counts[edge.name] = EdgeCount()
         count.add(outcome, edge.spec.delay_s > 0.0)
         return outcome == DELIVERED
 
@@ -160,6 +162,7 @@ def fault_metrics(plan: FaultPlan, edges: dict[str, dict[str, int]],
                   kills: list[dict] | None = None) -> dict:
     """The ``faults`` section of metrics.json: the plan, every injected fault
     per edge and in total, and the processes killed (and restarted)."""
-    totals = merge_reports([{"all": c} for c in edges.values()]).get("all", {})
+    totals = {key: sum(c.get(key, 0) for c in edges.values())
+              for key in EdgeCount().as_dict()}
     return {"plan": plan.path, "seed": plan.seed, "edges": edges, "totals": totals,
             "kills": kills or []}

@@ -166,8 +166,8 @@ class FaultGate:
             if ok is None:
                 ok = self.model.judge(edge, k)
                 decided[k] = ok
-                if len(decided) > self.KEEP:
-                    del decided[min(decided)]
+                if len(decided) > self.KEEP:  # the first kept is the oldest step
+                    del decided[next(iter(decided))]
             if not ok:
                 return
             if edge.spec.delay_s > 0.0:
