@@ -12,6 +12,7 @@ scheme of the authors' code while positions arrive one step late.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from copy import copy
 from dataclasses import dataclass, field
 from math import cos, hypot, isfinite, sin
 
@@ -159,6 +160,14 @@ class AgentCore:
             self.q0_hat, self.v0_hat, np.array(q_init, float), np.array(q_dot_init, float),
             np.array(zeta), np.array(zeta_dot),
         )
+
+    def fork(self) -> AgentCore:
+        """An independent copy to step ahead of this one (agents/look_ahead.py).
+
+        A shallow copy is enough: the step replaces its state (float tuples),
+        it never mutates it, and the configuration is shared read-only.
+        """
+        return copy(self)
 
     @property
     def q0_hat(self) -> np.ndarray:

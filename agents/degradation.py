@@ -39,6 +39,8 @@ from math import hypot
 
 from agents.signals import Vec3
 
+MAX_COMMAND_HORIZON = 16  # steps; the wire refuses longer plans
+
 
 @dataclass(frozen=True)
 class DegradationConfig:
@@ -49,6 +51,7 @@ class DegradationConfig:
     reacquire_tau_s: float = 0.25
     reacquire_tol_m: float = 0.05
     reacquire_min_s: float = 1.0
+    command_horizon: int = 2  # steps of predicted torques sent with each command (look_ahead.py)
 
 
 @dataclass(frozen=True)

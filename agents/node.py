@@ -23,6 +23,7 @@ import numpy as np
 
 from agents.core import AgentCore, AgentOutput, Body, Share
 from agents.degradation import InputAges, predict
+from agents.look_ahead import LookAhead
 from deploy.fault_model import FaultModel
 from deploy.fault_plan import FaultPlan
 from deploy.lockstep_inputs import AgentLinks
@@ -40,6 +41,7 @@ from deploy.wire import (
     RobotState,
     SensedBody,
     Telemetry,
+    Vec4,
     WheelCommand,
     agent_role,
 )
@@ -122,6 +124,9 @@ class AgentNode:
                                             self.hears_leader)
         self.keep_steps = KEEP_STEPS + self.faults.max_lag_steps
         self.gate = FaultGate(self.faults, node.mailbox) if realtime and faults else None
+        # commands can be lost or late only with a fault plan or on the realtime clock
+        horizon = sc.spec.degradation.command_horizon if (faults or realtime) else 0
+        self.look_ahead = LookAhead(self.core, horizon) if horizon else None
         self._perception_used: Perception | None = None
         self.timing = Timing()
         self.steps_done = 0
@@ -198,12 +203,12 @@ class AgentNode:
             zeta_dot=_t3(s.zeta_dot), info_age_s=s.info_age_s))
 
     def _publish_step(self, k: int, t: float, state: RobotState, out: AgentOutput,
-                      stale: int) -> None:
+                      plan: list[Vec4], stale: int) -> None:
         keys, rid, node = self.node.keys, self.rid, self.node
         node.publish(keys.cmd(rid), lambda seq, stamp: WheelCommand(
             WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, t=t,
             torques=tuple(out.torques.tolist()), v_cmd=_t3(out.v_cmd),
-            state_seq=state.seq, state_stamp_ns=state.stamp_ns))
+            state_seq=state.seq, state_stamp_ns=state.stamp_ns, plan=plan))
         self._publish_share(k, out.share)
         if k % self.telemetry_every:
             return
@@ -218,14 +223,18 @@ class AgentNode:
 
     def _compute(self, t: float, state: RobotState, perception: Perception | None,
                  leader: LeaderState | None, dt: float | None = None,
-                 ages: InputAges | None = None) -> AgentOutput:
+                 ages: InputAges | None = None) -> tuple[AgentOutput, list[Vec4]]:
+        """The step's output and its look-ahead torques (empty when off)."""
         robots = bodies_from_msg(perception.robots) if perception else []
         obstacles = bodies_from_msg(perception.obstacles) if perception else []
         lead = (np.array(leader.q), np.array(leader.q_dot)) if leader is not None else None
         if self.hears_leader and lead is None:  # never heard it yet: use own estimate
             lead = (self.core.q0_hat.copy(), self.core.v0_hat.copy())
-        return self.core.step(t, np.array(state.q), np.array(state.q_dot), self.last_shares,
-                              lead, obstacles, robots, dt, ages)
+        q, q_dot = np.array(state.q), np.array(state.q_dot)
+        out = self.core.step(t, q, q_dot, self.last_shares, lead, obstacles, robots, dt, ages)
+        plan = [] if self.look_ahead is None else self.look_ahead.plan(
+            self.core, out, t, q, q_dot, self.last_shares, lead, obstacles, robots, ages)
+        return out, plan
 
     # -- lockstep -----------------------------------------------------------------
     def _lockstep_ready(self, k: int) -> bool:
@@ -277,8 +286,8 @@ class AgentNode:
                 continue
             state, perception = world
             t = k * self.sc.dt
-            out = self._compute(t, state, perception, leader, ages=ages)
-            self._publish_step(k, t, state, out, missing + _stale(ages))
+            out, plan = self._compute(t, state, perception, leader, ages=ages)
+            self._publish_step(k, t, state, out, plan, missing + _stale(ages))
             self.steps_done += 1
             k += 1
 
@@ -357,8 +366,8 @@ class AgentNode:
             for j, msg in share_msgs.items():
                 self.last_shares[j] = share_from_msg(msg)
             t = now - t0_mono
-            out = self._compute(t, state, perception, leader, h, ages)
-            self._publish_step(state.k, t, state, out, _stale(ages))
+            out, plan = self._compute(t, state, perception, leader, h, ages)
+            self._publish_step(state.k, t, state, out, plan, _stale(ages))
             self.steps_done += 1
 
     def _resync(self, state: RobotState, leader: LeaderState | None,

@@ -17,13 +17,14 @@ import numpy as np
 from agents.core import AgentCore, Share
 from agents.formation import offsets, scale_at
 from agents.leader import LeaderGenerator
+from agents.look_ahead import LookAhead
 from deploy.fault_model import FaultModel
 from deploy.fault_plan import FaultPlan
 from deploy.lockstep_inputs import AgentLinks, HeldInput
 from deploy.scenario import PLANT_KINDS, Scenario
 from deploy.timeseries import TimeSeries
 from deploy.wire import PLANT_ROLE, agent_role
-from plant.command import applied_command
+from plant.command import applied_command, clamped_plan, command_for_step
 from plant.disturbance import make_disturbance
 from plant.model_plant import KinematicPlant, ModelPlant
 from plant.perception import sensor_for
@@ -146,6 +147,9 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     zero_missed = sc.spec.plant.missed_command == "zero"
     command_links = [HeldInput(model, model.edge(agent_role(rid), PLANT_ROLE), exempt_first=False)
                      for rid in ids]
+    # commands can only be lost with a fault plan: only then is the look-ahead worth its cost
+    horizon = sc.spec.degradation.command_horizon if model.plan is not None else 0
+    look_ahead = [LookAhead(a, horizon) for a in agents] if horizon else None
 
     start = time.perf_counter()
     for k in range(steps):
@@ -160,7 +164,10 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                 lambda j, idx: shares.get((j, idx)), dt)
             q, q_dot, robots_seen, obstacles_seen = world
             out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
-            commands[(rid, k)] = applied_command(out.torques, out.v_cmd, sc.spec.limits)
+            plan = [] if look_ahead is None else look_ahead[i].plan(
+                agent, out, t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
+            commands[(rid, k)] = (*applied_command(out.torques, out.v_cmd, sc.spec.limits),
+                                  clamped_plan(plan, sc.spec.limits))
             shares[(rid, k)] = out.share
             series.record_agent(k, i, out, agent)
         series.record_world(
@@ -168,10 +175,14 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
         )
         for i, rid in enumerate(ids):
             cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get((rid, idx)))
-            if age > 0 and zero_missed:
+            if cmd is None:
+                continue
+            planned = command_for_step(k - age, cmd[0], cmd[2], k)
+            if planned is not None:  # its own command, or its look-ahead for this step
+                torques[i], v_cmd[i] = planned, cmd[1]
+            elif zero_missed:
                 torques[i], v_cmd[i] = 0.0, 0.0
-            elif cmd is not None:
-                torques[i], v_cmd[i] = cmd
+            # else: hold what was applied last
         plant.step(t, dt, torques, v_cmd)
         leader.advance()
         _forget(k - keep, worlds, leaders, shares, commands)

@@ -19,7 +19,7 @@ import numpy as np
 
 from agents.controller import ControllerGains
 from agents.core import AgentConfig, Body
-from agents.degradation import DegradationConfig
+from agents.degradation import MAX_COMMAND_HORIZON, DegradationConfig
 from agents.eso import EsoGains
 from agents.estimator import EstimatorGains
 from agents.formation import ScaleChange
@@ -176,6 +176,9 @@ class Degradation(_S, kw_only=True):
     reacquire_tau_s: float = _DEGRADATION.reacquire_tau_s  # blend toward the source ...
     reacquire_tol_m: float = _DEGRADATION.reacquire_tol_m  # ... until this close
     reacquire_min_s: float = _DEGRADATION.reacquire_min_s  # ... and at least this long
+    # torques for the next steps, predicted and sent with each command: the plant
+    # plays them when a command is lost (agents/look_ahead.py); 0 = off
+    command_horizon: int = _DEGRADATION.command_horizon
 
 
 class Metrics(_S, kw_only=True):
@@ -481,6 +484,9 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
             or d.reacquire_min_s < 0:
         raise _fail(path, "degradation", "need stale_after_s, slow_after_s > 0 and "
                     "slow_ramp_s, degraded_speed_mps, reacquire_tau_s >= 0, reacquire_tol_m > 0")
+    if not 0 <= d.command_horizon <= MAX_COMMAND_HORIZON:
+        raise _fail(path, "degradation.command_horizon",
+                    f"must be between 0 (off) and {MAX_COMMAND_HORIZON} steps")
     if s.plant.substeps < 1:
         raise _fail(path, "plant.substeps", "must be >= 1")
     p = s.robot

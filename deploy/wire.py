@@ -22,6 +22,8 @@ from typing import Any, ClassVar
 
 import msgspec
 
+from agents.degradation import MAX_COMMAND_HORIZON
+
 WIRE_VERSION = 1
 MAX_BODIES = 256  # bodies per perception message
 MAX_ORDER_CHARS = 32
@@ -113,6 +115,14 @@ class WheelCommand(Message, frozen=True):
     v_cmd: Vec3  # fused velocity command (a kinematic plant uses this)
     state_seq: int  # seq of the RobotState this command answers
     state_stamp_ns: int  # its stamp_ns, echoed: latency measured on the plant's clock
+    # torques predicted for steps k+1, k+2, ...: played if their own command is lost
+    # (agents/look_ahead.py); at most MAX_COMMAND_HORIZON entries
+    plan: list[Vec4] = []
+
+    def __post_init__(self) -> None:
+        if len(self.plan) > MAX_COMMAND_HORIZON:
+            raise ValueError("plan too long")
+        super().__post_init__()
 
 
 class NeighbourShare(Message, frozen=True):

@@ -5,7 +5,7 @@ plant moves at it) saturated to ``max_speed_mps`` / ``max_yaw_rate_radps``.
 
 The agents already respect the limits, so this changes nothing for them (the
 in-process runner and the plant node apply it alike, so they stay equal); it
-holds for any bytes that decode as a command.
+holds for any bytes that decode as a command, look-ahead torques included.
 """
 
 from __future__ import annotations
@@ -19,9 +19,30 @@ from agents.fusion import saturate_velocity_vec
 def applied_command(torques: Sequence[float], v_cmd: Sequence[float],
                     limits: Any) -> tuple[tuple[float, ...], tuple[float, float, float]]:
     """(torques, v_cmd) to step the plant with; ``limits`` is the scenario's [limits]."""
-    lim = limits.max_wheel_torque_nm
-    # written with comparisons so a NaN stays NaN (the plant refuses it; never on the wire)
-    clamped = tuple(lim if x > lim else -lim if x < -lim else float(x) for x in torques)
     vx, vy, w = (float(x) for x in v_cmd)
-    return clamped, saturate_velocity_vec((vx, vy, w), limits.max_speed_mps,
-                                          limits.max_yaw_rate_radps)
+    v = saturate_velocity_vec((vx, vy, w), limits.max_speed_mps, limits.max_yaw_rate_radps)
+    return _clamped(torques, limits.max_wheel_torque_nm), v
+
+
+def clamped_plan(plan: Sequence[Sequence[float]], limits: Any) -> list[tuple[float, ...]]:
+    """A command's look-ahead torques, each clamped as :func:`applied_command` clamps."""
+    return [_clamped(u, limits.max_wheel_torque_nm) for u in plan]
+
+
+def _clamped(torques: Sequence[float], lim: float) -> tuple[float, ...]:
+    # written with comparisons so a NaN stays NaN (the plant refuses it; never on the wire)
+    return tuple(lim if x > lim else -lim if x < -lim else float(x) for x in torques)
+
+
+def command_for_step(k_cmd: int, torques: Sequence[float],
+                     plan: Sequence[Sequence[float]], k: int) -> Sequence[float] | None:
+    """The torques that a command answering step ``k_cmd`` holds for step ``k``
+    (packetized predictive control, agents/look_ahead.py): its own torques for
+    k <= k_cmd, entry k - k_cmd of its look-ahead plan for a later step, None
+    past the plan (the plant's missed-command policy decides)."""
+    ahead = k - k_cmd
+    if ahead <= 0:
+        return torques
+    if ahead <= len(plan):
+        return plan[ahead - 1]
+    return None

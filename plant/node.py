@@ -3,10 +3,13 @@
 Publishes ``robot/i/state`` and ``robot/i/perception`` each step and takes
 ``robot/i/cmd``. It is the time master of a lockstep run (DESIGN §4): step k
 publishes ``ctl/tick`` k and the states at t_k, waits for every robot's command
-of step k (per-step deadline; a missing one is counted late and the last
-command is held), then integrates to t_{k+1}. In realtime it steps on its own
-monotonic clock, uses the newest command of each robot, and zeroes a robot's
-torques when its newest command is older than the command timeout.
+of step k (per-step deadline; a missing one is counted late), then integrates
+to t_{k+1}. In realtime it steps on its own monotonic clock, uses the newest
+command of each robot, and zeroes a robot's torques when its newest command is
+older than the command timeout. A step whose command is missing (late or lost)
+gets the look-ahead torques the newest command predicted for it
+(agents/look_ahead.py); past them the last torques are held (or zeroed, lockstep
+with ``plant.missed_command = "zero"``).
 
 A command is applied through :func:`plant.command.applied_command` (each wheel
 torque clamped to the scenario's limit, v_cmd to the speed limits), whatever the
@@ -48,7 +51,7 @@ from deploy.wire import (
     run_roles,
     sensed_bodies,
 )
-from plant.command import applied_command
+from plant.command import applied_command, command_for_step
 from plant.perception import sensor_for
 
 
@@ -154,9 +157,10 @@ class PlantNode:
         self._control("end", steps, steps * dt)
 
     def _take_lockstep_commands(self, k: int) -> None:
-        """Each robot's command of step k; a missing one (late: counted) or one a
-        faulty link lost (lockstep_inputs.py) leaves the last command held, or
-        zero torque with ``plant.missed_command = "zero"``."""
+        """Each robot's command of step k. For a missing one (late: counted) or one
+        a faulty link lost (lockstep_inputs.py), the look-ahead torques for step k
+        of the newest command (agents/look_ahead.py); past its plan, what was
+        applied last is held, or zero torque with ``plant.missed_command = "zero"``."""
         zero_missed = self.sc.spec.plant.missed_command == "zero"
         with self.node.mailbox.lock:
             for i, rid in enumerate(self.ids):
@@ -164,11 +168,15 @@ class PlantNode:
                     self.node.counters.late += 1
                 cmd, age = self.command_links[i].take(
                     k, lambda idx, rid=rid: self.commands.get((rid, idx)))
-                if age > 0 and zero_missed:
-                    self.torques[i], self.v_cmd[i] = 0.0, 0.0
-                elif cmd is not None:
-                    self.torques[i], self.v_cmd[i] = applied_command(cmd.torques, cmd.v_cmd,
+                if cmd is None:
+                    continue
+                planned = command_for_step(k - age, cmd.torques, cmd.plan, k)
+                if planned is not None:  # its own command, or its look-ahead for step k
+                    self.torques[i], self.v_cmd[i] = applied_command(planned, cmd.v_cmd,
                                                                      self.sc.spec.limits)
+                elif zero_missed:
+                    self.torques[i], self.v_cmd[i] = 0.0, 0.0
+                # else: hold what was applied last
             for key in [key for key in self.commands if key[1] <= k - self.keep_steps]:
                 del self.commands[key]
 
@@ -189,6 +197,7 @@ class PlantNode:
                 # an answer within one period acts as in lockstep
                 self._apply_newest_commands(time.monotonic())
                 for _ in range(k - k_prev):
+                    self._play_plans(self.steps_done)
                     self.plant.step(self.steps_done * dt, dt, self.torques, self.v_cmd)
                     self.steps_done += 1
             self._publish_world(k, k * dt)
@@ -216,6 +225,21 @@ class PlantNode:
                 if cmd is None or cmd.state_seq != self.last_state_seq.get(rid):
                     self.timing.deadline_misses += 1  # the latest state went unanswered
             self.commands.clear()
+
+    def _play_plans(self, k: int) -> None:
+        """Realtime: a robot whose newest command answers an earlier step than the
+        one being integrated (its later ones are late or lost) plays that
+        command's look-ahead torques for step k while it has them; past its plan
+        the command is held (until the command timeout zeroes it)."""
+        with self.node.mailbox.lock:
+            for i, rid in enumerate(self.ids):
+                cmd = self.newest.get(rid)
+                if cmd is None or rid in self.unpowered or cmd.k >= k:
+                    continue
+                planned = command_for_step(cmd.k, cmd.torques, cmd.plan, k)
+                if planned is not None:
+                    self.torques[i], self.v_cmd[i] = applied_command(planned, cmd.v_cmd,
+                                                                     self.sc.spec.limits)
 
     def finish(self, linger_s: float = 5.0) -> None:
         """Report, then stay until the other nodes have left after ``end``, so
