@@ -7,7 +7,8 @@ stepped with, and the torque frames the bridge puts on the bus, are finite and
 within the scenario's ``limits.max_wheel_torque_nm``; the kinematic plant's
 velocity command is within ``max_speed_mps`` / ``max_yaw_rate_radps``.
 Commands are field lists of valid shape with any float torques (huge, non-finite,
-beyond float32), wrong fields, and mutated bytes.
+beyond float32) and look-ahead plans (agents/look_ahead.py, played for the steps
+after), wrong fields, and mutated bytes.
 """
 
 from __future__ import annotations
@@ -48,6 +49,8 @@ def command_bytes(draw: st.DrawFn) -> bytes:
     fields[4] = ROBOT_IDS[0]
     fields[7] = draw(st.lists(torque, min_size=4, max_size=4))
     fields[8] = draw(st.lists(torque, min_size=3, max_size=3))
+    # the look-ahead plan: any torques, sometimes longer than the wire allows
+    fields[11:] = [draw(st.lists(st.lists(torque, min_size=4, max_size=4), max_size=20))]
     raw = msgspec.msgpack.encode(fields)
     return draw(mutated_bytes(raw)) if how == "mutated" else raw
 
@@ -83,6 +86,12 @@ def test_plant_applies_only_finite_torques_within_the_limit(plant: PlantNode, ra
     if cmd is not None:
         plant._take_lockstep_commands(cmd.k)  # lockstep: the command of step k
         check_plant_inputs(plant)
+        for ahead in (1, 2, len(cmd.plan) + 1):  # its look-ahead for the steps after
+            plant._take_lockstep_commands(cmd.k + ahead)
+            check_plant_inputs(plant)
+            plant._apply_newest_commands(time.monotonic())
+            plant._play_plans(cmd.k + ahead)  # realtime: a later command is late
+            check_plant_inputs(plant)
 
 
 # --- the CAN bridge ----------------------------------------------------------------------
