@@ -3,7 +3,9 @@ plant for that robot (DESIGN §8). Realtime only: hardware has no lockstep.
 
 - ``robot/i/cmd`` -> torque frames, sent as the command arrives (the gate of
   :mod:`bridges.safety` clamps them to the scenario's limit, or to the protocol's
-  torque bound when that is lower);
+  torque bound when that is lower); a period in which no command came plays the
+  look-ahead torques the newest one predicted for the overdue step
+  (agents/look_ahead.py), then holds it;
 - every period: frames from the drivers -> :class:`DriverMonitor`; wheel speeds
   -> odometry (eq. 1) -> ``robot/i/state`` (``faulted`` set on a driver error or
   a missing heartbeat); ``robot/i/perception`` from the scenario's obstacles (the
@@ -120,7 +122,7 @@ class BridgeNode:
 
     def _on_cmd(self, m: WheelCommand) -> None:  # under the mailbox lock
         arrived = time.monotonic()
-        self.gate.command(m.torques, arrived)
+        self.gate.command(m.torques, arrived, m.k, m.plan)
         if self.armed:  # torque on the bus now, not at the next period
             self._apply(self.gate.decide(arrived, self.monitor.faulted(arrived)))
             self.timing.add_latency(time.monotonic_ns() - int(arrived * 1e9))
@@ -239,7 +241,10 @@ class BridgeNode:
                     if d.armed and self.armed:
                         self._rearm_idle_axes(now)
                     if d.armed and now - self.torque_sent_at >= dt:
-                        self._apply(d)  # no command this period: hold it (feeds the watchdog)
+                        # no command this period: the one answering our state of the
+                        # last period is overdue; play its look-ahead torques, or
+                        # hold the newest (which feeds the watchdog)
+                        self._apply(self.gate.decide(now, faulted, due_step=k - 1))
                     elif not d.armed and self.last_reason != d.reason:
                         self._apply(d)  # zeros, once per reason
                 self._publish(k, k * dt, faulted)

@@ -6,13 +6,19 @@ the drivers' health. Pure logic, no I/O (DESIGN §8, §9):
 - an e-stop -> zero torque and idle until the bridge is restarted;
 - a faulted robot (a driver error, a missing heartbeat) -> zero torque;
 - otherwise the commanded torques, each clamped to the scenario's limit; a
-  non-finite torque never reaches the bus (the whole command is refused).
+  non-finite torque never reaches the bus (the whole command is refused);
+- a period with no new command (asked with ``due_step``): the look-ahead torques
+  the newest command predicted for the overdue step (agents/look_ahead.py), and
+  past its plan the command itself, held until the timeout.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+
+from plant.command import command_for_step
 
 ZERO = (0.0, 0.0, 0.0, 0.0)
 
@@ -21,7 +27,8 @@ ZERO = (0.0, 0.0, 0.0, 0.0)
 class Decision:
     torques: tuple[float, float, float, float]
     armed: bool  # axes should be in closed loop
-    reason: str  # "command", "no command", "stale", "estop", "faulted", "non-finite"
+    reason: str  # "command", "look-ahead", "no command", "stale", "estop", "faulted",
+    # "non-finite"
 
 
 class CommandGate:
@@ -33,16 +40,24 @@ class CommandGate:
         self.estopped = False
         self._torques: tuple[float, ...] | None = None
         self._received_at = -math.inf
+        self._k = 0
+        self._plan: list[tuple[float, ...]] = []
 
-    def command(self, torques: tuple[float, ...], now_s: float) -> None:
-        """A fresh command arrived (already validated on the wire)."""
+    def command(self, torques: tuple[float, ...], now_s: float, k: int = 0,
+                plan: Sequence[Sequence[float]] = ()) -> None:
+        """A fresh command arrived (already validated on the wire): its torques, the
+        step it answers and its look-ahead torques for the steps after."""
         self._torques = tuple(float(x) for x in torques)
         self._received_at = now_s
+        self._k = k
+        self._plan = [tuple(float(x) for x in u) for u in plan]
 
     def estop(self) -> None:
         self.estopped = True
 
-    def decide(self, now_s: float, faulted: bool) -> Decision:
+    def decide(self, now_s: float, faulted: bool, due_step: int | None = None) -> Decision:
+        """``due_step``: the step whose command is overdue (None: the newest command
+        is the one to apply)."""
         if self.estopped:
             return Decision(ZERO, False, "estop")
         if self._torques is None:
@@ -51,8 +66,13 @@ class CommandGate:
             return Decision(ZERO, False, "stale")
         if faulted:
             return Decision(ZERO, False, "faulted")
-        if not all(math.isfinite(x) for x in self._torques):
+        torques, reason = self._torques, "command"
+        if due_step is not None:
+            planned = command_for_step(self._k, torques, self._plan, due_step)
+            if planned is not None and planned is not torques:
+                torques, reason = planned, "look-ahead"
+        if not all(math.isfinite(x) for x in torques):
             return Decision(ZERO, False, "non-finite")
         lim = self.max_torque_nm
-        t = tuple(max(-lim, min(lim, x)) for x in self._torques)
-        return Decision(t, True, "command")  # type: ignore[arg-type]
+        t = tuple(max(-lim, min(lim, x)) for x in torques)
+        return Decision(t, True, reason)  # type: ignore[arg-type]

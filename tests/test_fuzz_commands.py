@@ -123,6 +123,10 @@ def test_bridge_sends_only_finite_torques_within_the_limit(
     limit = min(b.sc.spec.limits.max_wheel_torque_nm, b.protocol.max_abs_torque_nm)
     assert within(tuple(torques), limit), torques
     assert drive.counters.decoded == len(bus.sent)  # every frame sent is a valid frame
+    if cmd is not None:  # periods with no command: its look-ahead, then held
+        for ahead in (1, 2, len(cmd.plan) + 1):
+            d = b.gate.decide(time.monotonic(), False, due_step=cmd.k + ahead)
+            assert within(d.torques, limit), d
 
 
 # --- cases the fuzzing found, pinned -----------------------------------------------------
