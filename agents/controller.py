@@ -35,7 +35,7 @@ Gamma is identically zero (n^T u = 0), so those are kept as 3-vectors.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from math import sqrt, tanh
+from math import cos, sin, sqrt, tanh
 
 import numpy as np
 
@@ -218,6 +218,16 @@ def coulomb_term(m: ModelTerms, c: float, s: float, q_dot: Vec3) -> Vec3:
     tau = [ct * tanh((p0 * bx + p1 * by + p2 * w) / R / ws) for p0, p1, p2 in m.P]
     fx, fy, fw = [r[0] * tau[0] + r[1] * tau[1] + r[2] * tau[2] + r[3] * tau[3] for r in m.body_input]
     return c * fx - s * fy, s * fx + c * fy, fw  # T(phi) B0 tau_c
+
+
+def acceleration_vec(m: ModelTerms, q: Vec3, q_dot: Vec3, u: Vec4) -> Vec3:
+    """q_ddot of eq. (4) without disturbance, as MecanumModel.acceleration:
+    -A0 q_dot - A1 + B(phi) u, with B(phi) u = T(phi) B0 u."""
+    c, s = cos(q[2]), sin(q[2])
+    a0 = matvec3(m.A0, q_dot)
+    a1 = coulomb_term(m, c, s, q_dot)
+    fx, fy, fw = [r[0] * u[0] + r[1] * u[1] + r[2] * u[2] + r[3] * u[3] for r in m.body_input]
+    return (c * fx - s * fy - a0[0] - a1[0], s * fx + c * fy - a0[1] - a1[1], fw - a0[2] - a1[2])
 
 
 def allocate_vec(m: ModelTerms, c: float, s: float, generalised: Vec3) -> Vec4:

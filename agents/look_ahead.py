@@ -33,24 +33,43 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from agents.controller import ModelTerms, acceleration_vec
 from agents.core import AgentCore, AgentOutput, Body, Share
 from agents.degradation import InputAges
-from plant.disturbance import make_disturbance
-from plant.model_plant import ModelPlant
+from agents.signals import Vec3, Vec4
 
-Torques = tuple[float, float, float, float]
+Torques = Vec4
+
+
+def rk4_step(m: ModelTerms, q: Vec3, q_dot: Vec3, u: Vec4, h: float) -> tuple[Vec3, Vec3]:
+    """One RK4 step of eq. (4) (no disturbance) under constant torques u."""
+    def f(x: Vec3, v: Vec3) -> Vec3:
+        return acceleration_vec(m, x, v, u)
+
+    def add(a: Vec3, b: Vec3, k: float) -> Vec3:
+        return a[0] + k * b[0], a[1] + k * b[1], a[2] + k * b[2]
+
+    k1q, k1v = q_dot, f(q, q_dot)
+    k2q = add(q_dot, k1v, h / 2)
+    k2v = f(add(q, k1q, h / 2), k2q)
+    k3q = add(q_dot, k2v, h / 2)
+    k3v = f(add(q, k2q, h / 2), k3q)
+    k4q = add(q_dot, k3v, h)
+    k4v = f(add(q, k3q, h), k4q)
+    w = h / 6
+    q_next = tuple(q[i] + w * (k1q[i] + 2 * k2q[i] + 2 * k3q[i] + k4q[i]) for i in range(3))
+    v_next = tuple(q_dot[i] + w * (k1v[i] + 2 * k2v[i] + 2 * k3v[i] + k4v[i]) for i in range(3))
+    return q_next, v_next  # type: ignore[return-value]
 
 
 class LookAhead:
-    """Predicts one agent's next ``horizon`` torques (its robot's model, built once)."""
+    """Predicts one agent's next ``horizon`` torques."""
 
     def __init__(self, core: AgentCore, horizon: int) -> None:
         if horizon < 0:
             raise ValueError(f"horizon must be >= 0, got {horizon}")
         self.horizon = horizon
-        self._model = ModelPlant([core.cfg.model], np.zeros((1, 3)), np.zeros((1, 3)),
-                                 make_disturbance("none", 0.0, ()), substeps=1)
-        self._no_v_cmd = np.zeros((1, 3))
+        self._terms = ModelTerms.from_model(core.cfg.model)
 
     def plan(
         self,
@@ -74,25 +93,24 @@ class LookAhead:
         h = core.cfg.dt
         age = ages if ages is not None else InputAges()
         sim = core.fork()
-        model = self._model
         # the state the agent used: its sample carried to now (degradation.predict)
-        model.q = (np.asarray(q, float) + age.state_s * np.asarray(q_dot, float))[None, :]
-        model.q_dot = np.array(q_dot, float)[None, :]
-        u = out.torques
+        x: Vec3 = tuple((np.asarray(q, float) + age.state_s * np.asarray(q_dot, float)).tolist())
+        v: Vec3 = tuple(np.asarray(q_dot, float).tolist())
+        u: Vec4 = tuple(out.torques.tolist())
         planned: list[Torques] = []
         for m in range(1, self.horizon + 1):
-            model.step(t + (m - 1) * h, h, np.asarray(u, float)[None, :], self._no_v_cmd)
+            x, v = rk4_step(self._terms, x, v, u, h)
             ahead = m * h
             nxt = sim.step(
-                t + ahead, model.q[0].copy(), model.q_dot[0].copy(), shares, leader,
+                t + ahead, np.array(x), np.array(v), shares, leader,
                 _moved(obstacles, ahead), _moved(robots, ahead), h,
                 InputAges(0.0, age.leader_s + ahead,
                           {j: age.shares_s.get(j, 0.0) + ahead for j in shares}),
             )
             if nxt.nonfinite:
                 break
-            u = nxt.torques
-            planned.append(tuple(u.tolist()))  # type: ignore[arg-type]
+            u = tuple(nxt.torques.tolist())
+            planned.append(u)
         return planned
 
 

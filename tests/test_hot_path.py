@@ -27,6 +27,7 @@ from agents.controller import (
     ControlConstants,
     ControllerGains,
     ModelTerms,
+    acceleration_vec,
     allocate,
     allocate_vec,
     control_term,
@@ -276,6 +277,17 @@ def test_model_terms_equal_the_model(model, phi, q_dot, generalised):
     close(coulomb_term(m, c, s, q_dot), model.A1(phi, np.array(q_dot)))
     u = allocate_vec(m, c, s, generalised)
     close(u, allocate(model.augmented_input(phi), np.array(generalised)), rtol=1e-11)
+
+
+@pytest.mark.parametrize("model", MODELS, ids=["paper", "other"])
+@SETTINGS
+@given(phi=st.floats(-10.0, 10.0), q_dot=vec3, u=st.tuples(comp, comp, comp, comp))
+def test_acceleration_vec_equals_the_model(model, phi, q_dot, u):
+    """The look-ahead's eq. (4) (agents/look_ahead.py) is the model's, disturbance-free."""
+    m = ModelTerms.from_model(model)
+    close(acceleration_vec(m, (1.0, -2.0, phi), q_dot, u),
+          model.acceleration(np.array([1.0, -2.0, phi]), np.array(q_dot), np.array(u),
+                             np.zeros(4)), rtol=1e-11)
 
 
 @SETTINGS
