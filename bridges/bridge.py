@@ -5,7 +5,7 @@ plant for that robot (DESIGN §8). Realtime only: hardware has no lockstep.
   :mod:`bridges.safety` clamps them to the scenario's limit, or to the protocol's
   torque bound when that is lower); a period in which no command came plays the
   look-ahead torques the newest one predicted for the overdue step
-  (agents/look_ahead.py), then holds it;
+  (agents/look_ahead.py), then holds the last of them;
 - every period: frames from the drivers -> :class:`DriverMonitor`; wheel speeds
   -> odometry (eq. 1) -> ``robot/i/state`` (``faulted`` set on a driver error or
   a missing heartbeat); ``robot/i/perception`` from the scenario's obstacles (the
@@ -242,8 +242,8 @@ class BridgeNode:
                         self._rearm_idle_axes(now)
                     if d.armed and now - self.torque_sent_at >= dt:
                         # no command this period: the one answering our state of the
-                        # last period is overdue; play its look-ahead torques, or
-                        # hold the newest (which feeds the watchdog)
+                        # last period is overdue; play the newest command's look-ahead
+                        # torques for it, or hold them (which feeds the watchdog)
                         self._apply(self.gate.decide(now, faulted, due_step=k - 1))
                     elif not d.armed and self.last_reason != d.reason:
                         self._apply(d)  # zeros, once per reason

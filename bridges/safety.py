@@ -9,7 +9,7 @@ the drivers' health. Pure logic, no I/O (DESIGN §8, §9):
   non-finite torque never reaches the bus (the whole command is refused);
 - a period with no new command (asked with ``due_step``): the look-ahead torques
   the newest command predicted for the overdue step (agents/look_ahead.py), and
-  past its plan the command itself, held until the timeout.
+  past its plan the last of them, held until the timeout.
 """
 
 from __future__ import annotations
@@ -68,7 +68,9 @@ class CommandGate:
             return Decision(ZERO, False, "faulted")
         torques, reason = self._torques, "command"
         if due_step is not None:
-            planned = command_for_step(self._k, torques, self._plan, due_step)
+            # past the plan its last entry is held, as a plant holds it
+            planned = command_for_step(self._k, torques, self._plan,
+                                       min(due_step, self._k + len(self._plan)))
             if planned is not None and planned is not torques:
                 torques, reason = planned, "look-ahead"
         if not all(math.isfinite(x) for x in torques):

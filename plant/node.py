@@ -229,17 +229,17 @@ class PlantNode:
     def _play_plans(self, k: int) -> None:
         """Realtime: a robot whose newest command answers an earlier step than the
         one being integrated (its later ones are late or lost) plays that
-        command's look-ahead torques for step k while it has them; past its plan
-        the command is held (until the command timeout zeroes it)."""
+        command's look-ahead torques for step k; past its plan the last of them is
+        held, as in lockstep (until the command timeout zeroes the robot)."""
         with self.node.mailbox.lock:
             for i, rid in enumerate(self.ids):
                 cmd = self.newest.get(rid)
                 if cmd is None or rid in self.unpowered or cmd.k >= k:
                     continue
-                planned = command_for_step(cmd.k, cmd.torques, cmd.plan, k)
-                if planned is not None:
-                    self.torques[i], self.v_cmd[i] = applied_command(planned, cmd.v_cmd,
-                                                                     self.sc.spec.limits)
+                planned = command_for_step(cmd.k, cmd.torques, cmd.plan,
+                                           min(k, cmd.k + len(cmd.plan)))
+                self.torques[i], self.v_cmd[i] = applied_command(planned, cmd.v_cmd,
+                                                                 self.sc.spec.limits)
 
     def finish(self, linger_s: float = 5.0) -> None:
         """Report, then stay until the other nodes have left after ``end``, so

@@ -70,15 +70,15 @@ def test_gate_gives_zero_torque_and_disarms(case):
     assert d.torques == ZERO and not d.armed
 
 
-def test_gate_plays_the_look_ahead_for_an_overdue_step_then_holds():
+def test_gate_plays_the_look_ahead_for_an_overdue_step_then_holds_its_last_entry():
     gate = CommandGate(0.1, 2.0)
     gate.command((1.0, 1.0, 1.0, 1.0), 1.0, k=7, plan=[(0.5,) * 4, (3.0, -3.0, 0.0, 0.0)])
     assert gate.decide(1.004, False, due_step=7).torques == (1.0,) * 4  # on time
     d = gate.decide(1.006, False, due_step=8)
     assert d.torques == (0.5,) * 4 and d.reason == "look-ahead" and d.armed
     assert gate.decide(1.011, False, due_step=9).torques == (2.0, -2.0, 0.0, 0.0)  # clamped
-    d = gate.decide(1.016, False, due_step=10)  # past the plan: held
-    assert d.torques == (1.0,) * 4 and d.reason == "command"
+    d = gate.decide(1.016, False, due_step=10)  # past the plan: its last entry held
+    assert d.torques == (2.0, -2.0, 0.0, 0.0) and d.reason == "look-ahead"
     assert gate.decide(1.2, False, due_step=30).torques == ZERO  # and the timeout still acts
 
 

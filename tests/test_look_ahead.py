@@ -113,3 +113,33 @@ def test_look_ahead_keeps_the_paper_law_stable_under_30_percent_loss() -> None:
 def test_bad_horizon_is_a_clear_error(value: str) -> None:
     with pytest.raises(ScenarioError, match="command_horizon"):
         parse_scenario(PAPER + f"\n[degradation]\ncommand_horizon = {value}\n")
+
+
+@pytest.mark.parametrize("clock", ["lockstep", "realtime"])
+def test_plant_node_plays_the_newest_plan_for_missing_steps(clock: str) -> None:
+    """Only the command of step 5 arrives: the plant applies it at step 5, its
+    look-ahead at steps 6 and 7, then holds (lab: missed_command = "hold")."""
+    import time
+
+    from fuzz_fakes import FakeNode
+
+    from deploy.node_runtime import StopFlag
+    from deploy.wire import WIRE_VERSION, WheelCommand, encode
+    from plant.node import PlantNode
+
+    sc = load_scenario("lab")
+    p = PlantNode(sc, "model", FakeNode(sc.robot_ids, "plant"), StopFlag())
+    own, plan = (0.1, 0.2, 0.3, 0.4), [(1.0, 1.0, -1.0, -1.0), (0.5, 0.0, 0.0, 9.0)]
+    p.node.deliver(p.node.keys.cmd(1), encode(WheelCommand(
+        WIRE_VERSION, 1, 0, 0, robot=1, k=5, t=0.025, torques=own, v_cmd=(0.0, 0.0, 0.0),
+        state_seq=0, state_stamp_ns=0, plan=plan)))
+    applied = []
+    for k in range(5, 9):
+        if clock == "lockstep":
+            p._take_lockstep_commands(k)
+        else:
+            p._apply_newest_commands(time.monotonic())
+            p._play_plans(k)
+        applied.append(tuple(p.torques[0]))
+    limit = sc.spec.limits.max_wheel_torque_nm  # 2 N m: the last entry is clamped
+    assert applied == [own, plan[0], (0.5, 0.0, 0.0, limit), (0.5, 0.0, 0.0, limit)]
