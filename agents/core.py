@@ -97,6 +97,8 @@ class AgentConfig:
     max_speed_mps: float = float("inf")
     max_yaw_rate_radps: float = float("inf")
     max_wheel_torque_nm: float = float("inf")
+    max_accel_mps2: float = float("inf")  # on v_d, planar (see AgentCore._step)
+    max_yaw_accel_radps2: float = float("inf")
     degradation: DegradationConfig = field(default_factory=DegradationConfig)
 
 
@@ -154,6 +156,7 @@ class AgentCore:
         self._weights = [float(w) for _, w in cfg.neighbours]
         self._rank = {name: k for k, name in enumerate(cfg.priority)}
         self._law = ControlConstants.from_gains(cfg.controller)
+        self._limits_rate = isfinite(cfg.max_accel_mps2) or isfinite(cfg.max_yaw_accel_radps2)
         self._model = ModelTerms.from_model(cfg.model)
         zeta, zeta_dot = self._offsets(0.0)
         self.initial_share = Share(
@@ -319,6 +322,14 @@ class AgentCore:
             deg = cfg.degradation
             self._speed_factor = next_speed_factor(self._speed_factor, input_age, deg, h)
             v_d = slow_down(v_d, self._speed_factor, deg.degraded_speed_mps)
+        if self._v_d_prev is not None and self._limits_rate:
+            # explicit acceleration limits: v_d moves toward the fused command no
+            # faster than the torque limit can follow, so the reference q_d does not
+            # run ahead of the robot at a behavior switch (ours, not the paper's)
+            prev = self._v_d_prev
+            dv = saturate_velocity_vec(_sub(v_d, prev), cfg.max_accel_mps2 * h,
+                                       cfg.max_yaw_accel_radps2 * h)
+            v_d = (prev[0] + dv[0], prev[1] + dv[1], prev[2] + dv[2])
 
         # dynamic level, eqs. (36), (40)-(42)
         model = self._model

@@ -138,6 +138,8 @@ def compute_metrics(
             "max_speed_mps": _finite_or_none(lim.max_speed_mps),
             "max_yaw_rate_radps": _finite_or_none(lim.max_yaw_rate_radps),
             "max_wheel_torque_nm": _finite_or_none(lim.max_wheel_torque_nm),
+            "max_accel_mps2": _finite_or_none(lim.max_accel_mps2),
+            "max_yaw_accel_radps2": _finite_or_none(lim.max_yaw_accel_radps2),
         },
         "notes": notes,
         "messages": dict(messages or {"sent": 0, "dropped": 0, "late": 0, "invalid": 0}),
