@@ -55,6 +55,7 @@ from plant.perception import sense
 # a wheel turning more than this between two updates is a drive that restarted (its angle
 # went back to 0) or an implausible estimate: that update falls back to speed x dt
 MAX_TURNS_PER_UPDATE = 10.0
+MAX_POSE_LEAD_S = 0.02  # longest the published pose is carried past the newest encoder data
 REARM_AFTER_S = 0.25  # an axis still idle this long after arming (heartbeats at 10 Hz) is asked again
 
 
@@ -247,15 +248,21 @@ class BridgeNode:
                         self._apply(self.gate.decide(now, faulted, due_step=k - 1))
                     elif not d.armed and self.last_reason != d.reason:
                         self._apply(d)  # zeros, once per reason
-                self._publish(k, k * dt, faulted)
+                self._publish(k, k * dt, faulted, now)
                 self.steps_done += 1
         finally:
             with self.node.mailbox.lock:
                 self.disarm()  # whatever ended the loop, the robot stops pushing
 
-    def _publish(self, k: int, t: float, faulted: bool) -> None:
+    def _publish(self, k: int, t: float, faulted: bool, now: float | None = None) -> None:
         node, keys, i = self.node, self.node.keys, self.index
         q, qd = self.odometry.q, self.odometry.q_dot
+        # the pose is as of the newest encoder estimates (100 Hz from an ODrive, half
+        # our rate): carried to now at the velocity they gave, so the agent does not
+        # see a staircase (at most two encoder periods ahead: past that it is lost)
+        age = None if now is None else self.monitor.encoder_age_s(now)
+        if age is not None and 0.0 < age <= MAX_POSE_LEAD_S:
+            q = q + age * qd
         with node.mailbox.lock:
             pos, vel = self.positions.copy(), self.velocities.copy()
         pos[i], vel[i] = q[:2], qd[:2]

@@ -71,6 +71,13 @@ class DriverMonitor:
             return None
         return np.array([a.position_rev for a in self.axes])
 
+    def encoder_age_s(self, now_s: float) -> float | None:
+        """How long ago, on average over the axes, their last encoder estimates
+        arrived; None until every axis has sent one."""
+        if any(a.encoder_at is None for a in self.axes):
+            return None
+        return now_s - sum(a.encoder_at for a in self.axes) / len(self.axes)  # type: ignore[misc]
+
     def fault_reasons(self, now_s: float) -> list[str]:
         out = []
         for a in self.axes:
