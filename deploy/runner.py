@@ -24,7 +24,7 @@ from deploy.lockstep_inputs import AgentLinks, HeldInput
 from deploy.scenario import PLANT_KINDS, Scenario
 from deploy.timeseries import TimeSeries
 from deploy.wire import PLANT_ROLE, agent_role
-from plant.command import applied_command, clamped_plan, command_for_step
+from plant.command import applied_command, clamped_plan, command_for_step, held_step
 from plant.disturbance import make_disturbance
 from plant.model_plant import KinematicPlant, ModelPlant
 from plant.perception import sensor_for
@@ -177,12 +177,12 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
             cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get((rid, idx)))
             if cmd is None:
                 continue
-            planned = command_for_step(k - age, cmd[0], cmd[2], k)
-            if planned is not None:  # its own command, or its look-ahead for this step
-                torques[i], v_cmd[i] = planned, cmd[1]
-            elif zero_missed:
+            planned = command_for_step(k - age, cmd[0], cmd[2],
+                                       k if zero_missed else held_step(k - age, cmd[2], k))
+            if planned is None:  # "zero": past the newest command's plan
                 torques[i], v_cmd[i] = 0.0, 0.0
-            # else: hold what was applied last
+            else:  # its own command, its look-ahead for step k, or held past it
+                torques[i], v_cmd[i] = planned, cmd[1]
         plant.step(t, dt, torques, v_cmd)
         leader.advance()
         _forget(k - keep, worlds, leaders, shares, commands)

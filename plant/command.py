@@ -46,3 +46,11 @@ def command_for_step(k_cmd: int, torques: Sequence[float],
     if ahead <= len(plan):
         return plan[ahead - 1]
     return None
+
+
+def held_step(k_cmd: int, plan: Sequence[Sequence[float]], k: int) -> int:
+    """The step whose torques a command answering ``k_cmd`` holds for step ``k``
+    when held past its plan: k itself within the plan, else its last entry's step
+    (k_cmd for a command without a plan: its own torques, as a drive holds its
+    setpoint). A command that arrives late (a delayed link) is still applied."""
+    return min(k, k_cmd + len(plan))

@@ -51,7 +51,7 @@ from deploy.wire import (
     run_roles,
     sensed_bodies,
 )
-from plant.command import applied_command, command_for_step
+from plant.command import applied_command, command_for_step, held_step
 from plant.perception import sensor_for
 
 
@@ -159,8 +159,8 @@ class PlantNode:
     def _take_lockstep_commands(self, k: int) -> None:
         """Each robot's command of step k. For a missing one (late: counted) or one
         a faulty link lost (lockstep_inputs.py), the look-ahead torques for step k
-        of the newest command (agents/look_ahead.py); past its plan, what was
-        applied last is held, or zero torque with ``plant.missed_command = "zero"``."""
+        of the newest command (agents/look_ahead.py); past its plan, that command's
+        last torques are held, or zero torque with ``plant.missed_command = "zero"``."""
         zero_missed = self.sc.spec.plant.missed_command == "zero"
         with self.node.mailbox.lock:
             for i, rid in enumerate(self.ids):
@@ -170,13 +170,14 @@ class PlantNode:
                     k, lambda idx, rid=rid: self.commands.get((rid, idx)))
                 if cmd is None:
                     continue
-                planned = command_for_step(k - age, cmd.torques, cmd.plan, k)
-                if planned is not None:  # its own command, or its look-ahead for step k
+                k_cmd = k - age
+                planned = command_for_step(k_cmd, cmd.torques, cmd.plan,
+                                           k if zero_missed else held_step(k_cmd, cmd.plan, k))
+                if planned is None:  # "zero": past the newest command's plan
+                    self.torques[i], self.v_cmd[i] = 0.0, 0.0
+                else:  # its own command, its look-ahead for step k, or held past it
                     self.torques[i], self.v_cmd[i] = applied_command(planned, cmd.v_cmd,
                                                                      self.sc.spec.limits)
-                elif zero_missed:
-                    self.torques[i], self.v_cmd[i] = 0.0, 0.0
-                # else: hold what was applied last
             for key in [key for key in self.commands if key[1] <= k - self.keep_steps]:
                 del self.commands[key]
 
@@ -237,7 +238,7 @@ class PlantNode:
                 if cmd is None or rid in self.unpowered or cmd.k >= k:
                     continue
                 planned = command_for_step(cmd.k, cmd.torques, cmd.plan,
-                                           min(k, cmd.k + len(cmd.plan)))
+                                           held_step(cmd.k, cmd.plan, k))
                 self.torques[i], self.v_cmd[i] = applied_command(planned, cmd.v_cmd,
                                                                  self.sc.spec.limits)
 

@@ -143,3 +143,18 @@ def test_plant_node_plays_the_newest_plan_for_missing_steps(clock: str) -> None:
         applied.append(tuple(p.torques[0]))
     limit = sc.spec.limits.max_wheel_torque_nm  # 2 N m: the last entry is clamped
     assert applied == [own, plan[0], (0.5, 0.0, 0.0, limit), (0.5, 0.0, 0.0, limit)]
+
+
+@pytest.mark.parametrize("horizon", [0, 2])
+def test_a_command_delay_longer_than_the_plan_still_drives_the_robots(horizon: int) -> None:
+    """agent -> plant delayed by 10 periods (50 ms), more than the look-ahead: the
+    plant applies each command as it arrives (held past its plan), so the lab fleet
+    still reaches its formation; stuck on the first command it would not."""
+    from deploy.fault_plan import decode_plan
+
+    sc = parse_scenario(resolve_path("lab").read_text()
+                        + f"\n[degradation]\ncommand_horizon = {horizon}\n")
+    plan = decode_plan("[[link]]\nfrom = 'agent-*'\nto = 'plant'\ndelay_s = 0.05\n", sc)
+    r = run_in_process(sc, "model", 8.0, faults=plan)
+    err = np.linalg.norm(r.series.q[:, :, :2] - r.series.target, axis=2)
+    assert err[-1].max() < 0.3, err[-1]
