@@ -52,9 +52,6 @@ from deploy.wire import (
 )
 from plant.perception import sense
 
-# a wheel turning more than this between two updates is a drive that restarted (its angle
-# went back to 0) or an implausible estimate: that update falls back to speed x dt
-MAX_TURNS_PER_UPDATE = 10.0
 MAX_POSE_LEAD_S = 0.02  # longest the published pose is carried past the newest encoder data
 REARM_AFTER_S = 0.25  # an axis still idle this long after arming (heartbeats at 10 Hz) is asked again
 
@@ -68,7 +65,6 @@ class BridgeNode:
         self.bus, self.protocol, self.node_ids = bus, protocol, list(node_ids)
         q0, _ = sc.initial_state()
         self.odometry = Odometry(sc.model(), q0[self.index])
-        self._last_positions: np.ndarray | None = None  # wheel angles (turns) at the last update
         # the scenario's limit, and never beyond what the protocol can encode (paper.toml
         # has no limit: a 1001 N m command made the frame encoder raise in the callback)
         self.gate = CommandGate(command_timeout_s, min(sc.spec.limits.max_wheel_torque_nm,
@@ -82,6 +78,9 @@ class BridgeNode:
         self.torque_sent_at = -1.0
         self.armed_at = -1.0
         self.rearms = 0  # arming frames sent again to an axis that stayed idle
+        # zero torque for want of a fresh command (a dead or silent agent), as
+        # (robot, age of the newest command once the zero frames were sent, s; run time, s)
+        self.command_stops: list[tuple[int, float, float]] = []
         self._send_lock = threading.Lock()
         self._frames: queue.SimpleQueue = queue.SimpleQueue()
         self._closing = False
@@ -194,15 +193,9 @@ class BridgeNode:
             if msg is not None:
                 self.monitor.feed(msg, at)
         # the wheels' rotation from the drives' angle estimates: a lost or late encoder
-        # frame adds no drift (the next carries the whole rotation); speed x dt until
-        # every drive has reported, or after a drive restarted
-        speeds = self.monitor.wheel_speeds_radps()
-        pos, last = self.monitor.wheel_positions_rev(), self._last_positions
-        if pos is not None and last is not None and np.all(np.abs(pos - last) <= MAX_TURNS_PER_UPDATE):
-            self.odometry.advance((pos - last) * (2.0 * np.pi), speeds)
-        else:
-            self.odometry.update(speeds, dt)
-        self._last_positions = pos
+        # frame adds no drift (the next carries the whole rotation); see Odometry.follow
+        self.odometry.follow(self.monitor.wheel_positions_rev(), self.monitor.first_positions_rev(),
+                             self.monitor.wheel_speeds_radps(), dt)
 
     def idle_until_start(self, timeout_s: float) -> float | None:
         """Before the run: keep the odometry going (the robot may be pushed) and the
@@ -239,6 +232,8 @@ class BridgeNode:
                         self._apply(d)
                     elif not d.armed and self.armed:
                         self.disarm()
+                        if d.reason == "stale":
+                            self._log_stop(k * dt)
                     if d.armed and self.armed:
                         self._rearm_idle_axes(now)
                     if d.armed and now - self.torque_sent_at >= dt:
@@ -253,6 +248,12 @@ class BridgeNode:
         finally:
             with self.node.mailbox.lock:
                 self.disarm()  # whatever ended the loop, the robot stops pushing
+
+    def _log_stop(self, t: float) -> None:
+        age = self.gate.command_age_s(time.monotonic())
+        self.command_stops.append((self.rid, age, t))
+        print(f"{self.node.role}: t = {t:.3f} s: zero torque on the bus, the newest command "
+              f"{age * 1e3:.1f} ms old", file=sys.stderr, flush=True)
 
     def _publish(self, k: int, t: float, faulted: bool, now: float | None = None) -> None:
         node, keys, i = self.node, self.node.keys, self.index
@@ -286,7 +287,8 @@ class BridgeNode:
     def finish(self, linger_s: float = 5.0) -> None:
         """Report, then stay until this robot's agent has left (as the plant does),
         so it does not mistake the end of the run for a lost bridge."""
-        publish_report(self.node, self.rid, self.steps_done, self.timing)
+        publish_report(self.node, self.rid, self.steps_done, self.timing,
+                       command_stops=self.command_stops[:1000])
         c = self.protocol.counters
         print(f"{self.node.role}: CAN frames sent {self.frames_sent}, axes re-armed "
               f"{self.rearms}; received decoded {c.decoded}, rejected {c.rejected}",

@@ -37,7 +37,8 @@ tau * theta_dot / 24 V of the axis.
 
 Dynamics: eq. (4) for this one robot via :class:`plant.model_plant.ModelPlant`
 (RK4, one sub-step per physics tick: the robot's time constants are >= 0.1 s, a
-tick is 1 ms), from the scenario's initial state, with the scenario's disturbance.
+tick is 1 ms), from the scenario's initial state, with the scenario's disturbance
+from the moment the robot's drives are first armed (:class:`ArmedDisturbance`).
 
 Faults (:class:`EmulatorFaults`) are drawn from a seeded numpy Generator, so a run
 of the same frames at the same times is reproducible.
@@ -154,6 +155,33 @@ class AxisState:
         return self.state == AXIS_STATE_CLOSED_LOOP_CONTROL
 
 
+class ArmedDisturbance:
+    """The scenario's disturbance d(t) as emulated robots feel it: none before a
+    robot's drives are first armed, then d evaluated on that robot's run clock
+    (t - the emulator time of its first arming), held afterwards whatever the axes do.
+
+    The scenario defines d(t) for the run, t >= 0. Evaluated from the emulator's own
+    start it pushed the unpowered robots for the 0.4-2 s the other processes took to
+    come up (1.1 cm and 0.008 rad on lab before t = 0), motion no bridge can have
+    counted if it was not listening yet and that a robot standing on a floor with its
+    drives idle does not make. Rows: robots (a fleet emulator's plant has several)."""
+
+    def __init__(self, disturbance: Callable[[float], np.ndarray], robots: int) -> None:
+        self._d = disturbance
+        self._since: list[float | None] = [None] * robots
+        self._zero = np.zeros((robots, 4))
+
+    def armed(self, row: int, t: float) -> None:
+        """Robot ``row``'s drives entered closed loop at emulator time ``t``."""
+        if self._since[row] is None:
+            self._since[row] = t
+
+    def __call__(self, t: float) -> np.ndarray:
+        if all(s is None for s in self._since):
+            return self._zero
+        return np.array([self._zero[0] if s is None else self._d(t - s) for s in self._since])
+
+
 class DriverEmulator:
     """Four CANSimple drives plus robot ``robot_id``'s dynamics on ``bus``.
 
@@ -191,8 +219,10 @@ class DriverEmulator:
         self.model = sc.model()
         q, qd = sc.initial_state()
         d = sc.spec.disturbance
+        self.disturbance = ArmedDisturbance(
+            make_disturbance(d.kind, d.scale, tuple(d.constant_nm)), 1)
         self.plant = ModelPlant([self.model], q[index:index + 1], qd[index:index + 1],
-                                make_disturbance(d.kind, d.scale, tuple(d.constant_nm)), substeps=1)
+                                self.disturbance, substeps=1)
         limit = sc.spec.limits.max_wheel_torque_nm
         self.max_torque_nm = float(limit) if math.isfinite(limit) else math.inf
         self._h = 1.0 / physics_rate_hz
@@ -373,6 +403,7 @@ class DriverEmulator:
                     self._disarm(a, AXIS_ERROR_INVALID_STATE)
                     return
                 a.state, a.torque_setpoint_nm, a.last_torque_s = AXIS_STATE_CLOSED_LOOP_CONTROL, 0.0, now
+                self.disturbance.armed(self._row, now)
                 a.procedure_result = 0
             case SetAxisState():
                 self._disarm(a, AXIS_ERROR_INVALID_STATE)
@@ -452,11 +483,12 @@ class FleetEmulator:
         q, qd = sc.initial_state()
         rows = [sc.index_of(rid) for rid in ids]
         d = sc.spec.disturbance
-        self.plant = ModelPlant([e.model for e in self.emulators], q[rows], qd[rows],
-                                make_disturbance(d.kind, d.scale, tuple(d.constant_nm)),
+        disturbance = ArmedDisturbance(make_disturbance(d.kind, d.scale, tuple(d.constant_nm)),
+                                       len(robots))
+        self.plant = ModelPlant([e.model for e in self.emulators], q[rows], qd[rows], disturbance,
                                 substeps=1)
         for row, e in enumerate(self.emulators):
-            e.plant, e._row = self.plant, row
+            e.plant, e._row, e.disturbance = self.plant, row, disturbance
         self._h = self.emulators[0]._h
         self._torques = np.zeros((len(robots), 4))
         self._origin: float | None = None  # realtime: time.monotonic() at t = 0

@@ -46,6 +46,7 @@ class DriverMonitor:
         self._by_node = {a.node: a for a in self.axes}
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.started_at = started_at
+        self._first_full: np.ndarray | None = None  # the angles once every axis had reported
 
     def feed(self, msg: object, now_s: float) -> None:
         axis = self._by_node.get(getattr(msg, "node", -1))
@@ -57,6 +58,8 @@ class DriverMonitor:
         elif isinstance(msg, EncoderEstimate):
             axis.encoder_at = now_s
             axis.velocity_rev_s, axis.position_rev = msg.velocity_rev_s, msg.position_rev
+            if self._first_full is None:
+                self._first_full = self.wheel_positions_rev()
         elif isinstance(msg, DriverErrors):
             axis.active_errors = msg.active_errors
 
@@ -70,6 +73,12 @@ class DriverMonitor:
         if any(a.encoder_at is None for a in self.axes):
             return None
         return np.array([a.position_rev for a in self.axes])
+
+    def first_positions_rev(self) -> np.ndarray | None:
+        """The wheel angles (turns) at the frame that completed the first full set (every
+        axis heard at least once): one set of angles from one burst of estimates, to
+        measure the first rotation from; None until then."""
+        return self._first_full
 
     def encoder_age_s(self, now_s: float) -> float | None:
         """How long ago, on average over the axes, their last encoder estimates

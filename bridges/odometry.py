@@ -12,6 +12,8 @@ integration.
 :meth:`Odometry.advance` integrates the wheels' *rotation* since the last update
 (the drives' position estimates) instead of speed x dt: a lost, shed or late
 encoder frame then costs no drift, since the next one carries the whole rotation.
+:meth:`Odometry.follow` is what a bridge calls each period with what the drives last
+reported; it owns the wheel angles the next rotation is measured from.
 """
 
 from __future__ import annotations
@@ -23,6 +25,9 @@ import numpy as np
 from plant.mecanum import MecanumModel
 
 REV_TO_RAD = 2.0 * pi
+# a wheel turning more than this between two updates is a drive that restarted (its angle
+# went back to 0) or an implausible estimate: that update falls back to speed x dt
+MAX_TURNS_PER_UPDATE = 10.0
 
 
 class Odometry:
@@ -33,6 +38,32 @@ class Odometry:
         self.q_dot = np.zeros(3)
         # eq. (1): body twist from wheel speeds, constant
         self._twist_of_wheels = model.params.wheel_radius_m * np.linalg.pinv(model.P)
+        self._last_rev: np.ndarray | None = None  # wheel angles (turns) the pose is at
+
+    def follow(self, positions_rev: np.ndarray | None, first_rev: np.ndarray | None,
+               wheel_speeds_radps: np.ndarray, dt: float) -> None:
+        """One bridge period: the drives' newest angle estimates (None until every
+        drive has sent one), their angles when every drive had first reported
+        (``DriverMonitor.first_positions_rev``), their speeds.
+
+        - Until every drive has reported, the pose stays where it is: there is nothing
+          to measure a rotation from. (Integrating the speeds of the drives heard so far
+          with 0 for the others read as a rotation that never happened: a 0.0056 rad
+          heading error, 3.5 cm of drift over a 60 s lab run.)
+        - The first time, the rotation is measured from the angles when the last drive
+          was first heard, so motion in frames queued before this period counts too.
+        - A wheel that turned more than MAX_TURNS_PER_UPDATE (a drive that restarted
+          from angle 0) makes this one period speed x dt.
+        """
+        if positions_rev is None:
+            self.q_dot = np.zeros(3)
+            return
+        last = self._last_rev if self._last_rev is not None else first_rev
+        if last is not None and np.all(np.abs(positions_rev - last) <= MAX_TURNS_PER_UPDATE):
+            self.advance((positions_rev - last) * REV_TO_RAD, wheel_speeds_radps)
+        else:
+            self.update(wheel_speeds_radps, dt)
+        self._last_rev = np.array(positions_rev, dtype=float)
 
     def body_twist(self, wheel_speeds_radps: np.ndarray) -> np.ndarray:
         """v_r = R P^+ theta_dot (eq. 1)."""

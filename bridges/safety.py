@@ -52,6 +52,10 @@ class CommandGate:
         self._k = k
         self._plan = [tuple(float(x) for x in u) for u in plan]
 
+    def command_age_s(self, now_s: float) -> float:
+        """How old the newest command is (inf: none yet)."""
+        return now_s - self._received_at
+
     def estop(self) -> None:
         self.estopped = True
 
@@ -62,7 +66,7 @@ class CommandGate:
             return Decision(ZERO, False, "estop")
         if self._torques is None:
             return Decision(ZERO, False, "no command")
-        if now_s - self._received_at > self.command_timeout_s:
+        if self.command_age_s(now_s) > self.command_timeout_s:
             return Decision(ZERO, False, "stale")
         if faulted:
             return Decision(ZERO, False, "faulted")

@@ -199,9 +199,20 @@ def _transport_lines(m: dict) -> list[str]:
         def ms(x):
             return "n/a" if x is None else f"{x:.3f}"
 
-        lines.append(f"  state->command latency     p50 {ms(lat['p50'])} ms, p99 {ms(lat['p99'])} ms")
+        if "bridge_latency_ms" in m:  # on CAN: no plant to time the agents' answers
+            b = m["bridge_latency_ms"]
+            lines.append(f"  bridge cmd->torque frame   p50 {ms(b['p50'])} ms, p99 {ms(b['p99'])} ms")
+        else:
+            lines.append(f"  state->command latency     p50 {ms(lat['p50'])} ms, p99 {ms(lat['p99'])} ms")
         lines.append(f"  loop jitter                p50 {ms(jit['p50'])} ms, p99 {ms(jit['p99'])} ms; "
                      f"deadline misses {m['deadline_misses']}")
+    if "odometry_drift" in m:
+        d = m["odometry_drift"]
+
+        def cm(xs):
+            return ", ".join(f"{x * 100:.2f}" for x in xs)
+
+        lines.append(f"  odometry drift (cm)        median {cm(d['median_m'])}; max {cm(d['max_m'])}")
     return lines
 
 

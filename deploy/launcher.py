@@ -466,9 +466,11 @@ class Launcher:
                   "reported": True}],
         }
         plant = reports.get(PLANT_ROLE)
-        if plant is not None and plant.command_stops:
+        bridges = [reports[bridge_role(r)] for r in self.sc.robot_ids if bridge_role(r) in reports]
+        stops = sorted(s for r in [plant, *bridges] if r is not None for s in r.command_stops)
+        if stops:  # the plant's, or on CAN each bridge's
             out["command_stops"] = [{"robot": r, "command_age_s": a, "t_s": t}
-                                    for r, a, t in plant.command_stops]
+                                    for r, a, t in sorted(stops, key=lambda s: s[2])]
         if plant is not None and plant.contacts is not None:
             out["contact_log"] = [msgspec.structs.asdict(c) for c in plant.contacts]
             out["contacts_total"] = plant.contacts_total
@@ -480,6 +482,8 @@ class Launcher:
                                           self.kills.events)
         if self.opts.clock == "realtime":
             out["latency_ms"] = _percentiles_ms(plant.latency_ns if plant else [])
+            if bridges:  # on CAN: each command's arrival -> its torque frames on the bus
+                out["bridge_latency_ms"] = _percentiles_ms([x for b in bridges for x in b.latency_ns])
             out["jitter_ms"] = _percentiles_ms([j for r in reports.values() for j in r.jitter_ns])
             out["deadline_misses"] = sum(r.deadline_misses for r in reports.values())
         return out

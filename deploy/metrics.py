@@ -31,7 +31,8 @@ from deploy.timeseries import TimeSeries
 # metrics.json is a control figure and must not.
 TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "jitter_ms",
                "deadline_misses", "messages", "recording", "series_cells_filled",
-               "odometry_drift", "liveliness", "emulator_lag_ms", "bridge_faulted_fraction")
+               "odometry_drift", "liveliness", "emulator_lag_ms", "bridge_faulted_fraction",
+               "bridge_latency_ms")
 
 
 def settling_time(t: np.ndarray, err_norm: np.ndarray, threshold: float) -> float | None:

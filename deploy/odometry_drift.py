@@ -24,8 +24,10 @@ def odometry_drift(series: TimeSeries, robot_ids: list[int], truth_files: dict[i
             t_truth = g["t"] + float(g["monotonic_origin_s"])
             q_truth = g["q"]
         t_run = t0_mono + series.t  # when the bridge sampled step k
-        k = np.clip(np.searchsorted(t_truth, t_run), 0, len(t_truth) - 1)
-        err = np.linalg.norm(series.q[:, i, :2] - q_truth[k, :2], axis=1)
+        # the truth is sampled with the encoder estimates (100 Hz): interpolated to the
+        # bridge's instant (the next sample instead was up to 1 cm off at 1 m/s)
+        truth_xy = np.stack([np.interp(t_run, t_truth, q_truth[:, c]) for c in (0, 1)], axis=1)
+        err = np.linalg.norm(series.q[:, i, :2] - truth_xy, axis=1)
         out["robot"].append(rid)
         out["median_m"].append(float(np.median(err)))
         out["max_m"].append(float(err.max()))

@@ -207,8 +207,8 @@ class NodeReport(Message, frozen=True):
     contacts: list[ContactRecord] | None = None  # plant: physical contacts (None: not simulated)
     contacts_total: int = 0  # every contact event, also those beyond MAX_CONTACTS
     faults: dict[str, dict[str, int]] = {}  # injected faults per edge this node received on
-    # plant (realtime): robots whose torques were zeroed for want of a fresh command,
-    # as (robot, age of its newest command then, s; plant time, s)
+    # plant (realtime) or CAN bridge: robots whose torques were zeroed for want of a
+    # fresh command, as (robot, age of its newest command then, s; run time, s)
     command_stops: list[tuple[int, float, float]] = []
 
     def __post_init__(self) -> None:

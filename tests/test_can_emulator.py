@@ -192,6 +192,26 @@ def test_forward_torque_encoders_match_the_model_plant(lab, rig_factory):
     assert np.mean(pos) == pytest.approx(dx / (2 * math.pi * lab.spec.robot.wheel_radius_m), rel=0.01)
 
 
+def test_disturbance_acts_from_the_first_arming_on_the_run_clock(lab, rig_factory):
+    """An unpowered robot is not pushed (lab's disturbance outweighs its friction: it
+    crept 1.1 cm and 0.008 rad before a can-emulated run started); armed at t_a, it
+    moves as eq. (4) from rest with d(t - t_a), and stays disturbed when disarmed."""
+    r = rig_factory(lab)
+    r.step(n=100)  # 0.5 s idle
+    q0, _ = lab.initial_state()
+    assert np.array_equal(r.emu.q, q0[lab.index_of(ROBOT)])
+    r.arm()  # applied at the next step's start: t_a = 0.5 s
+    r.step(np.zeros(4), n=100)
+    ref = reference_plant(lab, lambda t: np.zeros(4), 0.5)
+    np.testing.assert_allclose(r.emu.q, ref[0.5][0], rtol=0, atol=1e-12)
+    assert np.hypot(*(r.emu.q[:2] - q0[lab.index_of(ROBOT)][:2])) > 1e-3  # it is pushed
+    for n in NODES:
+        r.send(SetAxisState(n, AXIS_STATE_IDLE))
+    before = r.emu.q.copy()
+    r.step(n=40)
+    assert np.hypot(*(r.emu.q[:2] - before[:2])) > 1e-4
+
+
 def test_strafe_pattern_moves_sideways(lab, rig_factory):
     r = rig_factory(lab)
     r.arm()
@@ -394,9 +414,10 @@ def test_fleet_emulator_equals_one_emulator_per_robot_each_on_its_bus(lab, calm,
                     [a.position_rev for a in e.axes], abs=1e-6)
                 armed = patterns[r] is not None
                 assert all(a.armed == armed for a in e.axes)
-            if sc is calm:  # never armed, no disturbance: robot 3 has not moved at all
-                q0, _ = sc.initial_state()
-                assert np.array_equal(fleet.emulators[2].q, q0[2])
+            # never armed: robot 3 has not moved at all, disturbance or none (it acts
+            # from a robot's first arming on: ArmedDisturbance)
+            q0, _ = sc.initial_state()
+            assert np.array_equal(fleet.emulators[2].q, q0[2])
         finally:
             for b in (*hosts, *emus, *s_hosts, *s_emus):
                 b.shutdown()
