@@ -76,6 +76,7 @@ class BridgeNode:
         self.last_reason = ""
         self.frames_sent = 0
         self.torque_sent_at = -1.0
+        self.zeroed_at = -1.0
         self.armed_at = -1.0
         self.rearms = 0  # arming frames sent again to an axis that stayed idle
         # zero torque for want of a fresh command (a dead or silent agent), as
@@ -172,6 +173,7 @@ class BridgeNode:
 
     def disarm(self) -> None:
         self._send_all(lambda n: SetInputTorque(n, 0.0))
+        self.zeroed_at = time.monotonic()  # zero torque on the bus (the axes idle next)
         self._send_all(lambda n: SetAxisState(n, AXIS_STATE_IDLE))
         self.armed = False
 
@@ -250,7 +252,7 @@ class BridgeNode:
                 self.disarm()  # whatever ended the loop, the robot stops pushing
 
     def _log_stop(self, t: float) -> None:
-        age = self.gate.command_age_s(time.monotonic())
+        age = self.gate.command_age_s(self.zeroed_at)
         self.command_stops.append((self.rid, age, t))
         print(f"{self.node.role}: t = {t:.3f} s: zero torque on the bus, the newest command "
               f"{age * 1e3:.1f} ms old", file=sys.stderr, flush=True)
