@@ -17,6 +17,7 @@ that takes tens of seconds to decay and drives the tracking error away
 from __future__ import annotations
 
 from dataclasses import dataclass
+from math import ceil
 
 import numpy as np
 
@@ -78,3 +79,26 @@ def eso_step_vec(
         bw + dt * (mu2 * sig_scalar(ew, r2)),
     )
     return z1_next, z2_next
+
+
+def eso_advance_vec(
+    z1_hat: Vec3,
+    z2_hat: Vec3,
+    z1_measured: Vec3,
+    gamma: Vec3,
+    gains: EsoGains,
+    dt: float,
+    max_step: float,
+) -> tuple[Vec3, Vec3]:
+    """Eq. (39) over ``dt`` in explicit-Euler sub-steps of at most ``max_step`` (the
+    control period), the measurement and Gamma held: one step when dt is the period.
+
+    A realtime agent whose state arrives late integrates the whole gap. One Euler
+    step across it multiplies the fractional powers' discrete chatter by the long dt:
+    with mu = (6, 20) a 100 ms step kicked a converged disturbance estimate by 78 %
+    (tests/test_eso.py), sub-steps by 22 %."""
+    n = max(1, ceil(dt / max_step - 1e-9)) if max_step > 0 else 1
+    h = dt / n
+    for _ in range(n):
+        z1_hat, z2_hat = eso_step_vec(z1_hat, z2_hat, z1_measured, gamma, gains, h)
+    return z1_hat, z2_hat

@@ -70,3 +70,31 @@ def test_starting_at_zero_with_large_measurement_biases_the_estimate(from_measur
     assert err_meas[first].max() <= np.abs(D).max() + 1e-12
     assert err_zero.max() > 1.0
     assert err_zero.max() > 4.0 * err_meas[first].max()
+
+
+def test_a_long_interval_is_integrated_in_sub_steps_without_kicking_the_estimate():
+    """A realtime agent whose state came 100 ms late integrates the whole gap. With
+    fast gains, converged on a constant D, one explicit step across it throws z2_hat
+    78 % off D (the fractional powers' chatter times the long dt); sub-steps of the
+    control period keep it within 25 %, and at the period nothing changes."""
+    from agents.eso import eso_advance_vec, eso_step_vec
+
+    fast, period, d = EsoGains(6.0, 20.0, 0.7), 0.005, 1.0
+
+    def worst_error(advance):
+        z1, z2, x, worst = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0, 0.0
+        for k in range(400):
+            dt = 0.1 if k == 200 else period  # the late state
+            x += dt * d  # z1' = Gamma + D with Gamma = 0: exact
+            z1, z2 = advance(z1, z2, (x, 0.0, 0.0), (0.0, 0.0, 0.0), fast, dt)
+            if k > 150:
+                worst = max(worst, abs(z2[0] - d))
+        return worst, z2[0]
+
+    one_step, _ = worst_error(eso_step_vec)
+    sub_steps, final = worst_error(lambda *a: eso_advance_vec(*a, period))
+    assert one_step > 0.7 * d  # measured 0.78
+    assert sub_steps < 0.25 * d  # measured 0.22
+    assert final == pytest.approx(d, abs=1e-3)
+    args = ((0.1, -0.2, 0.3), (0.5, 0.0, -0.1), (0.4, -0.1, 0.2), (1.0, 2.0, -1.0), fast, period)
+    assert eso_advance_vec(*args, period) == eso_step_vec(*args)  # bit for bit at the period
