@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import signal
 import sys
 from pathlib import Path
 
 from bridges.can_options import CanBusError, add_can_options, open_buses
+from deploy.priority import add_priority_argument, raise_priority
 
 EXIT_BAD_INPUT = 2
 _SIGNAL_EXIT = {"SIGINT": 130, "SIGTERM": 143}
@@ -75,12 +75,8 @@ def _configure(p: argparse.ArgumentParser) -> None:
                    help="RK4 physics ticks per second (default: 1000)")
     p.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds (default: run "
                    "until SIGINT/SIGTERM)")
-    p.add_argument("--priority", type=int, default=0, choices=range(0, 21), metavar="N",
-                   help="raise this process's CPU priority by N (nice -N, and its session's "
-                   "autogroup where Linux groups processes by session): the emulator plays the "
-                   "physics, which must not be starved by the software under test. Needs "
-                   "CAP_SYS_NICE or RLIMIT_NICE; without it the emulator says so and runs at "
-                   "normal priority (default: 0)")
+    add_priority_argument(p, "the emulator plays the physics, which must not be starved by "
+                          "the software under test")
     p.add_argument("--truth-out", metavar="FILE.npz", action="append",
                    help="write the robot's true pose and velocity (t, q, q_dot at the encoder "
                    "rate) here on exit; once per --robot, in the same order")
@@ -168,28 +164,6 @@ def run_emulate(args: argparse.Namespace) -> int:
     print(f"{PROG}: lag behind the wall clock p50 {lag['p50'] * 1e3:.1f} ms, p99 "
           f"{lag['p99'] * 1e3:.1f} ms, max {lag['max'] * 1e3:.1f} ms", file=sys.stderr)
     return _SIGNAL_EXIT.get(reason, 0)
-
-
-def raise_priority(n: int) -> str:
-    """nice -n for this process and, on Linux with autogroups (every session one
-    scheduling group, so a process's nice counts only inside its session), for its
-    autogroup too; what was done, as a sentence."""
-    done, refused = [], []
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, -n)
-        done.append(f"nice -{n}")
-    except OSError as exc:
-        refused.append(f"nice -{n} ({exc.strerror})")
-    try:
-        with open("/proc/self/autogroup", "w") as f:
-            f.write(str(-n))
-        done.append(f"autogroup nice -{n}")
-    except FileNotFoundError:
-        pass  # no autogroups: nothing to do
-    except OSError as exc:
-        refused.append(f"autogroup nice -{n} ({exc.strerror})")
-    return ("priority raised: " + ", ".join(done) if done else "priority not raised") + (
-        "; refused: " + ", ".join(refused) if refused else "")
 
 
 def _install_signal_handlers(reasons: list[str]) -> dict:

@@ -15,6 +15,7 @@ from pathlib import Path
 from deploy.fault_model import fault_metrics
 from deploy.fault_plan import FaultPlanError
 from deploy.node_cli import CLOCKS, add_node_commands, fault_plan, gui_problem
+from deploy.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
 from deploy.scenario import PLANT_KINDS, ScenarioError, load_scenario
 from deploy.transport import TransportError
 from deploy.wire import FleetNameError
@@ -88,7 +89,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         duration_s=args.duration, control_rate_hz=args.control_rate,
         step_deadline_s=args.step_deadline, startup_timeout_s=args.startup_timeout,
         record=not args.no_record, fleet=args.fleet, endpoint=args.endpoint, gui=args.gui,
-        faults=fault_plan(args, sc),
+        faults=fault_plan(args, sc), realtime_priority=args.priority,
     )
     launcher = Launcher(sc, opts)
     try:
@@ -103,7 +104,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         from deploy.odometry_drift import odometry_drift
 
         extra["odometry_drift"] = odometry_drift(series, sc.robot_ids, launcher.truth_files,
-                                                 launcher.t0_mono)
+                                                 launcher.t0_mono, launcher.collector.have_state)
         extra["emulator_lag_ms"] = emulator_lag_ms(launcher.truth_files)
         c = launcher.collector
         got = c.have_state.sum(axis=0)
@@ -258,6 +259,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--control-rate", type=float, metavar="HZ",
                      help="override the scenario's control_rate_hz (see docs/control-rate.md)")
     run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    run.add_argument("--priority", type=int, default=REALTIME_PRIORITY, choices=range(0, 21),
+                     metavar="N",
+                     help="realtime: raise every node's CPU priority by N (nice -N and its "
+                     "session's autogroup; needs CAP_SYS_NICE, else each node says so), so "
+                     "other work on the host does not stall the control loops; 0 leaves them "
+                     f"at normal priority; the driver emulator always asks for "
+                     f"{EMULATOR_PRIORITY} (default: {REALTIME_PRIORITY})")
     run.add_argument("--faults", metavar="PLAN",
                      help="inject the faults of a fault plan (TOML; docs/faults.md): lossy, "
                      "delayed or partitioned links, killed and restarted processes, CAN frame "

@@ -28,6 +28,7 @@ from deploy.fault_model import fault_metrics, merge_reports
 from deploy.fault_plan import FaultPlan
 from deploy.kill_schedule import KillSchedule
 from deploy.node_runtime import START_LEAD_S, StopFlag, peak_rss_kb
+from deploy.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
 from deploy.scenario import Scenario
 from deploy.transport import Node, zenoh_config
 from deploy.wire import (
@@ -46,7 +47,6 @@ from deploy.wire import (
 
 STOP_GRACE_S = 3.0
 ENCODER_RATE_HZ = 100.0  # the driver emulator's encoder estimates (can-emulated)
-EMULATOR_PRIORITY = 10  # nice -10 for the driver emulator (can-emulated), where permitted
 CAN_EMULATED = "can-emulated"  # every robot through a CAN bridge + driver emulator
 TAIL_LINES = 15
 
@@ -101,6 +101,7 @@ class LaunchOptions:
     gui: bool = False  # pybullet plant: open its window
     extra_agent_args: list[str] = field(default_factory=list)
     faults: FaultPlan | None = None  # given to every node; kills done by the launcher
+    realtime_priority: int = REALTIME_PRIORITY  # nice -N for every node on the realtime clock
 
 
 def free_udp_port() -> int:
@@ -154,6 +155,8 @@ class Launcher:
             args += ["--control-rate", repr(o.control_rate_hz)]
         if o.faults is not None:
             args += ["--faults", str(Path(o.faults.path).resolve())]
+        if o.clock == "realtime" and o.realtime_priority:
+            args += ["--priority", str(o.realtime_priority)]
         return args
 
     def _plan(self, endpoint: str) -> list[Child]:
