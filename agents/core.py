@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from copy import copy
 from dataclasses import dataclass, field
-from math import cos, hypot, isfinite, sin
+from math import cos, hypot, isfinite, sin, sqrt
 
 import numpy as np
 
@@ -38,7 +38,7 @@ from agents.degradation import (
     reacquire,
     slow_down,
 )
-from agents.eso import EsoGains, eso_step_vec
+from agents.eso import EsoGains, eso_advance_vec
 from agents.estimator import EstimatorGains, estimator_step_vec
 from agents.formation import ScaleChange, desired_formation_vec, offsets_vec, scale_at_vec
 from agents.fusion import DEFAULT_PRIORITY, saturate_velocity_vec, supervise_tasks
@@ -99,6 +99,7 @@ class AgentConfig:
     max_wheel_torque_nm: float = float("inf")
     max_accel_mps2: float = float("inf")  # on v_d, planar (see AgentCore._step)
     max_yaw_accel_radps2: float = float("inf")
+    max_tracking_error: float = float("inf")  # on ||q - q_d|| (anti-windup, see AgentCore._step)
     degradation: DegradationConfig = field(default_factory=DegradationConfig)
 
 
@@ -339,6 +340,18 @@ class AgentCore:
         # q_d_ddot over [t_k, t_k+1] that the zero-order-hold torque can realise.
         v_ref = v_d if self._v_d_prev is None else self._v_d_prev
         e = _sub(qv, self._q_d)
+        e_norm = sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+        if e_norm > cfg.max_tracking_error:
+            # anti-windup on the reference (ours, not the paper's): eq. (11) integrates
+            # q_d open loop, so a robot held back (its agent or bridge off the CPU for
+            # 200 ms, its torques saturated) left q_d running ahead at v_d, and with v_d
+            # at the speed limit the robot never caught up; the position term then pulled
+            # it along q_d's path, through what avoidance had steered around (6 contacts
+            # in a loaded can-emulated lab run). q_d is kept within the bound of the robot.
+            pull = 1.0 - cfg.max_tracking_error / e_norm
+            self._q_d = (self._q_d[0] + pull * e[0], self._q_d[1] + pull * e[1],
+                         self._q_d[2] + pull * e[2])
+            e = _sub(qv, self._q_d)
         e_dot = _sub(q_dot_v, v_ref)
         if self._z1_hat is None:
             self._z1_hat = e_dot
@@ -359,8 +372,8 @@ class AgentCore:
             torques = (0.0, 0.0, 0.0, 0.0)
 
         # observer (39) and reference integration (CLIK, eq. 11)
-        self._z1_hat, self._z2_hat = eso_step_vec(
-            self._z1_hat, self._z2_hat, e_dot, gamma, cfg.eso, h
+        self._z1_hat, self._z2_hat = eso_advance_vec(
+            self._z1_hat, self._z2_hat, e_dot, gamma, cfg.eso, h, cfg.dt
         )
         q_d_now = self._q_d
         half_h = 0.5 * h

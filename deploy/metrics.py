@@ -141,6 +141,7 @@ def compute_metrics(
             "max_wheel_torque_nm": _finite_or_none(lim.max_wheel_torque_nm),
             "max_accel_mps2": _finite_or_none(lim.max_accel_mps2),
             "max_yaw_accel_radps2": _finite_or_none(lim.max_yaw_accel_radps2),
+            "max_tracking_error": _finite_or_none(lim.max_tracking_error),
         },
         "notes": notes,
         "messages": dict(messages or {"sent": 0, "dropped": 0, "late": 0, "invalid": 0}),

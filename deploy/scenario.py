@@ -145,6 +145,7 @@ class Limits(_S, kw_only=True):
     # how fast the fused velocity command may change (a reference the torques can follow)
     max_accel_mps2: float = math.inf
     max_yaw_accel_radps2: float = math.inf
+    max_tracking_error: float = math.inf
 
 
 class Disturbance(_S, kw_only=True):
@@ -345,6 +346,7 @@ class Scenario:
             max_wheel_torque_nm=lim.max_wheel_torque_nm,
             max_accel_mps2=lim.max_accel_mps2,
             max_yaw_accel_radps2=lim.max_yaw_accel_radps2,
+            max_tracking_error=lim.max_tracking_error,
             degradation=DegradationConfig(**msgspec.structs.asdict(s.degradation)),
         )
 
@@ -480,7 +482,7 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
     if not (0.5 < s.eso.r1 < 1) or s.eso.mu1 <= 0 or s.eso.mu2 <= 0:
         raise _fail(path, "eso", "need 0.5 < r1 < 1 and mu1, mu2 > 0")
     for key in ("max_speed_mps", "max_yaw_rate_radps", "max_wheel_torque_nm", "max_accel_mps2",
-                "max_yaw_accel_radps2"):
+                "max_yaw_accel_radps2", "max_tracking_error"):
         if getattr(s.limits, key) <= 0:
             raise _fail(path, f"limits.{key}", "must be positive (inf for none)")
     _check_len(path, "disturbance.constant_nm", s.disturbance.constant_nm, 4)
