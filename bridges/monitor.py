@@ -46,7 +46,15 @@ class DriverMonitor:
         self._by_node = {a.node: a for a in self.axes}
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.started_at = started_at
-        self._first_full: np.ndarray | None = None  # the angles once every axis had reported
+        # encoder estimates as complete sets: every axis heard once more since the last set.
+        # The four drives' frames of one burst arrive one after another; angles taken
+        # between them mix two instants, which odometry reads as a turn that the next
+        # period undoes, leaving a random walk (0.2-0.9 cm over a 60 s lab run).
+        self._waiting = {a.node for a in self.axes}  # axes not heard since the last set
+        self._set_rev: np.ndarray | None = None  # the newest complete set's angles (turns)
+        self._set_rev_s = np.zeros(len(self.axes))  # ... and speeds (turns/s)
+        self._set_at: float | None = None  # ... and when, on average, they arrived
+        self._first_set: np.ndarray | None = None  # the first complete set's angles
 
     def feed(self, msg: object, now_s: float) -> None:
         axis = self._by_node.get(getattr(msg, "node", -1))
@@ -58,34 +66,39 @@ class DriverMonitor:
         elif isinstance(msg, EncoderEstimate):
             axis.encoder_at = now_s
             axis.velocity_rev_s, axis.position_rev = msg.velocity_rev_s, msg.position_rev
-            if self._first_full is None:
-                self._first_full = self.wheel_positions_rev()
+            self._waiting.discard(axis.node)
+            if not self._waiting:
+                self._complete_set()
         elif isinstance(msg, DriverErrors):
             axis.active_errors = msg.active_errors
 
+    def _complete_set(self) -> None:
+        self._set_rev = np.array([a.position_rev for a in self.axes])
+        self._set_rev_s = np.array([a.velocity_rev_s for a in self.axes])
+        self._set_at = sum(a.encoder_at for a in self.axes) / len(self.axes)  # type: ignore[misc]
+        if self._first_set is None:
+            self._first_set = self._set_rev
+        self._waiting = {a.node for a in self.axes}
+
     def wheel_speeds_radps(self) -> np.ndarray:
-        """Last reported wheel speeds, in the wheel order of eq. (1)."""
-        return np.array([a.velocity_rev_s for a in self.axes]) * (2.0 * pi)
+        """The newest complete set's wheel speeds (0 before one), in the wheel order of
+        eq. (1)."""
+        return self._set_rev_s * (2.0 * pi)
 
     def wheel_positions_rev(self) -> np.ndarray | None:
-        """Last reported wheel angles (turns), in the wheel order of eq. (1); None
-        until every axis has sent an encoder estimate."""
-        if any(a.encoder_at is None for a in self.axes):
-            return None
-        return np.array([a.position_rev for a in self.axes])
+        """The newest complete set's wheel angles (turns), in the wheel order of eq. (1);
+        None until every axis has sent an encoder estimate."""
+        return self._set_rev
 
     def first_positions_rev(self) -> np.ndarray | None:
-        """The wheel angles (turns) at the frame that completed the first full set (every
-        axis heard at least once): one set of angles from one burst of estimates, to
+        """The first complete set's wheel angles (turns): one burst of estimates, to
         measure the first rotation from; None until then."""
-        return self._first_full
+        return self._first_set
 
     def encoder_age_s(self, now_s: float) -> float | None:
-        """How long ago, on average over the axes, their last encoder estimates
-        arrived; None until every axis has sent one."""
-        if any(a.encoder_at is None for a in self.axes):
-            return None
-        return now_s - sum(a.encoder_at for a in self.axes) / len(self.axes)  # type: ignore[misc]
+        """How long ago, on average over the axes, the newest complete set arrived;
+        None until there is one."""
+        return None if self._set_at is None else now_s - self._set_at
 
     def fault_reasons(self, now_s: float) -> list[str]:
         out = []
