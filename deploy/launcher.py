@@ -470,10 +470,10 @@ class Launcher:
         }
         plant = reports.get(PLANT_ROLE)
         bridges = [reports[bridge_role(r)] for r in self.sc.robot_ids if bridge_role(r) in reports]
-        stops = sorted(s for r in [plant, *bridges] if r is not None for s in r.command_stops)
-        if stops:  # the plant's, or on CAN each bridge's
-            out["command_stops"] = [{"robot": r, "command_age_s": a, "t_s": t}
-                                    for r, a, t in sorted(stops, key=lambda s: s[2])]
+        stops = sorted((s for r in [plant, *bridges] if r is not None for s in r.command_stops),
+                       key=lambda s: s[2])  # the plant's, or on CAN each bridge's, by run time
+        if stops:
+            out["command_stops"] = [{"robot": r, "command_age_s": a, "t_s": t} for r, a, t in stops]
         if plant is not None and plant.contacts is not None:
             out["contact_log"] = [msgspec.structs.asdict(c) for c in plant.contacts]
             out["contacts_total"] = plant.contacts_total
