@@ -20,7 +20,7 @@ from deploy.node_runtime import (
     die_with_parent,
     install_signal_handlers,
 )
-from deploy.priority import add_priority_argument, raise_priority
+from deploy.priority import REALTIME_PRIORITY, add_priority_argument, raise_priority
 from deploy.scenario import PLANT_KINDS, Scenario, load_scenario
 from deploy.transport import Node, zenoh_config
 from deploy.wire import LEADER_ROLE, PLANT_ROLE, Codec, Keys, agent_role
@@ -219,7 +219,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wait-recorder", action="store_true",
                    help="wait for `omnifleet record` (on any machine) before starting")
     add_priority_argument(p, "for a control loop on the realtime clock on a host that "
-                          "runs other work (the launcher asks for 5 there)")
+                          f"runs other work (the launcher asks for {REALTIME_PRIORITY} there)")
     p.add_argument("--lost-peer-grace", type=float, default=0.0, metavar="S",
                    help="agent/leader: when the plant's liveliness token goes (a cut link), "
                    "wait this long for it to come back before giving up (default: 0, at once)")
