@@ -443,9 +443,10 @@ def _nearest(bodies: Sequence[Body], x: float, y: float) -> tuple[Body, Vec2]:
     return best
 
 
-def _vec3(x: np.ndarray) -> Vec3:
-    """A 3-vector as floats (``tolist`` is the cheapest way out of numpy)."""
-    return tuple(x.tolist())  # type: ignore[return-value]
+def _vec3(x: np.ndarray | Vec3) -> Vec3:
+    """A 3-vector as floats (``tolist`` is the cheapest way out of numpy; a tuple,
+    as the wire delivers it, is taken as it is)."""
+    return x if type(x) is tuple else tuple(x.tolist())  # type: ignore[return-value]
 
 
 def _sub(a: Vec3, b: Vec3) -> Vec3:

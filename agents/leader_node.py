@@ -1,8 +1,9 @@
 """The virtual leader (reference generator) as a process.
 
-lockstep: publishes the leader state of step k ahead of need — up to
-``LOOKAHEAD`` steps past the newest ``ctl/tick`` — so agents never wait a hop
-for it. realtime: publishes at the scenario's rate on its own clock.
+lockstep: publishes the leader's states ahead of need, in batches of
+``TICK_EVERY`` steps, up to ``LOOKAHEAD`` steps past the newest ``ctl/tick`` (the
+plant ticks every ``TICK_EVERY`` steps), so agents never wait a hop for it and
+hear one message per batch. realtime: one state per period on its own clock.
 """
 
 from __future__ import annotations
@@ -13,7 +14,8 @@ from deploy.scenario import Scenario
 from deploy.transport import Node
 from deploy.wire import LAUNCHER_ROLE, WIRE_VERSION, LeaderState, agent_role
 
-LOOKAHEAD = 2
+TICK_EVERY = 32  # lockstep: the plant's ctl/tick every this many steps; the leader's batch
+LOOKAHEAD = 2 * TICK_EVERY  # lockstep: states published this far past the newest tick
 
 
 class LeaderNode:
@@ -40,27 +42,30 @@ class LeaderNode:
                                f"after {timeout_s:.0f} s")
         self.node.declare_ready()
 
-    def _publish_next(self) -> None:
+    def _publish_next(self, count: int = 1) -> None:
+        """The states of the next ``count`` steps, in one message."""
         k = self.k_next
-        q, v = self.generator.state()
+        qs, vs = [], []
+        for _ in range(count):
+            q, v = self.generator.state()
+            qs.append(tuple(q.tolist()))
+            vs.append(tuple(v.tolist()))
+            self.generator.advance()
         self.node.publish(self.node.keys.leader_state, lambda seq, stamp: LeaderState(
-            WIRE_VERSION, 0, seq, stamp, k=k, t=k * self.sc.dt,
-            q=tuple(q.tolist()), q_dot=tuple(v.tolist())))
-        self.generator.advance()
-        self.k_next += 1
+            WIRE_VERSION, 0, seq, stamp, k=k, t=k * self.sc.dt, q=qs, q_dot=vs))
+        self.k_next += count
 
     def run_lockstep(self, steps: int) -> None:
         box, ctl = self.node.mailbox, self.control
         while not self.stop():
-            with box.lock:
-                tick = ctl.tick
-            while self.k_next <= min(tick + LOOKAHEAD, steps - 1):
-                self._publish_next()
+            limit = min(ctl.tick + LOOKAHEAD, steps - 1)
+            while self.k_next <= limit:  # whole batches (the last one: to the end)
+                self._publish_next(min(TICK_EVERY, steps - self.k_next))
             box.wait_until(lambda: self.stop() or (
                 ctl.tick + LOOKAHEAD >= self.k_next and self.k_next < steps), 3600.0)
 
     def run_realtime(self, t0_mono: float, steps: int) -> None:
-        ticker = Periodic(t0_mono, self.sc.dt, self.timing)
+        ticker = Periodic(t0_mono, self.sc.dt, self.timing, self.node.mailbox)
         while not self.stop():
             k = ticker.wait_next(self.stop)
             if k is None or k >= steps:

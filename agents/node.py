@@ -1,15 +1,16 @@
 """One robot's agent as a process: a zenoh peer around :class:`AgentCore`.
 
-Hears only what the scenario's graph gives it (DESIGN §3): its robot's state and
-perception, the shares of the j with a_ij != 0, the leader iff b_i != 0, and
-``ctl/*``. Publishes its share, its robot's wheel command and its telemetry.
+Hears only what the scenario's graph gives it (DESIGN §3): its robot's sample
+(state + perception), the replies of the j with a_ij != 0 (their shares), the
+leader iff b_i != 0, and ``ctl/*``. Publishes one reply per step (its robot's
+wheel command with the share its listeners read) and batched telemetry.
 
-lockstep: step k waits for state k, perception k, the leader at k and the
-neighbours' shares of step k-1, so it computes exactly what the in-process
-reference computes. An input missing at the per-step deadline is counted as
-late and the step goes on with what it last had.
+lockstep: step k waits for sample k, the leader at k (sent in batches ahead of
+need) and the neighbours' shares of step k-1, so it computes exactly what the
+in-process reference computes. An input missing at the per-step deadline is
+counted as late and the step goes on with what it last had.
 
-realtime: a step runs as soon as a new state arrives (or one and a half periods
+realtime: a step runs as soon as a new sample arrives (or one and a half periods
 after the last step, with what it has); t is this process's clock since start.
 """
 
@@ -19,6 +20,7 @@ import sys
 import time
 from dataclasses import dataclass
 
+import msgspec
 import numpy as np
 
 from agents.core import AgentCore, AgentOutput, Body, Share
@@ -36,32 +38,52 @@ from deploy.wire import (
     PLANT_ROLE,
     WIRE_VERSION,
     LeaderState,
-    NeighbourShare,
-    Perception,
-    RobotState,
+    Reply,
+    Sample,
     SensedBody,
+    ShareData,
     Telemetry,
+    TelemetryRow,
+    Vec3,
     Vec4,
-    WheelCommand,
     agent_role,
 )
 
 KEEP_STEPS = 4  # lockstep inputs kept behind the current step
 TELEMETRY_HZ = 100.0  # realtime telemetry rate (lockstep: every step)
+TELEMETRY_BATCH_S = 0.1  # telemetry rows go out in batches of this much run time (at most)
+TELEMETRY_BATCH_MAX = 64  # ... and at most this many rows (lockstep: 64 steps a message)
 
 
-def share_from_msg(m: NeighbourShare) -> Share:
-    a = np.array
-    return Share(a(m.q0_hat), a(m.v0_hat), a(m.q), a(m.q_dot), a(m.zeta), a(m.zeta_dot),
-                 m.info_age_s)
+@dataclass(frozen=True)
+class LeaderPoint:
+    """The leader at one step, unpacked from a (batched) :class:`LeaderState`."""
+
+    k: int
+    t: float
+    q: Vec3
+    q_dot: Vec3
+
+
+def leader_points(m: LeaderState, dt: float) -> list[LeaderPoint]:
+    return [LeaderPoint(m.k + i, m.t + i * dt, q, qd)
+            for i, (q, qd) in enumerate(zip(m.q, m.q_dot, strict=True))]
+
+
+def share_from_msg(m: Reply) -> Share:
+    """The share as the core takes it: the wire's float tuples as they are (the
+    core works on floats; a numpy round trip cost ~3 µs per neighbour and step)."""
+    s = m.share
+    return Share(s.q0_hat, s.v0_hat, s.q, s.q_dot, s.zeta, s.zeta_dot,  # type: ignore[arg-type]
+                 s.info_age_s)
 
 
 def bodies_from_msg(bodies: list[SensedBody]) -> list[Body]:
     return [Body(b.ident, np.array(b.position), np.array(b.velocity), b.radius) for b in bodies]
 
 
-def realtime_ages(state: RobotState, leader: LeaderState | None,
-                  shares: dict[int, NeighbourShare], dt: float) -> InputAges:
+def realtime_ages(state: Sample, leader: LeaderPoint | None,
+                  shares: dict[int, Reply], dt: float) -> InputAges:
     """Realtime: how much older than one period each input is, by the step
     indices the messages carry (the leader's and the plant's clocks tick
     together from the same start)."""
@@ -81,23 +103,38 @@ def _t3(x: np.ndarray) -> tuple[float, float, float]:
     return tuple(x.tolist())  # type: ignore[return-value]
 
 
+def _finite_row(r: TelemetryRow) -> TelemetryRow:
+    """The row with every non-finite number zeroed and ``nonfinite`` set (the wire
+    refuses NaN; the verdict must still see that the law diverged)."""
+    import math
+
+    def fix(v):
+        if isinstance(v, float):
+            return v if math.isfinite(v) else 0.0
+        if isinstance(v, tuple):
+            return tuple(fix(x) for x in v)
+        return v
+    bad = any(fix(getattr(r, f)) != getattr(r, f) for f in r.__struct_fields__
+              if isinstance(getattr(r, f), float | tuple))
+    return msgspec.structs.replace(
+        r, **{f: fix(getattr(r, f)) for f in r.__struct_fields__}, nonfinite=r.nonfinite or bad)
+
+
 @dataclass
 class AgentInputs:
     """Everything received, keyed by step (lockstep) and the newest (realtime).
-    Written by zenoh callbacks under the mailbox lock."""
+    Written by the handlers on the node's thread as it waits."""
 
-    states: dict[int, RobotState]
-    perceptions: dict[int, Perception]
-    leaders: dict[int, LeaderState]
-    shares: dict[tuple[int, int], NeighbourShare]
-    newest_share: dict[int, NeighbourShare]  # per neighbour, by step
-    newest_state: RobotState | None = None
-    newest_perception: Perception | None = None
-    newest_leader: LeaderState | None = None
+    states: dict[int, Sample]
+    leaders: dict[int, LeaderPoint]
+    shares: dict[tuple[int, int], Reply]
+    newest_share: dict[int, Reply]  # per neighbour, by step
+    newest_state: Sample | None = None
+    newest_leader: LeaderPoint | None = None
 
     @classmethod
     def empty(cls) -> AgentInputs:
-        return cls({}, {}, {}, {}, {})
+        return cls({}, {}, {}, {})
 
 
 class AgentNode:
@@ -127,10 +164,11 @@ class AgentNode:
         # commands can be lost or late only with a fault plan or on the realtime clock
         horizon = sc.spec.degradation.command_horizon if (faults or realtime) else 0
         self.look_ahead = LookAhead(self.core, horizon) if horizon else None
-        self._perception_used: Perception | None = None
         self.timing = Timing()
         self.steps_done = 0
         self.telemetry_every = 1  # realtime decimates (see run_realtime)
+        self.telemetry_batch = TELEMETRY_BATCH_MAX
+        self._rows: list[TelemetryRow] = []
         self.peers = [plant_role, *(agent_role(j) for j in self.neighbours),
                       *(agent_role(j) for j in sc.listeners(self.index))]
         if self.hears_leader:
@@ -145,41 +183,36 @@ class AgentNode:
     def _subscribe(self) -> None:
         keys, inp, rid = self.node.keys, self.inputs, self.rid
 
-        def on_state(m: RobotState) -> None:
+        dt = self.sc.dt
+
+        def on_sample(m: Sample) -> None:
             inp.states[m.k] = m
             if inp.newest_state is None or m.seq > inp.newest_state.seq:
                 inp.newest_state = m
 
-        def on_perception(m: Perception) -> None:
-            inp.perceptions[m.k] = m
-            if inp.newest_perception is None or m.seq > inp.newest_perception.seq:
-                inp.newest_perception = m
-
         def on_leader(m: LeaderState) -> None:
-            inp.leaders[m.k] = m
-            if inp.newest_leader is None or m.seq > inp.newest_leader.seq:
-                inp.newest_leader = m
+            for p in leader_points(m, dt):
+                inp.leaders[p.k] = p
+                if inp.newest_leader is None or p.k > inp.newest_leader.k:
+                    inp.newest_leader = p
 
-        def on_share(m: NeighbourShare) -> None:
+        def on_share(m: Reply) -> None:
             inp.shares[(m.robot, m.k)] = m
             old = inp.newest_share.get(m.robot)
             if old is None or m.k > old.k:
                 inp.newest_share[m.robot] = m
 
         me, gate = agent_role(rid), self._gated
-        self.node.subscribe(keys.robot_state(rid), RobotState,
-                            gate(self.plant_role, me, on_state), robot=rid)
-        self.node.subscribe(keys.perception(rid), Perception,
-                            gate(self.plant_role, me, on_perception), robot=rid)
+        self.node.subscribe(keys.sample(rid), Sample,
+                            gate(self.plant_role, me, on_sample), robot=rid)
         if self.hears_leader:
             self.node.subscribe(keys.leader_state, LeaderState, gate(LEADER_ROLE, me, on_leader))
         for j in self.neighbours:
-            self.node.subscribe(keys.share(j), NeighbourShare,
-                                gate(agent_role(j), me, on_share), robot=j)
+            self.node.subscribe(keys.cmd(j), Reply, gate(agent_role(j), me, on_share), robot=j)
 
     def _gated(self, src: str, dst: str, on_message):
         """Realtime with a fault plan: the edge's faults act as messages arrive
-        (perception shares the state's fate: one decision per edge and step)."""
+        (one decision per edge and step)."""
         if self.gate is None:
             return on_message
         return self.gate.wrap(src, dst, on_message)
@@ -191,43 +224,61 @@ class AgentNode:
         if missing and not self.stop():
             raise TimeoutError(f"{self.node.role}: no sign of {', '.join(sorted(missing))} "
                                f"after {timeout_s:.0f} s")
-        self._publish_share(-1, self.core.initial_share)
+        self._publish_reply(-1, 0.0, None, None, self.core.initial_share, [])
         self.node.declare_ready()
 
     # -- publishing ---------------------------------------------------------------
-    def _publish_share(self, k: int, s: Share) -> None:
+    def _publish_reply(self, k: int, t: float, state: Sample | None, out: AgentOutput | None,
+                       s: Share, plan: list[Vec4]) -> None:
+        """The step's one message: command (none before the first step: k = -1,
+        zero torques) and share."""
         rid = self.rid
-        self.node.publish(self.node.keys.share(rid), lambda seq, stamp: NeighbourShare(
-            WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, q0_hat=_t3(s.q0_hat),
-            v0_hat=_t3(s.v0_hat), q=_t3(s.q), q_dot=_t3(s.q_dot), zeta=_t3(s.zeta),
-            zeta_dot=_t3(s.zeta_dot), info_age_s=s.info_age_s))
+        torques = (0.0, 0.0, 0.0, 0.0) if out is None else tuple(out.torques.tolist())
+        v_cmd = (0.0, 0.0, 0.0) if out is None else _t3(out.v_cmd)
+        share = ShareData(_t3(s.q0_hat), _t3(s.v0_hat), _t3(s.q), _t3(s.q_dot), _t3(s.zeta),
+                          _t3(s.zeta_dot), s.info_age_s)
+        self.node.publish(self.node.keys.cmd(rid), lambda seq, stamp: Reply(
+            WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, t=t, torques=torques, v_cmd=v_cmd,
+            state_seq=-1 if state is None else state.seq,
+            state_stamp_ns=0 if state is None else state.stamp_ns, share=share, plan=plan))
 
-    def _publish_step(self, k: int, t: float, state: RobotState, out: AgentOutput,
+    def _publish_step(self, k: int, t: float, state: Sample, out: AgentOutput,
                       plan: list[Vec4], stale: int) -> None:
-        keys, rid, node = self.node.keys, self.rid, self.node
-        node.publish(keys.cmd(rid), lambda seq, stamp: WheelCommand(
-            WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, t=t,
-            torques=tuple(out.torques.tolist()), v_cmd=_t3(out.v_cmd),
-            state_seq=state.seq, state_stamp_ns=state.stamp_ns, plan=plan))
-        self._publish_share(k, out.share)
+        self._publish_reply(k, t, state, out, out.share, plan)
         if k % self.telemetry_every:
             return
         fdb = out.task_errors.get("FDB")
-        node.publish(keys.telemetry(rid), lambda seq, stamp: Telemetry(
-            WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, t=t, q_d=_t3(out.q_d),
-            e=_t3(out.tracking_error), s=_t3(out.sliding), v_cmd=_t3(out.v_cmd),
-            torques=tuple(out.torques.tolist()), q0_hat=_t3(out.share.q0_hat),
-            q_fd=_t3(out.q_fd), fdb_error=None if fdb is None else float(fdb),
-            order=">".join(out.order), nonfinite=out.nonfinite, stale_inputs=stale,
-            input_age_s=out.input_age_s, speed_factor=out.speed_factor, left_out=out.left_out))
+        self._rows.append(TelemetryRow(
+            k=k, t=t, q_d=_t3(out.q_d), e=_t3(out.tracking_error), s=_t3(out.sliding),
+            v_cmd=_t3(out.v_cmd), torques=tuple(out.torques.tolist()),
+            q0_hat=_t3(out.share.q0_hat), q_fd=_t3(out.q_fd),
+            fdb_error=None if fdb is None else float(fdb), order=">".join(out.order),
+            nonfinite=out.nonfinite, stale_inputs=stale, input_age_s=out.input_age_s,
+            speed_factor=out.speed_factor, left_out=out.left_out))
+        if len(self._rows) >= self.telemetry_batch:
+            self.flush_telemetry()
 
-    def _compute(self, t: float, state: RobotState, perception: Perception | None,
-                 leader: LeaderState | None, dt: float | None = None,
-                 ages: InputAges | None = None) -> tuple[AgentOutput, list[Vec4]]:
+    def flush_telemetry(self) -> None:
+        """Send the telemetry rows gathered so far, in one message. A row that is
+        not finite (a diverged law) is sent with its non-finite numbers zeroed and
+        ``nonfinite`` set, so the run's verdict sees it."""
+        rows, self._rows, rid = self._rows, [], self.rid
+        if not rows:
+            return
+        sent = self.node.publish(self.node.keys.telemetry(rid), lambda seq, stamp: Telemetry(
+            WIRE_VERSION, rid, seq, stamp, robot=rid, rows=rows))
+        if sent is None:  # a non-finite value: send the rows with it zeroed, flagged
+            safe = [_finite_row(r) for r in rows]
+            self.node.publish(self.node.keys.telemetry(rid), lambda seq, stamp: Telemetry(
+                WIRE_VERSION, rid, seq, stamp, robot=rid, rows=safe))
+
+    def _compute(self, t: float, state: Sample, leader: LeaderPoint | None,
+                 dt: float | None = None, ages: InputAges | None = None
+                 ) -> tuple[AgentOutput, list[Vec4]]:
         """The step's output and its look-ahead torques (empty when off)."""
-        robots = bodies_from_msg(perception.robots) if perception else []
-        obstacles = bodies_from_msg(perception.obstacles) if perception else []
-        lead = (np.array(leader.q), np.array(leader.q_dot)) if leader is not None else None
+        robots = bodies_from_msg(state.robots)
+        obstacles = bodies_from_msg(state.obstacles)
+        lead = (leader.q, leader.q_dot) if leader is not None else None
         if self.hears_leader and lead is None:  # never heard it yet: use own estimate
             lead = (self.core.q0_hat.copy(), self.core.v0_hat.copy())
         q, q_dot = np.array(state.q), np.array(state.q_dot)
@@ -240,7 +291,7 @@ class AgentNode:
     def _lockstep_ready(self, k: int) -> bool:
         inp = self.inputs
         return (self.stop() or (
-            k in inp.states and k in inp.perceptions
+            k in inp.states
             and (not self.hears_leader or k in inp.leaders)
             and all((j, k - 1) in inp.shares for j in self.neighbours)
         ))
@@ -269,10 +320,10 @@ class AgentNode:
                     k = newest
                 # the arrival of step k's messages is the clock; the links pick
                 # the samples a faulty edge lets through (deploy/lockstep_inputs.py)
-                world, leader, shares, ages = self.links.take(
-                    k, self._world_at, inp.leaders.get, lambda j, idx: inp.shares.get((j, idx)),
+                state, leader, shares, ages = self.links.take(
+                    k, inp.states.get, inp.leaders.get, lambda j, idx: inp.shares.get((j, idx)),
                     self.sc.dt)
-                missing = int(k not in inp.perceptions) + int(
+                missing = int(
                     self.hears_leader and k not in inp.leaders) + sum(
                     (j, k - 1) not in inp.shares for j in self.neighbours)
                 self._forget_before(k - self.keep_steps)
@@ -284,26 +335,15 @@ class AgentNode:
             if unheard:  # never heard from a neighbour: cannot compute eq. (16)
                 print(f"{self.node.role}: no share ever received from {unheard}", file=sys.stderr)
                 continue
-            state, perception = world
             t = k * self.sc.dt
-            out, plan = self._compute(t, state, perception, leader, ages=ages)
+            out, plan = self._compute(t, state, leader, ages=ages)
             self._publish_step(k, t, state, out, plan, missing + _stale(ages))
             self.steps_done += 1
             k += 1
 
-    def _world_at(self, k: int) -> tuple[RobotState, Perception | None] | None:
-        """The plant's state and perception of step k (a perception missed at the
-        deadline: the last one used)."""
-        state = self.inputs.states.get(k)
-        if state is None:
-            return None
-        perception = self.inputs.perceptions.get(k, self._perception_used)
-        self._perception_used = perception
-        return state, perception
-
     def _forget_before(self, k: int) -> None:
         inp = self.inputs
-        for d in (inp.states, inp.perceptions, inp.leaders):
+        for d in (inp.states, inp.leaders):
             for kk in [kk for kk in d if kk < k]:
                 del d[kk]
         for key in [key for key in inp.shares if key[1] < k]:
@@ -319,10 +359,12 @@ class AgentNode:
         # telemetry is for people and the recorder: at most telemetry_hz, so the
         # control traffic keeps the CPU (the run's series fill the gaps forward)
         self.telemetry_every = max(1, round(1.0 / (dt * telemetry_hz)))
+        self.telemetry_batch = max(1, min(TELEMETRY_BATCH_MAX,
+                                          round(TELEMETRY_BATCH_S * telemetry_hz)))
         last_seq = -1
         last_step = None
         last_t: float | None = None
-        share_msgs: dict[int, NeighbourShare] = {}
+        share_msgs: dict[int, Reply] = {}
         synced = t0_mono is not None
         while not self.stop():
             box.wait_until(
@@ -338,9 +380,9 @@ class AgentNode:
                 if state is None:
                     continue
                 fresh = state.seq > last_seq
-                perception, leader = inp.newest_perception, inp.newest_leader
+                leader = inp.newest_leader
                 share_msgs.update(inp.newest_share)
-                for by_step in (inp.states, inp.perceptions, inp.leaders, inp.shares):
+                for by_step in (inp.states, inp.leaders, inp.shares):
                     by_step.clear()  # realtime uses only the newest of each
             if not fresh:
                 # no new state for 1.5 periods: stepping again on the old one would
@@ -366,12 +408,12 @@ class AgentNode:
             for j, msg in share_msgs.items():
                 self.last_shares[j] = share_from_msg(msg)
             t = now - t0_mono
-            out, plan = self._compute(t, state, perception, leader, h, ages)
+            out, plan = self._compute(t, state, leader, h, ages)
             self._publish_step(state.k, t, state, out, plan, _stale(ages))
             self.steps_done += 1
 
-    def _resync(self, state: RobotState, leader: LeaderState | None,
-                shares: dict[int, NeighbourShare], ages: InputAges) -> bool:
+    def _resync(self, state: Sample, leader: LeaderPoint | None,
+                shares: dict[int, Reply], ages: InputAges) -> bool:
         """A restarted agent: the leader estimate from the leader (predicted to
         now) or else the mean of the neighbours' estimates (predicted likewise),
         the reference and observer from the robot where it stands. False while
@@ -380,10 +422,10 @@ class AgentNode:
             q0 = predict(leader.q, leader.q_dot, ages.leader_s)
             v0 = leader.q_dot
         elif shares:
-            est = [predict(m.q0_hat, m.v0_hat, ages.shares_s.get(j, 0.0))
+            est = [predict(m.share.q0_hat, m.share.v0_hat, ages.shares_s.get(j, 0.0))
                    for j, m in shares.items()]
             q0 = tuple(np.mean(est, axis=0).tolist())
-            v0 = tuple(np.mean([m.v0_hat for m in shares.values()], axis=0).tolist())
+            v0 = tuple(np.mean([m.share.v0_hat for m in shares.values()], axis=0).tolist())
         else:
             return False
         self.core = AgentCore(self.core.cfg, np.array(state.q), np.array(state.q_dot),
@@ -393,6 +435,7 @@ class AgentNode:
         return True
 
     def finish(self) -> None:
+        self.flush_telemetry()
         if self.gate is not None:
             self.gate.close()
         publish_report(self.node, self.rid, self.steps_done, self.timing,

@@ -7,9 +7,10 @@ plant for that robot (DESIGN §8). Realtime only: hardware has no lockstep.
   look-ahead torques the newest one predicted for the overdue step
   (agents/look_ahead.py), then holds the last of them;
 - every period: frames from the drivers -> :class:`DriverMonitor`; wheel speeds
-  -> odometry (eq. 1) -> ``robot/i/state`` (``faulted`` set on a driver error or
-  a missing heartbeat); ``robot/i/perception`` from the scenario's obstacles (the
-  map) and the other robots' published states;
+  -> odometry (eq. 1) -> ``robot/i/sample`` (``faulted`` set on a driver error or
+  a missing heartbeat), with the perception from the scenario's obstacles (the
+  map) and the other robots' published samples; the states also go to observers
+  in batches (``log/bridge-i``);
 - a command older than the timeout, an e-stop or a fault -> zero torque frames
   and idle axes; leaving (end, Ctrl-C, a lost peer) always zeroes and idles.
 """
@@ -44,15 +45,17 @@ from deploy.transport import Node
 from deploy.wire import (
     WIRE_VERSION,
     Control,
-    Perception,
-    RobotState,
-    WheelCommand,
+    Reply,
+    Sample,
+    StateLog,
+    StateRow,
     agent_role,
     sensed_bodies,
 )
 from plant.perception import sense
 
 MAX_POSE_LEAD_S = 0.02  # longest the published pose is carried past the newest encoder data
+LOG_ROWS = 20  # states per batch to observers (0.1 s at the lab's 200 Hz)
 REARM_AFTER_S = 0.25  # an axis still idle this long after arming (heartbeats at 10 Hz) is asked again
 
 
@@ -89,10 +92,11 @@ class BridgeNode:
         self.positions, self.velocities = q0[:, :2].copy(), np.zeros((sc.n, 2))
         self.radii = [sc.spec.robot.body_radius_m] * sc.n
         self.obstacles = sc.obstacle_bodies()  # the map
-        node.subscribe(node.keys.cmd(robot_id), WheelCommand, self._on_cmd, robot=robot_id)
+        self.log_rows: list[StateRow] = []
+        node.subscribe(node.keys.cmd(robot_id), Reply, self._on_cmd, robot=robot_id)
         for j, rid in enumerate(sc.robot_ids):
             if rid != robot_id:
-                node.subscribe(node.keys.robot_state(rid), RobotState,
+                node.subscribe(node.keys.sample(rid), Sample,
                                lambda m, j=j: self._on_other(j, m), robot=rid)
         self.control = ControlInbox(node, stop)
         node.subscribe(node.keys.ctl_all, Control, self._on_ctl)
@@ -112,16 +116,18 @@ class BridgeNode:
             if frame is not None:
                 self._frames.put((time.monotonic(), frame))
 
-    def _on_other(self, j: int, m: RobotState) -> None:  # under the mailbox lock
+    def _on_other(self, j: int, m: Sample) -> None:  # on the node's thread
         self.positions[j] = m.q[:2]
         self.velocities[j] = m.q_dot[:2]
 
-    def _on_ctl(self, m: Control) -> None:  # under the mailbox lock
+    def _on_ctl(self, m: Control) -> None:  # on the node's thread
         if m.command == "estop":
             self.gate.estop()
             self._send_all(lambda n: Estop(n))
 
-    def _on_cmd(self, m: WheelCommand) -> None:  # under the mailbox lock
+    def _on_cmd(self, m: Reply) -> None:  # on the node's thread, as it waits
+        if m.k < 0:
+            return  # an initial share: no command in it
         arrived = time.monotonic()
         self.gate.command(m.torques, arrived, m.k, m.plan)
         if self.armed:  # torque on the bus now, not at the next period
@@ -216,7 +222,7 @@ class BridgeNode:
 
     def run_realtime(self, t0_mono: float, steps: int) -> None:
         dt = self.sc.dt
-        ticker = Periodic(t0_mono, dt, self.timing)
+        ticker = Periodic(t0_mono, dt, self.timing, self.node.mailbox)
         last = getattr(self, "_pre_run_last", None)
         try:
             while not self.stop():
@@ -250,6 +256,7 @@ class BridgeNode:
         finally:
             with self.node.mailbox.lock:
                 self.disarm()  # whatever ended the loop, the robot stops pushing
+            self.flush_log()
 
     def _log_stop(self, t: float) -> None:
         age = self.gate.command_age_s(self.zeroed_at)
@@ -271,12 +278,20 @@ class BridgeNode:
         pos[i], vel[i] = q[:2], qd[:2]
         robots, obstacles = sense(i, pos, vel, self.radii, self.sc.robot_ids, self.obstacles,
                                   self.sc.spec.behaviors.detection_range_m)
-        node.publish(keys.perception(self.rid), lambda seq, stamp: Perception(
-            WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, robots=sensed_bodies(robots),
-            obstacles=sensed_bodies(obstacles)))
-        node.publish(keys.robot_state(self.rid), lambda seq, stamp: RobotState(
+        node.publish(keys.sample(self.rid), lambda seq, stamp: Sample(
             WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, q=tuple(q.tolist()),
-            q_dot=tuple(qd.tolist()), faulted=faulted))
+            q_dot=tuple(qd.tolist()), robots=sensed_bodies(robots),
+            obstacles=sensed_bodies(obstacles), faulted=faulted))
+        self.log_rows.append(StateRow(k, t, [tuple(q.tolist())], [tuple(qd.tolist())], [faulted]))
+        if len(self.log_rows) >= LOG_ROWS:
+            self.flush_log()
+
+    def flush_log(self) -> None:
+        """This robot's states gathered so far, to observers, in one message."""
+        rows, self.log_rows = self.log_rows, []
+        if rows:
+            self.node.publish(self.node.keys.state_log(self.node.role), lambda seq, stamp: StateLog(
+                WIRE_VERSION, 0, seq, stamp, robots=[self.rid], rows=rows))
 
     def handshake(self, timeout_s: float) -> None:
         self.node.declare_ready()

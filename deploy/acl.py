@@ -3,12 +3,18 @@
 Identity is the common name of a peer's TLS certificate (:mod:`deploy.certs`:
 the CN is the role). For every role the scenario can have we list
 
-- what it may **publish** (``put``): agent i only ``agent/i/**``,
-  ``robot/i/cmd`` and its own report; the plant states, perceptions and
-  control; the leader ``leader/state``; bridge i robot i's state and perception;
-- what it may **receive**: agent i its robot's state and perception, the shares
-  of its neighbours j (a_ij != 0), ``leader/state`` iff b_i != 0, and control;
-  the launcher (recorder) and a router everything.
+- what it may **publish** (``put``): agent i only ``robot/i/cmd`` (its reply:
+  command and share), its telemetry and its own report; the plant the samples,
+  its state log and control; the leader ``leader/state``; bridge i robot i's
+  sample and its state log;
+- what it may **receive**: agent i its robot's sample, the replies of its
+  neighbours j (a_ij != 0: it reads their shares in them), ``leader/state`` iff
+  b_i != 0, and control; the launcher (recorder) and a router everything.
+
+A neighbour reads agent j's wheel command along with j's share (wire v2 puts both
+in one message, one put a step): a command says nothing a neighbour could not
+compute from j's share and state, and a key of its own for the share would cost
+every agent a second message per step.
 
 Every node's configuration holds the same table, as zenoh enforces it per
 session on each link, by the remote's certificate: an ``ingress`` rule for
@@ -70,8 +76,8 @@ def all_keys(sc: Scenario, keys: Keys, roles: Iterable[str]) -> set[str]:
     out = {keys.leader_state, *(keys.ctl(c) for c in CONTROL_COMMANDS),
            *(keys.report(r) for r in roles)}
     for r in sc.robot_ids:
-        out |= {keys.robot_state(r), keys.perception(r), keys.cmd(r), keys.share(r),
-                keys.telemetry(r)}
+        out |= {keys.sample(r), keys.cmd(r), keys.telemetry(r)}
+    out |= {keys.state_log(r) for r in roles}
     return out
 
 
@@ -81,14 +87,14 @@ def publishes(role: str, sc: Scenario, keys: Keys, roles: Iterable[str]) -> set[
     if role in (LAUNCHER_ROLE, ROUTER_ROLE):
         return all_keys(sc, keys, roles)  # the launcher sends ctl; a router forwards all
     if role == PLANT_ROLE:
-        return ({keys.robot_state(r) for r in sc.robot_ids}
-                | {keys.perception(r) for r in sc.robot_ids} | ctl | {keys.report(role)})
+        return ({keys.sample(r) for r in sc.robot_ids} | ctl | {keys.report(role),
+                                                                  keys.state_log(role)})
     if role == LEADER_ROLE:
         return {keys.leader_state, keys.report(role)}
     if (r := _robot_of(role, "agent-")) is not None:
-        return {keys.share(r), keys.telemetry(r), keys.cmd(r), keys.report(role)}
+        return {keys.telemetry(r), keys.cmd(r), keys.report(role)}
     if (r := _robot_of(role, "bridge-")) is not None:
-        return {keys.robot_state(r), keys.perception(r), keys.report(role)}
+        return {keys.sample(r), keys.report(role), keys.state_log(role)}
     raise ValueError(f"no access rules for role {role!r}")
 
 
@@ -103,14 +109,14 @@ def receives(role: str, sc: Scenario, keys: Keys, roles: Iterable[str]) -> set[s
         return ctl
     if (r := _robot_of(role, "agent-")) is not None:
         cfg = sc.agent_config(sc.index_of(r))
-        out = {keys.robot_state(r), keys.perception(r)} | ctl
-        out |= {keys.share(j) for j, _w in cfg.neighbours}
+        out = {keys.sample(r)} | ctl
+        out |= {keys.cmd(j) for j, _w in cfg.neighbours}
         if cfg.leader_weight != 0.0:
             out.add(keys.leader_state)
         return out
     if (r := _robot_of(role, "bridge-")) is not None:
-        # the other robots' states: the bridge builds its robot's perception from them
-        return {keys.cmd(r)} | {keys.robot_state(j) for j in sc.robot_ids} | ctl
+        # the other robots' samples: the bridge builds its robot's perception from them
+        return {keys.cmd(r)} | {keys.sample(j) for j in sc.robot_ids if j != r} | ctl
     raise ValueError(f"no access rules for role {role!r}")
 
 

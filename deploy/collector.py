@@ -1,8 +1,9 @@
 """Turn what a distributed run put on the wire into the run's time series.
 
-The launcher hears every key of the fleet. Robot states and the leader state
-give the world columns, agent telemetry the agent columns, both indexed by the
-step k the plant stamped. Lockstep runs fill every (k, robot) exactly once; a
+The launcher hears the fleet's batched logs, off the control path: the plant's
+(or bridges') :class:`StateLog` and the leader's states give the world columns,
+the agents' :class:`Telemetry` rows the agent columns, all indexed by the step k
+the plant stamped. Lockstep runs fill every (k, robot) exactly once; a
 realtime run may miss some, which are filled forward from the previous step
 (and counted).
 """
@@ -16,7 +17,7 @@ import numpy as np
 from deploy.runner import FormationTargets
 from deploy.scenario import Scenario
 from deploy.timeseries import BEHAVIOR_BITS, COLUMNS, TimeSeries
-from deploy.wire import LeaderState, NodeReport, RobotState, Telemetry
+from deploy.wire import LeaderState, NodeReport, StateLog, Telemetry, TelemetryRow
 
 
 class Collector:
@@ -43,25 +44,34 @@ class Collector:
             if isinstance(msg, NodeReport):
                 self.reports[msg.role] = msg
                 return
-            if not isinstance(msg, RobotState | Telemetry | LeaderState):
-                return  # shares, perception, commands: recorded, not part of the series
-            k = msg.k
-            if not 0 <= k < self.steps:
-                self.out_of_range += 1
-                return
-            if isinstance(msg, RobotState):
-                i = self.row[msg.robot]
-                ts.q[k, i], ts.q_dot[k, i] = msg.q, msg.q_dot
-                self.have_state[k, i] = True
-                self.faulted[k, i] = msg.faulted
-                self.newest_k = max(self.newest_k, k)
+            if isinstance(msg, StateLog):
+                cols = [self.row[r] for r in msg.robots]
+                for row in msg.rows:
+                    k = row.k
+                    if not 0 <= k < self.steps:
+                        self.out_of_range += 1
+                        continue
+                    ts.q[k, cols], ts.q_dot[k, cols] = row.q, row.q_dot
+                    self.have_state[k, cols] = True
+                    self.faulted[k, cols] = row.faulted
+                    self.newest_k = max(self.newest_k, k)
             elif isinstance(msg, Telemetry):
                 i = self.row[msg.robot]
-                record_telemetry(ts, k, i, msg)
-                self.have_telemetry[k, i] = True
+                for row in msg.rows:
+                    if not 0 <= row.k < self.steps:
+                        self.out_of_range += 1
+                        continue
+                    record_telemetry(ts, row.k, i, row)
+                    self.have_telemetry[row.k, i] = True
             elif isinstance(msg, LeaderState):
-                ts.leader_q[k], ts.leader_v[k] = msg.q, msg.q_dot
-                self.have_leader[k] = True
+                for n, (q, qd) in enumerate(zip(msg.q, msg.q_dot, strict=True)):
+                    k = msg.k + n
+                    if not 0 <= k < self.steps:
+                        self.out_of_range += 1
+                        continue
+                    ts.leader_q[k], ts.leader_v[k] = q, qd
+                    self.have_leader[k] = True
+            # samples, replies, control: recorded, not part of the series
 
     def series(self, realtime: bool = False) -> TimeSeries:
         """Lockstep: steps 0..K-1 where K is the first step some robot's state is
@@ -99,7 +109,7 @@ class Collector:
                                 np.nan if col.dtype.kind == "f" else col[k, i])
 
 
-def record_telemetry(ts: TimeSeries, k: int, i: int, m: Telemetry) -> None:
+def record_telemetry(ts: TimeSeries, k: int, i: int, m: TelemetryRow) -> None:
     """The same columns as TimeSeries.record_agent, from the wire."""
     ts.q_d[k, i] = m.q_d
     ts.e[k, i] = m.e

@@ -1,20 +1,27 @@
 """``omnifleet run``: start leader, plant and one agent process per robot on
 this machine, watch them, record, and write the run's folder.
 
-Topology: the launcher is a zenoh peer listening on a free loopback port; every
-child listens on its own ephemeral loopback port and connects to the launcher;
-gossip scouting then links every pair of peers directly (no router, no
-multicast). Children are started in their own session (a Ctrl-C reaches only the
-launcher, which stops them in order) and get SIGTERM if the launcher itself dies.
+Topology (links as the graph, DESIGN §3): every node, the launcher included,
+listens on a unix socket of its own in a private run directory (mode 0700: other
+users' processes cannot connect) and connects to exactly the nodes it talks to —
+an agent to its plant (or bridge), the leader iff b_i != 0, its graph neighbours
+both ways, and the launcher; the leader to the plant; every node to the launcher,
+which observes. Gossip and multicast scouting are off, so no other link forms and
+two runs on one machine never see each other (the fleet name, hence every topic,
+is the scenario's name). Children are started in their own session (a Ctrl-C
+reaches only the launcher, which stops them in order) and get SIGTERM if the
+launcher itself dies.
 """
 
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,12 +47,16 @@ from deploy.wire import (
     Control,
     Keys,
     NodeReport,
-    RobotState,
+    StateLog,
     agent_role,
     bridge_role,
 )
 
 STOP_GRACE_S = 3.0
+# zenoh's runtime pools cut to one worker each: a node needs no more, and every
+# thread is a wake-up competing for 2 cores (the hop 80 -> 60 µs p50, ping-pong)
+ZENOH_RUNTIME = ("(app: (worker_threads: 1), acc: (worker_threads: 1), "
+                 "tx: (worker_threads: 1), rx: (worker_threads: 1), net: (worker_threads: 1))")
 ENCODER_RATE_HZ = 100.0  # the driver emulator's encoder estimates (can-emulated)
 CAN_EMULATED = "can-emulated"  # every robot through a CAN bridge + driver emulator
 TAIL_LINES = 15
@@ -74,6 +85,7 @@ class Child:
     peak_rss_mb: float | None = None
     log: Any = None
     zenoh: bool = True  # a zenoh peer with liveliness tokens (an emulator speaks CAN only)
+    links: list[str] = field(default_factory=list)  # roles it connects to (beside the launcher)
     stop_after_run: bool = False  # runs until stopped (an emulator): SIGTERM after the run
     killed: bool = False  # killed by the fault plan: its exit status is expected
 
@@ -126,7 +138,8 @@ def _percentiles_ms(samples: list[int]) -> dict[str, float | None]:
 class Launcher:
     def __init__(self, sc: Scenario, opts: LaunchOptions) -> None:
         self.sc, self.opts = sc, opts
-        self.fleet = opts.fleet or f"{sc.name}-{os.getpid()}"
+        # stable topic names: runs are kept apart by their private endpoints, not the name
+        self.fleet = opts.fleet or sc.name
         self.keys = Keys(self.fleet)
         self.codec = Codec(sc.robot_ids)
         self.stop = StopFlag()
@@ -141,12 +154,14 @@ class Launcher:
         self.t0_mono: float | None = None  # can-emulated: t = 0 of the run (this host's clock)
         self.run_t0: float | None = None  # realtime: t = 0 of the run (from ``ctl/start``)
         self.kills = KillSchedule(opts.faults.kills if opts.faults else ())
+        self.run_dir: Path | None = None  # the private directory of the run's sockets
+        self.launcher_zid = ""  # our zenoh id (links in metrics.json name it "launcher")
 
     # -- children -------------------------------------------------------------------
     def _common_args(self, endpoint: str) -> list[str]:
         o = self.opts
         args = ["--scenario", o.scenario_arg, "--fleet", self.fleet, "--clock", o.clock,
-                "--listen", "tcp/127.0.0.1:0", "--connect", endpoint, "--with-recorder",
+                "--connect", endpoint, "--no-gossip", "--with-recorder",
                 "--step-deadline", str(o.step_deadline_s),
                 "--startup-timeout", str(o.startup_timeout_s)]
         if o.duration_s is not None:
@@ -178,7 +193,57 @@ class Launcher:
             plan.append(Child(agent_role(r), r, [*cmd, "agent", *common, "--robot", str(r),
                                                  *source, *self.opts.extra_agent_args],
                               logs / f"{agent_role(r)}.log"))
+        self._links(plan)
         return plan
+
+    def endpoint_of(self, role: str) -> str:
+        """Where ``role`` listens: a unix socket in the run's private directory (made
+        by :meth:`run`; a plan drawn before it names a placeholder)."""
+        where = self.run_dir or Path(tempfile.gettempdir()) / "omnifleet-unstarted"
+        return f"unixsock-stream/{where / f'{role}.sock'}"
+
+    def _links(self, plan: list[Child]) -> None:
+        """Who connects to whom (beside the launcher): one link per pair of nodes
+        that talk, opened by the later one in ``plan`` order."""
+        on_can = self.opts.plant == CAN_EMULATED
+        talk: dict[str, set[str]] = {c.role: set() for c in plan if c.zenoh}
+
+        def pair(a: str, b: str) -> None:
+            talk[a].add(b)
+            talk[b].add(a)
+
+        b = self.sc.leader_weights
+        for i, r in enumerate(self.sc.robot_ids):
+            me = agent_role(r)
+            pair(me, bridge_role(r) if on_can else PLANT_ROLE)
+            if b[i] != 0.0:
+                pair(me, LEADER_ROLE)
+            for j, _w in self.sc.agent_config(i).neighbours:
+                pair(me, agent_role(j))
+            if on_can:  # a bridge perceives the other robots from their samples
+                for j in self.sc.robot_ids:
+                    if j != r:
+                        pair(bridge_role(r), bridge_role(j))
+        if not on_can:
+            pair(LEADER_ROLE, PLANT_ROLE)  # ticks pace the leader's batches
+        order = {c.role: n for n, c in enumerate(plan)}
+        for c in plan:
+            if c.zenoh:
+                c.links = sorted((o for o in talk[c.role] if order[o] < order[c.role]),
+                                 key=order.get)
+                c.argv += ["--listen", self.endpoint_of(c.role)]
+                for other in c.links:
+                    c.argv += ["--connect", self.endpoint_of(other)]
+
+    def expected_links(self, role: str) -> set[str]:
+        """The roles ``role`` has a link with (both directions), the launcher included."""
+        out = {LAUNCHER_ROLE}
+        for c in self.children:
+            if c.role == role:
+                out |= set(c.links)
+            elif role in c.links:
+                out.add(c.role)
+        return out
 
     def _can_plan(self, cmd: list[str], common: list[str], logs: Path) -> list[Child]:
         """One driver emulator process for the whole fleet and a bridge per robot;
@@ -225,6 +290,7 @@ class Launcher:
         child.log_path.parent.mkdir(parents=True, exist_ok=True)
         child.log = open(child.log_path, "wb")  # noqa: SIM115 - closed in _reap
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        env.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
         child.proc = subprocess.Popen(
             child.argv, stdout=child.log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
             env=env, start_new_session=True,
@@ -282,7 +348,8 @@ class Launcher:
             self._reap(c, block=True)
 
     # -- the wire -------------------------------------------------------------------
-    def _on_sample(self, key: str, data: bytes) -> None:
+    def _on_sample(self, arrived: tuple[str, bytes]) -> None:
+        key, data = arrived
         found = self.keys.kind_of(key)
         if found is None:
             return
@@ -301,8 +368,8 @@ class Launcher:
             elif msg.command == "end":
                 self.ended = True
             return
-        if isinstance(msg, RobotState) and self.opts.clock == "realtime":
-            self.progress_k = max(self.progress_k, msg.k)
+        if isinstance(msg, StateLog) and self.opts.clock == "realtime":
+            self.progress_k = max(self.progress_k, msg.rows[-1].k)
         self.collector.add(msg)
 
     # -- the run --------------------------------------------------------------------
@@ -313,19 +380,26 @@ class Launcher:
 
         o = self.opts
         o.out.mkdir(parents=True, exist_ok=True)
-        endpoint = o.endpoint or f"tcp/127.0.0.1:{free_tcp_port()}"
-        node = Node(LAUNCHER_ROLE, self.keys, self.codec,
-                    zenoh_config(listen=[endpoint]))
+        self.run_dir = Path(tempfile.mkdtemp(prefix="omnifleet-"))  # 0700: ours alone
+        endpoint = o.endpoint or self.endpoint_of(LAUNCHER_ROLE)
+        try:
+            node = Node(LAUNCHER_ROLE, self.keys, self.codec,
+                        zenoh_config(listen=[endpoint], gossip=False))
+        except BaseException:
+            shutil.rmtree(self.run_dir, ignore_errors=True)
+            raise
         if o.record:
             self.recorder = McapRecorder(o.out / "recording.mcap")
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         start = time.perf_counter()
+        self.launcher_zid = node.zid
         try:
             for key in self._listened_keys():
                 node.subscribe_raw(key, self._on_sample)
             node.declare_alive()
             node.declare_ready()
             self.children = self._plan(endpoint)
+            self._write_endpoints(endpoint)
             for c in self.children:
                 self._spawn(c)
             roles = [c.role for c in self.children if c.zenoh]
@@ -351,7 +425,9 @@ class Launcher:
                 self._apply_kills()
                 if progress is not None:
                     progress(self.progress_k + 1, self.steps)
-                time.sleep(0.05 if not self.kills.pending else 0.005)
+                # hear the fleet meanwhile (the handlers run here, off the fleet's path)
+                node.mailbox.wait_until(lambda: self.ended or self.stop(),
+                                        0.05 if not self.kills.pending else 0.005)
             wall = time.perf_counter() - start
             if progress is not None:
                 progress(self.steps, self.steps)
@@ -361,9 +437,21 @@ class Launcher:
                 signal.signal(s, h)
             self.stop_children()
             node.close()
+            shutil.rmtree(self.run_dir, ignore_errors=True)
             if self.recorder is not None:
                 self.recorder.close()  # flushed, also after Ctrl-C
         return self._figures(wall)
+
+    def _write_endpoints(self, launcher_endpoint: str) -> None:
+        """logs/endpoints.json: where each node of the run listens (a tool that must
+        reach the fleet itself, a probe, connects to those it needs)."""
+        import json
+
+        where = {LAUNCHER_ROLE: launcher_endpoint}
+        where |= {c.role: self.endpoint_of(c.role) for c in self.children if c.zenoh}
+        path = self.opts.out / "logs" / "endpoints.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(where, indent=1) + "\n")
 
     def _apply_kills(self) -> None:
         """The fault plan's process kills (SIGKILL: a crash, no goodbye) and
@@ -385,8 +473,10 @@ class Launcher:
 
     def _restart(self, dead: Child) -> int:
         argv = [*dead.argv, "--rejoin"] if dead.role.startswith("agent-") else dead.argv
+        if self.run_dir is not None:  # the killed node's socket file stays behind it
+            (self.run_dir / f"{dead.role}.sock").unlink(missing_ok=True)
         child = Child(dead.role, dead.robot, argv,
-                      dead.log_path.with_name(f"{dead.role}.restart.log"))
+                      dead.log_path.with_name(f"{dead.role}.restart.log"), links=dead.links)
         self._spawn(child)
         self.children.append(child)
         return child.proc.pid
@@ -397,7 +487,7 @@ class Launcher:
         k = self.keys
         if self.opts.record:
             return [k.everything]
-        return [k.leader_state, f"{k.root}/robot/*/state", f"{k.root}/agent/*/telemetry",
+        return [k.leader_state, k.state_log_all, f"{k.root}/agent/*/telemetry",
                 k.ctl_all, f"{k.root}/report/*"]
 
     def _on_signal(self, signum: int, _frame: object) -> None:
@@ -423,7 +513,7 @@ class Launcher:
                 raise Interrupted(self.stop.reason)
             if all(self._reap(c, False) for c in nodes):
                 break
-            time.sleep(0.02)
+            node.mailbox.wait_until(self.stop, 0.02)
         for c in self.children:
             if c.stop_after_run and not self._reap(c, False):
                 c.proc.send_signal(signal.SIGTERM)
@@ -455,6 +545,9 @@ class Launcher:
             messages["dropped"] += r.dropped
             messages["late"] += r.late
             messages["invalid"] += r.invalid
+        # who had a link with whom, from each node's zenoh session (ids -> roles)
+        role_of = {r.zid: role for role, r in reports.items() if r.zid}
+        role_of[self.launcher_zid] = LAUNCHER_ROLE
         out: dict[str, Any] = {
             "wall_time_s": wall,
             "messages": messages,
@@ -462,7 +555,9 @@ class Launcher:
                 {"role": c.role, "robot": c.robot, "pid": c.proc.pid,
                  "peak_rss_mb": None if c.peak_rss_mb is None else round(c.peak_rss_mb, 1),
                  "exit_code": c.exit_code, "killed": c.killed, "reported": c.role in reports,
-                 "received": dict(reports[c.role].received) if c.role in reports else {}}
+                 "received": dict(reports[c.role].received) if c.role in reports else {},
+                 "links": sorted(role_of.get(z, z) for z in reports[c.role].peers)
+                 if c.role in reports else None}
                 for c in self.children
             ] + [{"role": LAUNCHER_ROLE, "robot": None, "pid": os.getpid(),
                   "peak_rss_mb": round(peak_rss_kb() / 1024.0, 1), "exit_code": None,

@@ -54,7 +54,7 @@ def _open(args: argparse.Namespace, sc: Scenario, role: str, sender: int) -> Nod
         die_with_parent()
         if os.getppid() == 1:  # the launcher is already gone
             sys.exit(EXIT_PEER_LOST)
-    cfg = zenoh_config(args.zenoh_config, args.listen, args.connect)
+    cfg = zenoh_config(args.zenoh_config, args.listen, args.connect, gossip=not args.no_gossip)
     return Node(role, Keys(args.fleet or sc.name), Codec(sc.robot_ids), cfg, sender,
                 lossless=args.clock == "lockstep")
 
@@ -90,6 +90,7 @@ def _run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep,
         except TimeoutError as exc:
             print(f"omnifleet {role}: {exc}", file=sys.stderr)
             return EXIT_STARTUP
+        node.note_links()  # the links of the run (at its end, peers leave one by one)
         if args.clock == "lockstep":
             lockstep(obj, sc)
         else:
@@ -108,16 +109,14 @@ def _run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep,
 def _lost(stop: StopFlag, node: Node, grace_s: float = 0.0):
     """Losing a required peer ends the node: at once, or after ``grace_s`` if the
     peer's token has not come back by then (a link cut between machines)."""
-    def give_up(role: str) -> None:  # under the mailbox lock
+    def give_up(role: str) -> None:  # on the node's thread
         if role not in node.peers_alive:
             stop.set(f"lost {role}")
-            node.mailbox.changed.notify_all()
 
-    def give_up_later(role: str) -> None:
-        with node.mailbox.changed:
-            give_up(role)
+    def give_up_later(role: str) -> None:  # the timer's thread: hand it to the node
+        node.mailbox.post(give_up, role)
 
-    def on_lost(role: str) -> None:  # called under the mailbox lock
+    def on_lost(role: str) -> None:  # on the node's thread
         if grace_s <= 0:
             give_up(role)
             return
@@ -205,6 +204,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="zenoh endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                    help="zenoh endpoint of a peer to connect to (repeatable)")
+    p.add_argument("--no-gossip", action="store_true",
+                   help="link only to the --connect endpoints (no peer discovery through "
+                   "them): `omnifleet run` gives each node the nodes it talks to")
     p.add_argument("--duration", type=float, metavar="S", help="override duration_s")
     p.add_argument("--control-rate", type=float, metavar="HZ", help="override control_rate_hz")
     p.add_argument("--step-deadline", type=float, default=2.0, metavar="S",

@@ -44,8 +44,7 @@ def install_signal_handlers(stop: StopFlag, node: Node | None = None) -> None:
     def handler(signum: int, _frame: object) -> None:
         stop.set(signal.Signals(signum).name)
         if node is not None:  # wake whoever waits on the mailbox
-            with node.mailbox.changed:
-                node.mailbox.changed.notify_all()
+            node.mailbox.wake()
 
     signal.signal(signal.SIGTERM, handler)
     signal.signal(signal.SIGINT, handler)
@@ -80,14 +79,19 @@ class Timing:
 
 
 class Periodic:
-    """Wake at t0 + k * period on the monotonic clock; record |late wake|."""
+    """Wake at t0 + k * period on the monotonic clock; record |late wake|.
 
-    def __init__(self, t0_mono: float, period_s: float, timing: Timing) -> None:
+    ``mailbox``: the node's; the wait until step k handles what arrives meanwhile
+    (a command is acted on as it comes, not at the next period)."""
+
+    def __init__(self, t0_mono: float, period_s: float, timing: Timing,
+                 mailbox: Mailbox | None = None) -> None:
         self.t0, self.period, self.timing = t0_mono, period_s, timing
+        self.mailbox = mailbox
         self.k = 0
 
     def wait_next(self, stop: Callable[[], bool]) -> int | None:
-        """Sleep until step k's time; return k (or None when stopped). A wake
+        """Wait until step k's time; return k (or None when stopped). A wake
         more than one period late counts as a deadline miss and skips ahead."""
         target = self.t0 + self.k * self.period
         while True:
@@ -96,7 +100,10 @@ class Periodic:
                 return None
             if now >= target:
                 break
-            time.sleep(min(target - now, 0.05))
+            if self.mailbox is not None:
+                self.mailbox.wait_until(stop, min(target - now, 0.05))
+            else:
+                time.sleep(min(target - now, 0.05))
         lateness = now - target
         self.timing.add_jitter(int(lateness * 1e9))
         if lateness > self.period:
@@ -119,7 +126,7 @@ class ControlInbox:
         self.tick = -1
         node.subscribe(node.keys.ctl_all, Control, self._on)
 
-    def _on(self, msg: Control) -> None:  # under the mailbox lock
+    def _on(self, msg: Control) -> None:  # on the node's thread
         if msg.command == "start" and self.start is None:
             self.start = msg
         elif msg.command == "tick":
@@ -138,9 +145,9 @@ class ControlInbox:
 
 class FaultGate:
     """Realtime faults on the edges a node receives on: each message is judged
-    as it arrives (by its step index, once per edge and step, so a robot's state
-    and perception share one fate), and a delayed one is handed over later by
-    a timer thread. Callbacks run under the mailbox lock, as without faults."""
+    as it arrives (by its step index, once per edge and step), and a delayed one
+    is handed over later: a timer thread posts it to the node's mailbox, so its
+    handler runs on the node's thread, as without faults."""
 
     KEEP = 256  # decisions remembered per edge
 
@@ -160,7 +167,7 @@ class FaultGate:
             return on_message
         decided = self._decided.setdefault(edge.name, {})
 
-        def gated(msg: Any) -> None:  # under the mailbox lock
+        def gated(msg: Any) -> None:  # on the node's thread
             k = msg.k
             ok = decided.get(k)
             if ok is None:
@@ -194,9 +201,7 @@ class FaultGate:
                 if self._closed:
                     return
                 _, _, fn, msg = heapq.heappop(self._heap)
-            with self.mailbox.changed:
-                fn(msg)
-                self.mailbox.changed.notify_all()
+            self.mailbox.post(fn, msg)
 
     def close(self) -> None:
         with self._wake:
@@ -227,5 +232,5 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
         dropped=c.dropped, late=c.late, invalid=c.invalid, steps=steps,
         latency_ns=timing.latency_ns, jitter_ns=timing.jitter_ns,
         deadline_misses=timing.deadline_misses, peak_rss_kb=peak_rss_kb(),
-        received=dict(node.received), **extra,
+        received=dict(node.received), zid=node.zid, peers=node.linked_peers(), **extra,
     ))

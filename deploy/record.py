@@ -27,8 +27,9 @@ from deploy.wire import LAUNCHER_ROLE, run_roles
 class Recorder(Launcher):
     """A :class:`Launcher` that starts no process: the nodes run elsewhere."""
 
-    def _on_sample(self, key: str, data: bytes) -> None:
-        super()._on_sample(key, data)
+    def _on_sample(self, arrived: tuple[str, bytes]) -> None:
+        super()._on_sample(arrived)
+        key = arrived[0]
         if self.ended and self.end_ns is None:
             self.end_ns = time.time_ns()
         role = key.rsplit("/", 1)[-1]
@@ -47,6 +48,7 @@ class Recorder(Launcher):
         node = Node(LAUNCHER_ROLE, self.keys, self.codec,
                     zenoh_config(self.zenoh_file, self.listen, self.connect))
         self.node = node
+        self.launcher_zid = node.zid
         if o.record:
             self.recorder = McapRecorder(o.out / "recording.mcap")
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}

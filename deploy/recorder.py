@@ -17,7 +17,7 @@ from typing import Any
 import msgspec
 from mcap.writer import Writer
 
-from deploy.wire import MESSAGE_TYPES, Message, Perception, SensedBody
+from deploy.wire import MESSAGE_TYPES, Message, Sample, SensedBody
 
 
 def _json_schema(kind: type[Message]) -> dict[str, Any]:
@@ -25,7 +25,7 @@ def _json_schema(kind: type[Message]) -> dict[str, Any]:
     fields = []
     for f in msgspec.structs.fields(kind):
         typ = f.type
-        if kind is Perception and f.name in ("robots", "obstacles"):
+        if kind is Sample and f.name in ("robots", "obstacles"):
             typ = list[_SENSED_JSON]
         fields.append((f.name, typ) if f.default is msgspec.NODEFAULT
                       else (f.name, typ, f.default))

@@ -12,11 +12,21 @@ the message in ``messages.invalid``. Decoding never raises.
 ever compared with the same process's clock (a command echoes the stamp of the
 state it answers, so the plant measures state-to-command latency on its own
 clock), so hosts need no clock synchronisation for it.
+
+The control path carries two messages per robot per step (version 2, DESIGN §3):
+the plant's :class:`Sample` (state + perception; in lockstep its arrival is the
+tick) and the agent's :class:`Reply` (command + look-ahead plan + the share its
+neighbours read from the same key). The leader's states travel in batches ahead
+of need; telemetry and the robot states for observers travel in batches off the
+path (:class:`Telemetry`, :class:`StateLog`). A message of another wire version is
+refused and counted apart (``Codec.wrong_version``), so mixed installs say so.
 """
 
 from __future__ import annotations
 
 import math
+import operator
+import typing
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -24,10 +34,11 @@ import msgspec
 
 from agents.degradation import MAX_COMMAND_HORIZON
 
-WIRE_VERSION = 1
+WIRE_VERSION = 2  # 2: Sample, Reply, batched LeaderState/Telemetry, StateLog
 MAX_BODIES = 256  # bodies per perception message
 MAX_ORDER_CHARS = 32
 MAX_ROLE_CHARS = 32
+MAX_BATCH = 256  # steps per batched message (leader, telemetry, state log)
 MAX_CONTACTS = 10_000  # contact events carried by a plant's report (the count is exact)
 
 Vec2 = tuple[float, float]
@@ -46,37 +57,94 @@ class Message(msgspec.Struct, array_like=True, frozen=True):
     ROBOT_FIELD: ClassVar[str | None] = None
 
     def __post_init__(self) -> None:
-        for name in self.__struct_fields__:
-            _check_finite(name, getattr(self, name))
+        if not _finite(self):
+            raise ValueError(f"{type(self).__name__}: a value is not finite")
 
 
-def _check_finite(name: str, value: Any) -> None:
-    if isinstance(value, float):
-        if not math.isfinite(value):
-            raise ValueError(f"{name} is not finite")
-    elif isinstance(value, tuple | list):
-        for x in value:
-            _check_finite(name, x)
-    elif isinstance(value, msgspec.Struct):
-        for f in value.__struct_fields__:
-            _check_finite(f"{name}.{f}", getattr(value, f))
+def _finite(value: Any) -> bool:
+    """No NaN, no Inf, nothing near the float limit, at any depth: the sum of every
+    number in it is finite (NaN or Inf anywhere makes it non-finite; so do values
+    near 1e308, which no physical quantity here comes close to). One plan per
+    struct type (:func:`_plan`), so a message costs a few C calls, not one Python
+    call per number (a Sample: 17 -> ~2 µs)."""
+    try:
+        return math.isfinite(_total(value))
+    except OverflowError:  # an int beyond float range
+        return False
+
+
+def _total(value: Any) -> float:
+    t = type(value)
+    if t is float or t is int:
+        return value
+    if t is tuple or t is list:
+        if not value:
+            return 0.0
+        t0 = type(value[0])
+        if t0 is float or t0 is int:
+            return sum(value)
+        return sum(map(_total, value))
+    if value is None or t is bool or t is str:
+        return 0.0
+    if isinstance(value, msgspec.Struct):
+        numbers, optional, vectors, deep = _plan(t)
+        total = sum(numbers(value)) + sum(map(sum, vectors(value)))
+        if optional is not None:
+            total += sum(x for x in optional(value) if x is not None)
+        if deep is not None:
+            total += sum(map(_total, deep(value)))
+        return total
+    if t is dict:
+        return sum(map(_total, value.values()))
+    return 0.0
+
+
+_PLANS: dict[type, tuple[Any, Any, Any, Any]] = {}
+
+
+def _getter(names: list[str]) -> Any:
+    """A C-level getter of these fields, always as a tuple (None: no field)."""
+    if not names:
+        return None
+    get = operator.attrgetter(*names)
+    return (lambda v: (get(v),)) if len(names) == 1 else get
+
+
+def _plan(cls: type) -> tuple[Any, Any, Any, Any]:
+    """How to sum a struct type's numbers: plain numbers, optional numbers, fixed
+    vectors of floats, and everything else (through :func:`_total`)."""
+    plan = _PLANS.get(cls)
+    if plan is None:
+        numbers, optional, vectors, deep = [], [], [], []
+        for f in msgspec.structs.fields(cls):
+            args = typing.get_args(f.type)
+            if f.type in (int, float, bool):
+                numbers.append(f.name)
+            elif f.type == float | None:
+                optional.append(f.name)
+            elif typing.get_origin(f.type) is tuple and args and all(a is float for a in args):
+                vectors.append(f.name)
+            elif f.type is not str:
+                deep.append(f.name)
+        plan = _PLANS[cls] = (_getter(numbers) or (lambda v: ()), _getter(optional),
+                              _getter(vectors) or (lambda v: ()), _getter(deep))
+    return plan
 
 
 class LeaderState(Message, frozen=True):
-    k: int  # step index (lockstep) or -1 (realtime)
-    t: float  # scenario time of this state, s
-    q: Vec3  # leader pose [x, y, psi]
-    q_dot: Vec3
+    """The leader's states for steps k, k+1, ...: one entry on the realtime clock;
+    lockstep sends them in batches ahead of need (agents/leader_node.py), so an agent
+    never waits a hop for the leader and hears one message per batch, not per step."""
 
+    k: int  # step of the first entry (lockstep) or of the only one (realtime)
+    t: float  # scenario time of the first entry, s
+    q: list[Vec3]  # leader pose [x, y, psi] per step
+    q_dot: list[Vec3]
 
-class RobotState(Message, frozen=True):
-    ROBOT_FIELD: ClassVar[str | None] = "robot"
-    robot: int
-    k: int
-    t: float
-    q: Vec3
-    q_dot: Vec3
-    faulted: bool = False  # a bridge reports driver errors / lost heartbeats here
+    def __post_init__(self) -> None:
+        if not 1 <= len(self.q) <= MAX_BATCH or len(self.q_dot) != len(self.q):
+            raise ValueError("bad leader batch")
+        super().__post_init__()
 
 
 class SensedBody(msgspec.Struct, array_like=True, frozen=True):
@@ -92,13 +160,20 @@ def sensed_bodies(bodies) -> list[SensedBody]:
                        float(b.radius)) for b in bodies]
 
 
-class Perception(Message, frozen=True):
+class Sample(Message, frozen=True):
+    """What the plant (or robot i's CAN bridge) sends agent i each step, in one
+    message: the robot's state at t_k and what it perceives. In lockstep its arrival
+    is the tick of step k."""
+
     ROBOT_FIELD: ClassVar[str | None] = "robot"
     robot: int
     k: int
     t: float
+    q: Vec3
+    q_dot: Vec3
     robots: list[SensedBody]
     obstacles: list[SensedBody]
+    faulted: bool = False  # a bridge reports driver errors / lost heartbeats here
 
     def __post_init__(self) -> None:
         if len(self.robots) > MAX_BODIES or len(self.obstacles) > MAX_BODIES:
@@ -106,15 +181,33 @@ class Perception(Message, frozen=True):
         super().__post_init__()
 
 
-class WheelCommand(Message, frozen=True):
+class ShareData(msgspec.Struct, array_like=True, frozen=True):
+    """What agent i tells the agents that listen to it (eqs. 14, 16)."""
+
+    q0_hat: Vec3
+    v0_hat: Vec3
+    q: Vec3
+    q_dot: Vec3
+    zeta: Vec3
+    zeta_dot: Vec3
+    info_age_s: float = 0.0  # how old the sender's leader information is (s)
+
+
+class Reply(Message, frozen=True):
+    """Agent i's one message per step, on ``robot/i/cmd``: its robot's wheel
+    command (and look-ahead plan) for the plant or bridge, and its share for the
+    neighbours that listen to it (they read the same key: one put, one message per
+    receiver). k = -1 is the initial share, before any command."""
+
     ROBOT_FIELD: ClassVar[str | None] = "robot"
     robot: int
-    k: int  # step answered (lockstep) or the state's k (realtime)
+    k: int  # step answered (lockstep) or the sample's k (realtime); -1: initial share
     t: float
     torques: Vec4  # N m, wheel order of plant/mecanum.py
     v_cmd: Vec3  # fused velocity command (a kinematic plant uses this)
-    state_seq: int  # seq of the RobotState this command answers
+    state_seq: int  # seq of the Sample this command answers
     state_stamp_ns: int  # its stamp_ns, echoed: latency measured on the plant's clock
+    share: ShareData
     # torques predicted for steps k+1, k+2, ...: played if their own command is lost
     # (agents/look_ahead.py); at most MAX_COMMAND_HORIZON entries
     plan: list[Vec4] = []
@@ -125,22 +218,9 @@ class WheelCommand(Message, frozen=True):
         super().__post_init__()
 
 
-class NeighbourShare(Message, frozen=True):
-    ROBOT_FIELD: ClassVar[str | None] = "robot"
-    robot: int
-    k: int  # the step that produced it; -1 is the initial share
-    q0_hat: Vec3
-    v0_hat: Vec3
-    q: Vec3
-    q_dot: Vec3
-    zeta: Vec3
-    zeta_dot: Vec3
-    info_age_s: float = 0.0  # how old the sender's leader information is (s)
+class TelemetryRow(msgspec.Struct, array_like=True, frozen=True):
+    """One step of one agent, for people and the run's series (never the control path)."""
 
-
-class Telemetry(Message, frozen=True):
-    ROBOT_FIELD: ClassVar[str | None] = "robot"
-    robot: int
     k: int
     t: float
     q_d: Vec3
@@ -161,6 +241,46 @@ class Telemetry(Message, frozen=True):
     def __post_init__(self) -> None:
         if len(self.order) > MAX_ORDER_CHARS:
             raise ValueError("order too long")
+
+
+class Telemetry(Message, frozen=True):
+    """An agent's telemetry rows, batched (lockstep: every step; realtime:
+    decimated), off the control path: one message per ``TELEMETRY_BATCH`` rows."""
+
+    ROBOT_FIELD: ClassVar[str | None] = "robot"
+    robot: int
+    rows: list[TelemetryRow]
+
+    def __post_init__(self) -> None:
+        if not 1 <= len(self.rows) <= MAX_BATCH:
+            raise ValueError("bad telemetry batch")
+        super().__post_init__()
+
+
+class StateRow(msgspec.Struct, array_like=True, frozen=True):
+    """The states of a source's robots at one step."""
+
+    k: int
+    t: float
+    q: list[Vec3]
+    q_dot: list[Vec3]
+    faulted: list[bool]
+
+
+class StateLog(Message, frozen=True):
+    """The plant's (or a bridge's) robot states, batched for observers (the run's
+    series, the recording, a live view), off the control path."""
+
+    robots: list[int]  # robot ids, in the order of each row
+    rows: list[StateRow]
+
+    def __post_init__(self) -> None:
+        n = len(self.robots)
+        if not 1 <= len(self.rows) <= MAX_BATCH or not 1 <= n <= MAX_BODIES:
+            raise ValueError("bad state log")
+        for r in self.rows:
+            if len(r.q) != n or len(r.q_dot) != n or len(r.faulted) != n:
+                raise ValueError("state row does not match its robots")
         super().__post_init__()
 
 
@@ -210,8 +330,13 @@ class NodeReport(Message, frozen=True):
     # plant (realtime) or CAN bridge: robots whose torques were zeroed for want of a
     # fresh command, as (robot, age of its newest command then, s; run time, s)
     command_stops: list[tuple[int, float, float]] = []
+    zid: str = ""  # this node's zenoh id
+    peers: list[str] = []  # the zenoh ids it had a link with as it ended (zenoh's own info)
 
     def __post_init__(self) -> None:
+        if len(self.zid) > MAX_ROLE_CHARS or len(self.peers) > MAX_BODIES or any(
+                len(p) > MAX_ROLE_CHARS for p in self.peers):
+            raise ValueError("bad link report")
         if len(self.role) > MAX_ROLE_CHARS:
             raise ValueError("role too long")
         if self.contacts is not None and len(self.contacts) > MAX_CONTACTS:
@@ -219,10 +344,11 @@ class NodeReport(Message, frozen=True):
         super().__post_init__()
 
 
-MESSAGE_TYPES = (LeaderState, RobotState, Perception, WheelCommand, NeighbourShare,
-                 Telemetry, Control, NodeReport)
+MESSAGE_TYPES = (LeaderState, Sample, Reply, Telemetry, StateLog, Control, NodeReport)
 
 _encoder = msgspec.msgpack.Encoder()
+# the header of any version: an array whose first element is the version
+_HEADER = msgspec.msgpack.Decoder(list)
 
 
 def encode(msg: Message) -> bytes:
@@ -235,23 +361,45 @@ class Codec:
     def __init__(self, robot_ids: list[int] | tuple[int, ...]) -> None:
         self.robot_ids = frozenset(robot_ids)
         self._decoders = {t: msgspec.msgpack.Decoder(t) for t in MESSAGE_TYPES}
+        self.wrong_version = 0  # refused: a header of another wire version
+        self.versions_seen: set[int] = set()  # those versions (a mixed install)
+
+    def _note_version(self, data: bytes) -> None:
+        """Count a message whose header says another wire version."""
+        try:
+            head = _HEADER.decode(data)
+        except (msgspec.DecodeError, ValueError, TypeError):
+            return
+        if not head or not isinstance(head[0], int):
+            return
+        if head[0] != WIRE_VERSION and len(self.versions_seen) < 16:
+            self.wrong_version += 1
+            self.versions_seen.add(head[0])
+        elif head[0] != WIRE_VERSION:
+            self.wrong_version += 1
 
     def decode(self, kind: type[Message], data: bytes, robot: int | None = None) -> Any:
         """The message, or None when it is invalid (never raises)."""
         try:
             msg = self._decoders[kind].decode(data)
         except (msgspec.DecodeError, ValueError, TypeError):
+            self._note_version(data)
             return None
-        if msg.v != WIRE_VERSION or msg.seq < 0:
+        if msg.v != WIRE_VERSION:
+            self._note_version(data)
+            return None
+        if msg.seq < 0:
             return None
         field = kind.ROBOT_FIELD
         if field is not None:
             rid = getattr(msg, field)
             if rid not in self.robot_ids or (robot is not None and rid != robot):
                 return None
-        if kind is Perception and any(
+        if kind is Sample and any(
             b.ident >= 0 and b.ident not in self.robot_ids for b in msg.robots
         ):
+            return None
+        if kind is StateLog and not self.robot_ids.issuperset(msg.robots):
             return None
         return msg
 
@@ -283,17 +431,21 @@ class Keys:
     def leader_state(self) -> str:
         return f"{self.root}/leader/state"
 
-    def robot_state(self, robot: int) -> str:
-        return f"{self.root}/robot/{robot}/state"
-
-    def perception(self, robot: int) -> str:
-        return f"{self.root}/robot/{robot}/perception"
+    def sample(self, robot: int) -> str:
+        """Plant or bridge -> agent i: state + perception of step k (:class:`Sample`)."""
+        return f"{self.root}/robot/{robot}/sample"
 
     def cmd(self, robot: int) -> str:
+        """Agent i -> plant or bridge, and its listening neighbours (:class:`Reply`)."""
         return f"{self.root}/robot/{robot}/cmd"
 
-    def share(self, robot: int) -> str:
-        return f"{self.root}/agent/{robot}/share"
+    def state_log(self, role: str) -> str:
+        """A state source's batched robot states, for observers (:class:`StateLog`)."""
+        return f"{self.root}/log/{role}"
+
+    @property
+    def state_log_all(self) -> str:
+        return f"{self.root}/log/*"
 
     def telemetry(self, robot: int) -> str:
         return f"{self.root}/agent/{robot}/telemetry"
@@ -332,14 +484,12 @@ class Keys:
         match parts:
             case ["leader", "state"]:
                 return LeaderState, None
-            case ["robot", r, "state"] if r.lstrip("-").isdigit():
-                return RobotState, int(r)
-            case ["robot", r, "perception"] if r.lstrip("-").isdigit():
-                return Perception, int(r)
+            case ["robot", r, "sample"] if r.lstrip("-").isdigit():
+                return Sample, int(r)
             case ["robot", r, "cmd"] if r.lstrip("-").isdigit():
-                return WheelCommand, int(r)
-            case ["agent", r, "share"] if r.lstrip("-").isdigit():
-                return NeighbourShare, int(r)
+                return Reply, int(r)
+            case ["log", _]:
+                return StateLog, None
             case ["agent", r, "telemetry"] if r.lstrip("-").isdigit():
                 return Telemetry, int(r)
             case ["ctl", _]:

@@ -1,12 +1,15 @@
 """The simulated plant as a process: every robot of the scenario, one zenoh peer.
 
-Publishes ``robot/i/state`` and ``robot/i/perception`` each step and takes
-``robot/i/cmd``. It is the time master of a lockstep run (DESIGN §4): step k
-publishes ``ctl/tick`` k and the states at t_k, waits for every robot's command
-of step k (per-step deadline; a missing one is counted late), then integrates
-to t_{k+1}. In realtime it steps on its own monotonic clock, uses the newest
-command of each robot, and zeroes a robot's torques when its newest command is
-older than the command timeout. A step whose command is missing (late or lost)
+Publishes one ``robot/i/sample`` (state + perception) per robot each step and
+takes ``robot/i/cmd`` (the agent's reply). It is the time master of a lockstep
+run (DESIGN §4): step k publishes the samples at t_k (their arrival is the
+agents' tick), waits for every robot's command of step k (per-step deadline; a
+missing one is counted late), then integrates to t_{k+1}; ``ctl/tick`` goes out
+every ``TICK_EVERY`` steps only, to pace the leader's batches. The robot states
+go to observers in batches (``log/plant``), off the control path. In realtime
+it steps on its own monotonic clock, uses the newest command of each robot, and
+zeroes a robot's torques when its newest command is older than the command
+timeout. A step whose command is missing (late or lost)
 gets the look-ahead torques the newest command predicted for it
 (agents/look_ahead.py); past them the last torques are held (or zeroed, lockstep
 with ``plant.missed_command = "zero"``).
@@ -22,6 +25,7 @@ import time
 
 import numpy as np
 
+from agents.leader_node import TICK_EVERY
 from deploy.fault_model import FaultModel
 from deploy.fault_plan import FaultPlan
 from deploy.lockstep_inputs import HeldInput
@@ -44,9 +48,10 @@ from deploy.wire import (
     WIRE_VERSION,
     ContactRecord,
     Control,
-    Perception,
-    RobotState,
-    WheelCommand,
+    Reply,
+    Sample,
+    StateLog,
+    StateRow,
     agent_role,
     run_roles,
     sensed_bodies,
@@ -66,13 +71,15 @@ class PlantNode:
         self.ids = sc.robot_ids
         self.torques = np.zeros((sc.n, 4))
         self.v_cmd = np.zeros((sc.n, 3))
-        self.commands: dict[tuple[int, int], WheelCommand] = {}
-        self.newest: dict[int, WheelCommand] = {}
+        self.commands: dict[tuple[int, int], Reply] = {}
+        self.newest: dict[int, Reply] = {}
         self.newest_at: dict[int, float] = {}
         self.command_timeout_s = command_timeout_s
         self.timing = Timing()
         self.steps_done = 0
         self.last_state_seq: dict[int, int] = {}
+        self.log_rows: list[StateRow] = []  # robot states for observers, sent in batches
+        self.log_every = TICK_EVERY
         self.peers = [r for r in run_roles(self.ids) if r != PLANT_ROLE]
         if with_recorder:
             self.peers.append(LAUNCHER_ROLE)
@@ -89,11 +96,13 @@ class PlantNode:
         for rid in self.ids:
             on_cmd = self._on_cmd if self.gate is None else self.gate.wrap(
                 agent_role(rid), PLANT_ROLE, self._on_cmd)
-            node.subscribe(node.keys.cmd(rid), WheelCommand, on_cmd, robot=rid)
+            node.subscribe(node.keys.cmd(rid), Reply, on_cmd, robot=rid)
         self.control = ControlInbox(node, stop)
         node.declare_alive()
 
-    def _on_cmd(self, m: WheelCommand) -> None:  # under the mailbox lock
+    def _on_cmd(self, m: Reply) -> None:  # on the node's thread
+        if m.k < 0:
+            return  # an initial share: no command in it
         self.commands[(m.robot, m.k)] = m
         old = self.newest.get(m.robot)
         # newer by step, then by sequence (an agent restarted after a crash
@@ -119,21 +128,29 @@ class PlantNode:
 
     def _publish_world(self, k: int, t: float) -> None:
         node, keys = self.node, self.node.keys
-        q, qd = self.plant.q, self.plant.q_dot
+        q, qd = self.plant.q.tolist(), self.plant.q_dot.tolist()
         for i, rid in enumerate(self.ids):
             robots, obstacles = self.sense(i)
             if self.unpowered:  # a robot nobody drives is an obstacle to the others
                 obstacles = [*obstacles, *(b for b in robots if b.ident in self.unpowered)]
                 robots = [b for b in robots if b.ident not in self.unpowered]
-            node.publish(keys.perception(rid), lambda seq, stamp, rid=rid, r=robots, o=obstacles:
-                         Perception(WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t,
-                                    robots=sensed_bodies(r), obstacles=sensed_bodies(o)))
-            msg = node.publish(keys.robot_state(rid), lambda seq, stamp, i=i, rid=rid: RobotState(
-                WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t,
-                q=tuple(q[i].tolist()), q_dot=tuple(qd[i].tolist())))
+            msg = node.publish(keys.sample(rid), lambda seq, stamp, i=i, rid=rid, r=robots,
+                               o=obstacles: Sample(
+                WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t, q=tuple(q[i]),
+                q_dot=tuple(qd[i]), robots=sensed_bodies(r), obstacles=sensed_bodies(o)))
             if msg is not None:
-                with node.mailbox.lock:
-                    self.last_state_seq[rid] = msg.seq
+                self.last_state_seq[rid] = msg.seq
+        self.log_rows.append(StateRow(k, t, [tuple(x) for x in q], [tuple(x) for x in qd],
+                                      [False] * len(self.ids)))
+        if len(self.log_rows) >= self.log_every:
+            self.flush_log()
+
+    def flush_log(self) -> None:
+        """The robot states gathered so far, to observers, in one message."""
+        rows, self.log_rows = self.log_rows, []
+        if rows:
+            self.node.publish(self.node.keys.state_log(PLANT_ROLE), lambda seq, stamp: StateLog(
+                WIRE_VERSION, 0, seq, stamp, robots=list(self.ids), rows=rows))
 
     def _control(self, command: str, k: int = 0, t: float = 0.0, start_unix_ns: int = 0) -> None:
         self.node.publish(self.node.keys.ctl(command), lambda seq, stamp: Control(
@@ -146,7 +163,8 @@ class PlantNode:
             if self.stop():
                 return
             t = k * dt
-            self._control("tick", k, t)
+            if k % TICK_EVERY == 0:  # paces the leader's batches (agents/leader_node.py)
+                self._control("tick", k, t)
             self._publish_world(k, t)
             box.wait_until(
                 lambda k=k: self.stop() or all((r, k) in self.commands for r in self.ids),
@@ -154,6 +172,7 @@ class PlantNode:
             self._take_lockstep_commands(k)
             self.plant.step(t, dt, self.torques, self.v_cmd)
             self.steps_done += 1
+        self.flush_log()
         self._control("end", steps, steps * dt)
 
     def _take_lockstep_commands(self, k: int) -> None:
@@ -187,7 +206,7 @@ class PlantNode:
         start_unix_ns = time.time_ns() + int(START_LEAD_S * 1e9)
         t0 = time.monotonic() + START_LEAD_S
         self._control("start", start_unix_ns=start_unix_ns)
-        ticker = Periodic(t0, dt, self.timing)
+        ticker = Periodic(t0, dt, self.timing, self.node.mailbox)
         k_prev = None
         while not self.stop():
             k = ticker.wait_next(self.stop)
@@ -203,6 +222,7 @@ class PlantNode:
                     self.steps_done += 1
             self._publish_world(k, k * dt)
             k_prev = k
+        self.flush_log()
         self._control("end", self.steps_done, self.steps_done * dt)
 
     def _apply_newest_commands(self, now: float) -> None:

@@ -39,13 +39,12 @@ class FakeNode:
         out = None
         for _, kind, on_message, robot in subs:
             msg = self.codec.decode(kind, payload, robot)
-            with self.mailbox.changed:
-                if msg is None:
-                    self.counters.invalid += 1
-                    continue
-                self.received[key] = self.received.get(key, 0) + 1
-                on_message(msg)
-                out = msg
+            if msg is None:
+                self.counters.invalid += 1
+                continue
+            self.received[key] = self.received.get(key, 0) + 1
+            on_message(msg)
+            out = msg
         return out
 
     def publish(self, key: str, factory: Callable[[int, int], Message]) -> Message | None:

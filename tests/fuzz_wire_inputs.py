@@ -21,7 +21,11 @@ from deploy.wire import (
     MAX_ORDER_CHARS,
     MAX_ROLE_CHARS,
     WIRE_VERSION,
+    LeaderState,
     Message,
+    StateLog,
+    Telemetry,
+    TelemetryRow,
 )
 
 ROBOT_IDS = (1, 2, 3)  # the bundled scenarios' robots
@@ -93,6 +97,36 @@ def struct_fields(draw: st.DrawFn, kind: type[msgspec.Struct], sane: bool) -> li
     return values
 
 
+@st.composite
+def _batch_fields(draw: st.DrawFn, kind: type[Message]) -> list[Any]:
+    """A valid batched message: its lists as long as each other, never empty."""
+    values = draw(struct_fields(kind, True))
+    names = list(kind.__struct_fields__)
+    vec3 = st.tuples(sane_float, sane_float, sane_float).map(list)
+    if kind is LeaderState:
+        n = draw(st.integers(1, 4))
+        values[names.index("q")] = draw(st.lists(vec3, min_size=n, max_size=n))
+        values[names.index("q_dot")] = draw(st.lists(vec3, min_size=n, max_size=n))
+    elif kind is Telemetry:
+        rows = names.index("rows")
+        values[rows] = values[rows] or [draw(struct_fields(TelemetryRow, True))]
+    elif kind is StateLog:
+        robots = draw(st.lists(st.sampled_from(ROBOT_IDS), min_size=1, max_size=3))
+        values[names.index("robots")] = robots
+        n = len(robots)
+        values[names.index("rows")] = [
+            [draw(sane_int), draw(sane_float), draw(st.lists(vec3, min_size=n, max_size=n)),
+             draw(st.lists(vec3, min_size=n, max_size=n)),
+             draw(st.lists(st.booleans(), min_size=n, max_size=n))]
+            for _ in range(draw(st.integers(1, 3)))]
+    return values
+
+
+BATCHED = (LeaderState, Telemetry, StateLog)
+
+
 def message_bytes(kind: type[Message], sane: bool) -> st.SearchStrategy[bytes]:
     """Encoded field lists of ``kind`` (valid when ``sane``)."""
+    if sane and kind in BATCHED:
+        return _batch_fields(kind).map(msgspec.msgpack.encode)
     return struct_fields(kind, sane).map(msgspec.msgpack.encode)

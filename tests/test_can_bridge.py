@@ -24,7 +24,7 @@ from bridges.protocol import CMD_SET_INPUT_TORQUE, OdriveCanSimple, SetInputTorq
 from deploy.launcher import free_tcp_port
 from deploy.scenario import load_scenario
 from deploy.transport import Node, zenoh_config
-from deploy.wire import WIRE_VERSION, Codec, Keys, NodeReport, RobotState, WheelCommand
+from deploy.wire import WIRE_VERSION, Codec, Keys, NodeReport, Reply, Sample, ShareData
 
 can = pytest.importorskip("can")
 
@@ -71,9 +71,11 @@ def test_bridge_drives_the_emulated_robot_and_zeroes_torque_when_commands_stop(t
     truth = tmp_path / "truth.npz"
     sniffer = Sniffer(group, port)
     node = Node("tester", keys, Codec(sc.robot_ids), zenoh_config(listen=[endpoint]))
-    states: list[tuple[float, RobotState]] = []
+    states: list[tuple[float, Sample]] = []
     reports: list[NodeReport] = []
-    node.subscribe(keys.robot_state(1), RobotState, lambda m: states.append((time.monotonic(), m)),
+    # each state with its publication time on this host's monotonic clock (its stamp:
+    # the handlers run when this thread waits, which is later than the arrival)
+    node.subscribe(keys.sample(1), Sample, lambda m: states.append((m.stamp_ns * 1e-9, m)),
                    robot=1)
     node.subscribe(keys.report("bridge-1"), NodeReport, reports.append)
     emulator = start("emulate", "--scenario", "lab", "--robot", "1", *can_opts,
@@ -89,15 +91,18 @@ def test_bridge_drives_the_emulated_robot_and_zeroes_torque_when_commands_stop(t
         end = time.monotonic() + DRIVE_S
         while time.monotonic() < end:
             last = states[-1][1]
-            node.publish(keys.cmd(1), lambda s, stamp, last=last: WheelCommand(
+            node.publish(keys.cmd(1), lambda s, stamp, last=last: Reply(
                 WIRE_VERSION, 1, s, stamp, robot=1, k=last.k, t=last.t,
                 torques=(FORWARD_NM,) * 4, v_cmd=(0.0, 0.0, 0.0), state_seq=last.seq,
-                state_stamp_ns=last.stamp_ns))
+                state_stamp_ns=last.stamp_ns, share=ShareData(*[(0.0, 0.0, 0.0)] * 6)))
             last_command_at = time.monotonic()
-            time.sleep(0.01)  # a 100 Hz commander: pacing, not synchronisation
+            # a 100 Hz commander (pacing, not synchronisation); the states it hears
+            # are handled meanwhile, on this thread
+            node.mailbox.wait_until(lambda: False, 0.01)
         x1 = max(m.q[0] for _, m in states)
         rc_b, _, err_b = finish(bridge, timeout=60)
         assert rc_b == 0, err_b
+        node.mailbox.wait_until(lambda: bool(reports), 10.0)  # its report, handled here
         rc_e, _, err_e = finish(emulator, timeout=60)
         assert rc_e == 0, err_e
     finally:
@@ -126,7 +131,7 @@ def test_bridge_drives_the_emulated_robot_and_zeroes_torque_when_commands_stop(t
     print(f"bridge cmd -> torque frame: p50 {np.percentile(lat, 50):.3f} ms, "
           f"p99 {np.percentile(lat, 99):.3f} ms")
     # odometry against the emulator's ground truth, matched on the host's monotonic
-    # clock (a state is compared with the truth when it arrived: at most a few ms old)
+    # clock (a state is compared with the truth when it was published)
     with np.load(truth) as g:
         t_truth, q_truth = g["t"] + float(g["monotonic_origin_s"]), g["q"]
     errors = []

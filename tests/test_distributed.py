@@ -69,7 +69,7 @@ def test_run_reports_processes_messages_and_a_recording(distributed_run):
             assert channel.message_encoding == "json"
             assert isinstance(json.loads(message.data), dict)
             break
-    assert any(t.endswith("/agent/3/share") for t in {c.topic for c in summary.channels.values()})
+    assert any(t.endswith("/robot/3/cmd") for t in {c.topic for c in summary.channels.values()})
 
 
 def test_each_agent_hears_only_its_graph_neighbours(distributed_run):
@@ -80,18 +80,19 @@ def test_each_agent_hears_only_its_graph_neighbours(distributed_run):
     def tails(role):
         return {k.split("/", 2)[2] for k in heard[role]}
 
-    assert tails("agent-3") == {"robot/3/state", "robot/3/perception", "agent/1/share",
-                                "agent/2/share", "ctl/tick", "ctl/end"}
-    assert tails("agent-2") == {"robot/2/state", "robot/2/perception", "agent/1/share",
-                                "ctl/tick", "ctl/end"}
-    assert tails("agent-1") == {"robot/1/state", "robot/1/perception", "leader/state",
-                                "ctl/tick", "ctl/end"}
+    # one sample a step from the plant, the neighbours' replies (their shares)
+    assert tails("agent-3") == {"robot/3/sample", "robot/1/cmd", "robot/2/cmd", "ctl/tick",
+                                "ctl/end"}
+    assert tails("agent-2") == {"robot/2/sample", "robot/1/cmd", "ctl/tick", "ctl/end"}
+    assert tails("agent-1") == {"robot/1/sample", "leader/state", "ctl/tick", "ctl/end"}
     for key in heard["agent-2"] | heard["agent-3"]:
         assert "leader" not in key
     # and what each heard, it heard every step (300 steps + the initial share)
     received = {p["role"]: p["received"] for p in m["processes"] if p["role"] != "launcher"}
-    shares_of_2 = [n for k, n in received["agent-3"].items() if k.endswith("/agent/2/share")]
+    shares_of_2 = [n for k, n in received["agent-3"].items() if k.endswith("/robot/2/cmd")]
     assert shares_of_2 == [301]
+    samples = [n for k, n in received["agent-3"].items() if k.endswith("/robot/3/sample")]
+    assert samples == [300]
 
 
 def _wait_ready(session, fleet: str, roles: set[str], timeout: float) -> None:
@@ -110,18 +111,25 @@ NODES = {"plant", "leader", "agent-1", "agent-2", "agent-3"}
 
 @contextlib.contextmanager
 def running_fleet(name: str, *args: str):
-    """``omnifleet run paper ARGS`` with a known endpoint and fleet; yields
-    (launcher process, fleet, a zenoh session on the fleet) once every node is
-    ready. Everything is ended by pid on the way out, whatever happened."""
+    """``omnifleet run paper ARGS`` (ARGS hold --out) with a known endpoint and fleet;
+    yields (launcher process, fleet, a zenoh session linked to every node of the run,
+    from the run's logs/endpoints.json) once every node is ready. Everything is ended
+    by pid on the way out, whatever happened."""
     from deploy.transport import zenoh_config
 
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     fleet = f"t-{name}-{os.getpid()}"
+    out = Path(args[args.index("--out") + 1])
     proc = start("run", "paper", "--no-figures", "--fleet", fleet, "--endpoint", endpoint,
                  *args)
     session = None
     try:
-        session = zenoh.open(zenoh_config(connect=[endpoint]))
+        where = out / "logs" / "endpoints.json"
+        deadline = time.monotonic() + 60
+        while not where.exists() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.05)  # polling for a file another process writes
+        endpoints = list(json.loads(where.read_text()).values())
+        session = zenoh.open(zenoh_config(connect=endpoints, gossip=False))
         _wait_ready(session, fleet, NODES, 60)
         yield proc, fleet, session
     finally:
@@ -148,10 +156,10 @@ def test_garbage_on_every_key_is_counted_invalid_and_changes_no_torque(tmp_path)
     with running_fleet("garbage", "--duration", "1.0", "--out", str(out)) as (
             proc, fleet, session):
         keys = Keys(fleet)
-        targets = [keys.leader_state, keys.ctl("stop"), keys.ctl("tick"), keys.report("plant")]
+        targets = [keys.leader_state, keys.ctl("stop"), keys.ctl("tick"), keys.report("plant"),
+                   keys.state_log("plant")]
         for r in (1, 2, 3):
-            targets += [keys.robot_state(r), keys.perception(r), keys.cmd(r), keys.share(r),
-                        keys.telemetry(r)]
+            targets += [keys.sample(r), keys.cmd(r), keys.telemetry(r)]
         wrong_type = json.dumps(None).encode()
         for key in targets:
             for payload in (b"\xc1garbage", b"", wrong_type, b"\x93\x01\x02"):
@@ -247,3 +255,41 @@ def test_plant_exiting_cleanly_ends_the_run_even_before_end_is_read(tmp_path):
     launcher.children.append(Child("agent-2", 2, [], tmp_path / "agent-2.log", done, exit_code=1))
     with pytest.raises(RunFailed, match="agent-2"):
         launcher._check_children()
+
+
+@pytest.mark.parametrize("robots", [3, 7])
+def test_each_node_links_only_to_the_nodes_it_talks_to(tmp_path, robots):
+    """Links as the graph (DESIGN §3), read from every node's own zenoh session: an
+    agent has a link with its plant, the leader iff b_i != 0, its graph neighbours
+    in either direction, and the launcher; no other pair of nodes is linked (3:
+    paper, whose agents all talk; 7: a binary tree, where most pairs do not)."""
+    from deploy.bench_scenarios import scale_scenario
+    from deploy.scenario import load_scenario
+
+    if robots == 3:
+        scenario = "paper"
+    else:
+        scenario = str(tmp_path / "tree.toml")
+        Path(scenario).write_text(scale_scenario(robots))
+    out = tmp_path / "links"
+    rc, _, err = finish(start("run", scenario, "--duration", "0.2", "--out", str(out),
+                              "--no-figures", "--no-record"))
+    assert rc == 0, err
+    m = json.loads((out / "metrics.json").read_text())
+    links = {p["role"]: set(p["links"]) for p in m["processes"] if p.get("links") is not None}
+    sc = load_scenario(scenario)
+    talks = {"plant": {"launcher", "leader"}, "leader": {"launcher", "plant"}}
+    talks |= {f"agent-{r}": {"launcher", "plant"} for r in sc.robot_ids}
+    for i, r in enumerate(sc.robot_ids):
+        me = f"agent-{r}"
+        talks["plant"].add(me)
+        if sc.leader_weights[i] != 0.0:
+            talks[me].add("leader")
+            talks["leader"].add(me)
+        for j, _w in sc.agent_config(i).neighbours:
+            talks[me].add(f"agent-{j}")
+            talks[f"agent-{j}"].add(me)
+    assert links == talks
+    agent_pairs = sum(len(v - {"launcher", "plant", "leader"}) for k, v in links.items()
+                      if k.startswith("agent")) // 2
+    assert agent_pairs == (3 if robots == 3 else robots - 1)  # a tree: N - 1 edges

@@ -105,7 +105,7 @@ def test_the_others_see_it_as_an_obstacle_and_keep_clear(killed_run):
     seen_as_obstacle = seen_as_robot = 0
     with open(out / "recording.mcap", "rb") as f:
         for _s, ch, msg in make_reader(f).iter_messages():
-            if not ch.topic.endswith(("/robot/1/perception", "/robot/3/perception")):
+            if not ch.topic.endswith(("/robot/1/sample", "/robot/3/sample")):
                 continue
             p = json.loads(msg.data)
             if stop_t + 0.05 < p["t"] < KILL_AT + RESTART_AFTER:

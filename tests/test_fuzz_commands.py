@@ -30,7 +30,7 @@ from bridges.bridge import BridgeNode
 from bridges.protocol import OdriveCanSimple, SetInputTorque
 from deploy.node_runtime import StopFlag
 from deploy.scenario import Scenario, load_scenario
-from deploy.wire import WIRE_VERSION, WheelCommand, encode
+from deploy.wire import WIRE_VERSION, Reply, ShareData, encode
 from plant.node import PlantNode
 
 NODE_IDS = [0, 1, 2, 3]
@@ -40,17 +40,17 @@ torque = st.one_of(st.floats(-5.0, 5.0), any_float, st.floats(-1e40, 1e40))
 
 @st.composite
 def command_bytes(draw: st.DrawFn) -> bytes:
-    """A WheelCommand-shaped field list with any torques, wrong fields, or mutated bytes."""
+    """A Reply-shaped field list with any torques, wrong fields, or mutated bytes."""
     how = draw(st.sampled_from(["torques", "torques", "wrong", "mutated"]))
     if how == "wrong":
-        return draw(message_bytes(WheelCommand, sane=False))
-    fields = msgspec.msgpack.decode(draw(message_bytes(WheelCommand, sane=True)))
+        return draw(message_bytes(Reply, sane=False))
+    fields = msgspec.msgpack.decode(draw(message_bytes(Reply, sane=True)))
     fields[0] = WIRE_VERSION
     fields[4] = ROBOT_IDS[0]
     fields[7] = draw(st.lists(torque, min_size=4, max_size=4))
     fields[8] = draw(st.lists(torque, min_size=3, max_size=3))
     # the look-ahead plan: any torques, sometimes longer than the wire allows
-    fields[11:] = [draw(st.lists(st.lists(torque, min_size=4, max_size=4), max_size=20))]
+    fields[12:] = [draw(st.lists(st.lists(torque, min_size=4, max_size=4), max_size=20))]
     raw = msgspec.msgpack.encode(fields)
     return draw(mutated_bytes(raw)) if how == "mutated" else raw
 
@@ -131,8 +131,10 @@ def test_bridge_sends_only_finite_torques_within_the_limit(
 
 # --- cases the fuzzing found, pinned -----------------------------------------------------
 def command(torques: tuple[float, ...], v_cmd: tuple[float, ...] = (0.0, 0.0, 0.0)) -> bytes:
-    return encode(WheelCommand(WIRE_VERSION, 1, 0, 0, robot=1, k=0, t=0.0, torques=torques,
-                               v_cmd=v_cmd, state_seq=0, state_stamp_ns=0))
+    zero = (0.0, 0.0, 0.0)
+    return encode(Reply(WIRE_VERSION, 1, 0, 0, robot=1, k=0, t=0.0, torques=torques,
+                        v_cmd=v_cmd, state_seq=0, state_stamp_ns=0,
+                        share=ShareData(zero, zero, zero, zero, zero, zero)))
 
 
 @pytest.mark.parametrize("name", SCENARIOS)

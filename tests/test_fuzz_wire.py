@@ -25,9 +25,9 @@ from deploy.wire import (
     WIRE_VERSION,
     Codec,
     Message,
-    Perception,
+    Reply,
+    Sample,
     SensedBody,
-    WheelCommand,
     encode,
 )
 
@@ -43,10 +43,10 @@ def check_message(kind: type[Message], robot: int | None) -> Callable[[Message],
         if kind.ROBOT_FIELD is not None:
             rid = getattr(msg, kind.ROBOT_FIELD)
             assert rid in ROBOT_IDS and (robot is None or rid == robot)
-        if isinstance(msg, Perception):
+        if isinstance(msg, Sample):
             assert len(msg.robots) <= MAX_BODIES and len(msg.obstacles) <= MAX_BODIES
             assert all(b.ident < 0 or b.ident in ROBOT_IDS for b in msg.robots)
-        if isinstance(msg, WheelCommand):
+        if isinstance(msg, Reply):
             assert len(msg.torques) == 4 and all(math.isfinite(x) for x in msg.torques)
     return check
 
@@ -95,10 +95,27 @@ def test_valid_messages_round_trip(kind: type[Message], data: st.DataObject) -> 
 @pytest.mark.parametrize("n", [MAX_BODIES, MAX_BODIES + 1, 10 * MAX_BODIES])
 def test_perception_body_count_is_bounded(n: int) -> None:
     body = SensedBody(-1, (0.0, 0.0), (0.0, 0.0), 0.5)
-    raw = encode(Perception(WIRE_VERSION, 0, 0, 0, robot=1, k=0, t=0.0, robots=[],
-                            obstacles=[body] * min(n, MAX_BODIES)))
+    raw = encode(Sample(WIRE_VERSION, 0, 0, 0, robot=1, k=0, t=0.0, q=(0.0, 0.0, 0.0),
+                        q_dot=(0.0, 0.0, 0.0), robots=[],
+                        obstacles=[body] * min(n, MAX_BODIES)))
     if n > MAX_BODIES:  # built as a list: the Struct would refuse it at construction
         fields = msgspec.msgpack.decode(raw)
-        fields[-1] = fields[-1] * (n // MAX_BODIES + 1)
+        fields[-2] = fields[-2] * (n // MAX_BODIES + 1)
         raw = msgspec.msgpack.encode(fields)
-    assert (CODEC.decode(Perception, raw) is None) == (n > MAX_BODIES)
+    assert (CODEC.decode(Sample, raw) is None) == (n > MAX_BODIES)
+
+
+def test_a_message_of_another_wire_version_is_refused_and_counted_apart() -> None:
+    """Old and new installs told apart: a version-1 state (its old layout) and a
+    current message relabelled version 1 are both refused, and counted as such."""
+    codec = Codec(list(ROBOT_IDS))
+    old_state = msgspec.msgpack.encode([1, 0, 0, 5, 1, 0, 0.0, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    fields = msgspec.msgpack.decode(encode(Sample(
+        WIRE_VERSION, 0, 0, 0, robot=1, k=0, t=0.0, q=(0.0, 0.0, 0.0), q_dot=(0.0, 0.0, 0.0),
+        robots=[], obstacles=[])))
+    fields[0] = 1
+    for raw in (old_state, msgspec.msgpack.encode(fields)):
+        assert codec.decode(Sample, raw, 1) is None
+    assert codec.wrong_version == 2 and codec.versions_seen == {1}
+    assert codec.decode(Sample, b"\xc1garbage", 1) is None
+    assert codec.wrong_version == 2  # garbage is invalid, not another version

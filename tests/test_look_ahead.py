@@ -124,15 +124,17 @@ def test_plant_node_plays_the_newest_plan_for_missing_steps(clock: str) -> None:
     from fuzz_fakes import FakeNode
 
     from deploy.node_runtime import StopFlag
-    from deploy.wire import WIRE_VERSION, WheelCommand, encode
+    from deploy.wire import WIRE_VERSION, Reply, ShareData, encode
     from plant.node import PlantNode
 
     sc = load_scenario("lab")
     p = PlantNode(sc, "model", FakeNode(sc.robot_ids, "plant"), StopFlag())
     own, plan = (0.1, 0.2, 0.3, 0.4), [(1.0, 1.0, -1.0, -1.0), (0.5, 0.0, 0.0, 9.0)]
-    p.node.deliver(p.node.keys.cmd(1), encode(WheelCommand(
-        WIRE_VERSION, 1, 0, 0, robot=1, k=5, t=0.025, torques=own, v_cmd=(0.0, 0.0, 0.0),
-        state_seq=0, state_stamp_ns=0, plan=plan)))
+    zero = (0.0, 0.0, 0.0)
+    p.node.deliver(p.node.keys.cmd(1), encode(Reply(
+        WIRE_VERSION, 1, 0, 0, robot=1, k=5, t=0.025, torques=own, v_cmd=zero,
+        state_seq=0, state_stamp_ns=0, share=ShareData(zero, zero, zero, zero, zero, zero),
+        plan=plan)))
     applied = []
     for k in range(5, 9):
         if clock == "lockstep":

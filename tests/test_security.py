@@ -144,7 +144,7 @@ def test_an_agent_cannot_command_another_robot_the_plant_never_sees_it(fleet):
 
     def attempt() -> bool:
         rogue.put(keys.cmd(1), b"hijack")
-        rogue.put(keys.share(3), b"forged share")
+        rogue.put(keys.cmd(3), b"forged share")  # agent 3's reply carries its share
         rogue.put(keys.cmd(2), b"own")  # its own command is allowed: the positive control
         return heard.wait_for(keys.cmd(2), b"own", timeout=0.05)
 
@@ -156,34 +156,35 @@ def test_an_agent_cannot_command_another_robot_the_plant_never_sees_it(fleet):
 
 def test_a_non_neighbour_share_never_reaches_an_agent_even_with_a_wildcard(fleet):
     """paper: agent 2 hears agent 1 only (a_21 != 0, a_23 = 0). agent-2 subscribes
-    to every share with a wildcard and holds no ACL itself: agent-3's egress rule
-    never sends it agent 3's share; agent-1's share (a neighbour's) arrives."""
+    to every reply (command + share, ``robot/*/cmd``) with a wildcard and holds no
+    ACL itself: agent-3's egress rule never sends it agent 3's reply; agent-1's
+    (a neighbour's) arrives."""
     open_as, _raw, _hub, _d = fleet
     keys = Keys(FLEET)
     plant = open_as("plant")
     a1, a3 = open_as("agent-1"), open_as("agent-3")
     curious = open_as("agent-2", acl=False)
     heard = Heard()
-    curious.declare_subscriber(f"{keys.root}/agent/*/share", heard)
+    curious.declare_subscriber(f"{keys.root}/robot/*/cmd", heard)
     honest = Heard()  # agent-1 (no neighbours) with its ACL, also with a wildcard
-    a1.declare_subscriber(f"{keys.root}/agent/*/share", honest)
+    a1.declare_subscriber(f"{keys.root}/robot/*/cmd", honest)
     listener = Heard()  # agent-3 hears 1 and 2: proves a3 is linked to them
-    a3.declare_subscriber(f"{keys.root}/agent/*/share", listener)
+    a3.declare_subscriber(f"{keys.root}/robot/*/cmd", listener)
     everyone = {str(s.info.zid()) for s in (plant, a1, a3, curious)}
     assert _wait(lambda: all(
         everyone - {str(s.info.zid())} <= {str(z) for z in s.info.peers_zid()}
         for s in (a1, a3, curious)))  # gossip linked every pair directly
 
     def publish_all() -> bool:
-        a3.put(keys.share(3), b"share of 3")
-        a1.put(keys.share(1), b"share of 1")
-        curious.put(keys.share(2), b"share of 2")
-        return (heard.wait_for(keys.share(1), timeout=0.05)
-                and listener.wait_for(keys.share(2), timeout=0.05)
-                and listener.wait_for(keys.share(1), timeout=0.05))
+        a3.put(keys.cmd(3), b"share of 3")
+        a1.put(keys.cmd(1), b"share of 1")
+        curious.put(keys.cmd(2), b"share of 2")
+        return (heard.wait_for(keys.cmd(1), timeout=0.05)
+                and listener.wait_for(keys.cmd(2), timeout=0.05)
+                and listener.wait_for(keys.cmd(1), timeout=0.05))
 
     # until every subscription is known everywhere (a put before that reaches nobody)
     assert _wait(publish_all)
     time.sleep(GRACE_S)
-    assert heard.keys() == {keys.share(1), keys.share(2)}  # a neighbour's, and its own
-    assert honest.keys() == {keys.share(1)}  # only its own: it has no neighbours
+    assert heard.keys() == {keys.cmd(1), keys.cmd(2)}  # a neighbour's, and its own
+    assert honest.keys() == {keys.cmd(1)}  # only its own: it has no neighbours
