@@ -50,9 +50,13 @@ from deploy.wire import (
 )
 
 KEEP_STEPS = 4  # lockstep inputs kept behind the current step
+FORGET_EVERY = 32  # lockstep: older inputs are dropped every this many steps (a scan)
 TELEMETRY_HZ = 100.0  # realtime telemetry rate (lockstep: every step)
 TELEMETRY_BATCH_S = 0.1  # telemetry rows go out in batches of this much run time (at most)
-TELEMETRY_BATCH_MAX = 64  # ... and at most this many rows (lockstep: 64 steps a message)
+# ... and at most this many rows (lockstep: 8 steps a message, ~2.1 kB): zenoh 1.10 grows a
+# process by 16-44 MB the first time it moves a message of more than ~3 kB (measured), so
+# no message of the regular traffic is that large
+TELEMETRY_BATCH_MAX = 8
 
 
 @dataclass(frozen=True)
@@ -326,7 +330,8 @@ class AgentNode:
                 missing = int(
                     self.hears_leader and k not in inp.leaders) + sum(
                     (j, k - 1) not in inp.shares for j in self.neighbours)
-                self._forget_before(k - self.keep_steps)
+                if k % FORGET_EVERY == 0:
+                    self._forget_before(k - self.keep_steps)
             self.node.counters.late += missing
             for j, msg in shares.items():
                 if msg is not None:

@@ -15,6 +15,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 
+from bridges.can_options import MAX_SPIN_TORQUE_NM
 from bridges.protocol import (
     AXIS_STATE_CLOSED_LOOP_CONTROL,
     AXIS_STATE_IDLE,
@@ -30,8 +31,6 @@ from bridges.protocol import (
     SetControllerMode,
     SetInputTorque,
 )
-
-MAX_SPIN_TORQUE_NM = 0.5  # bring-up is not the place for more
 
 
 @dataclass
@@ -131,23 +130,3 @@ def _cmd_can_check(args: argparse.Namespace) -> int:
         return 130
     finally:
         bus.shutdown()
-
-
-def add_can_check_command(sub: argparse._SubParsersAction) -> None:
-    from bridges.can_options import add_can_options
-
-    p = sub.add_parser(
-        "can-check", help="bring-up: list the motor drivers that answer on a CAN bus",
-        description="Lists the drivers that answer (node id, axis state, errors, bus voltage, "
-        "encoder). With --spin, turns each wheel briefly at a small torque and reports its "
-        "direction and speed. Exit 1 when nobody answers.")
-    add_can_options(p)
-    p.add_argument("--listen", type=float, default=1.0, metavar="S",
-                   help="how long to listen for heartbeats and encoders (default: 1)")
-    p.add_argument("--spin", action="store_true",
-                   help="turn each answering wheel briefly (the robot must be on blocks)")
-    p.add_argument("--spin-torque", type=float, default=0.05, metavar="NM",
-                   help=f"torque for --spin, at most {MAX_SPIN_TORQUE_NM} N m (default: 0.05)")
-    p.add_argument("--spin-time", type=float, default=0.5, metavar="S",
-                   help="how long each wheel is driven (default: 0.5)")
-    p.set_defaults(func=_cmd_can_check)

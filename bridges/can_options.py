@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+MAX_SPIN_TORQUE_NM = 0.5  # can-check --spin: bring-up is not the place for more
+
 
 class CanBusError(RuntimeError):
     """The bus the options name cannot be opened (exit code 2 at the CLI)."""

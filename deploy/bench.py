@@ -28,8 +28,8 @@ from typing import Any
 
 from deploy.bench_scenarios import scale_scenario
 
-BENCH_VERSION = 1
-SCALE_SIZES = (3, 10, 30)
+BENCH_VERSION = 2  # 2: wire v2 codec figures, README command 1, realtime paper, largest N
+SCALE_SIZES = (3, 10, 20, 30)
 
 
 @dataclass(frozen=True)
@@ -38,7 +38,9 @@ class Settings:
 
     repeats: int
     paper_s: float  # simulated seconds of the paper scenario (lockstep overhead)
+    paper_run_s: float | None  # of README command 1 (None: the scenario's 24 s)
     realtime_s: float  # of the 500 Hz realtime loop
+    realtime_paper_s: float  # of the paper scenario at 1 kHz on the realtime clock
     scale_lockstep_s: float
     scale_realtime_s: float
     agent_math_s: float
@@ -49,8 +51,8 @@ class Settings:
     @classmethod
     def of(cls, quick: bool, repeats: int | None) -> Settings:
         if quick:
-            return cls(repeats or 1, 0.5, 3.0, 1.0, 3.0, 0.2, 200, 2000, 500)
-        return cls(repeats or 3, 8.0, 20.0, 10.0, 20.0, 2.0, 2000, 20000, 5000)
+            return cls(repeats or 1, 0.5, 1.0, 3.0, 2.0, 1.0, 3.0, 0.2, 200, 2000, 500)
+        return cls(repeats or 3, 8.0, None, 20.0, 10.0, 10.0, 20.0, 2.0, 2000, 20000, 5000)
 
 
 @dataclass
@@ -100,11 +102,12 @@ class Bench:
         return self.figures.setdefault(name, Figure(name, unit, what, target=target))
 
     # -- fleet runs -------------------------------------------------------------------
-    def run_fleet(self, scenario: str, *args: str, timeout_s: float = 900.0) -> dict[str, Any]:
+    def run_fleet(self, scenario: str, *args: str, timeout_s: float = 900.0,
+                  record: bool = False) -> dict[str, Any]:
         """One ``omnifleet run``; its metrics.json. Ended by pid whatever happens."""
         out = self.work / f"run-{len(list(self.work.iterdir()))}"
         cmd = [sys.executable, "-m", "deploy.cli", "run", scenario, "--out", str(out),
-               "--no-figures", "--no-record", *args]
+               "--no-figures", *([] if record else ["--no-record"]), *args]
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         try:
             _, err = proc.communicate(timeout=timeout_s)
@@ -157,6 +160,53 @@ class Bench:
         self.measure("lockstep overhead (paper, model plant)", body, wall_in.name, wall_dist.name,
                      ratio.name)
 
+    def paper_run(self) -> None:
+        """README command 1 as a user runs it (pybullet, lockstep, recording on), and
+        the same without recording, back to back: what the recording costs."""
+        what = "the scenario's 24 s" if self.s.paper_run_s is None else f"{self.s.paper_run_s:g} s"
+        rec = self.figure("run.paper_wall_s", "s", f"`omnifleet run paper` (README command 1: "
+                          f"pybullet, lockstep, recording on), {what} simulated",
+                          ("<=", 15.0) if self.s.paper_run_s is None else None)
+        bare = self.figure("run.paper_no_record_wall_s", "s", "the same with --no-record")
+        cost = self.figure("run.recording_cost_ratio", "x",
+                           "with / without recording, measured back to back")
+        dur = () if self.s.paper_run_s is None else ("--duration", str(self.s.paper_run_s))
+
+        def body() -> None:
+            for _ in range(self.s.repeats):
+                a = self.run_fleet("paper", *dur, record=True)["wall_time_s"]
+                b = self.run_fleet("paper", *dur)["wall_time_s"]
+                rec.samples.append(a)
+                bare.samples.append(b)
+                cost.samples.append(a / b)
+
+        self.measure("README command 1 (paper, pybullet, recording on and off)", body,
+                     rec.name, bare.name, cost.name)
+
+    def realtime_paper(self) -> None:
+        """The paper's own rate on the wall clock: 1 kHz, pybullet."""
+        p99 = self.figure("realtime.paper_1khz_latency_p99_ms", "ms",
+                          "paper at 1 kHz, realtime, pybullet: state-to-command latency p99",
+                          ("<=", 1.0))
+        p50 = self.figure("realtime.paper_1khz_latency_p50_ms", "ms", "the same, p50")
+        contacts = self.figure("realtime.paper_1khz_contacts", "count",
+                               "the same: physical contacts", ("<=", 0.0))
+        late = self.figure("realtime.paper_1khz_unsettled_robots", "count",
+                           "the same: robots not settled before sqrt(2) T_p", ("<=", 0.0))
+
+        def body() -> None:
+            for _ in range(self.s.repeats):
+                m = self.run_fleet("paper", "--clock", "realtime",
+                                   "--duration", str(self.s.realtime_paper_s))
+                p50.samples.append(m["latency_ms"]["p50"])
+                p99.samples.append(m["latency_ms"]["p99"])
+                contacts.samples.append(float(m["contacts"]))
+                late.samples.append(float(sum(
+                    s is None or s > m["settling_bound_s"] for s in m["settling_time_s"])))
+
+        self.measure("realtime paper at 1 kHz (pybullet)", body, p99.name, p50.name,
+                     contacts.name, late.name)
+
     def lockstep_rtf_500(self) -> None:
         rtf = self.figure("lockstep.real_time_factor_500hz", "x",
                           "paper at 500 Hz control, distributed lockstep, model plant: "
@@ -200,7 +250,12 @@ class Bench:
                                f"{n} robots at 100 Hz, realtime: deadline misses, every node",
                                ("<=", 0.0) if n == 30 else None)
 
-            def body(path: Path = path, rtf: Figure = rtf, miss: Figure = miss) -> None:
+            touch = self.figure(f"scale.n{n}.realtime_contacts", "count",
+                                f"{n} robots at 100 Hz, realtime: physical contacts",
+                                ("<=", 0.0) if n == 30 else None)
+
+            def body(path: Path = path, rtf: Figure = rtf, miss: Figure = miss,
+                     touch: Figure = touch) -> None:
                 for _ in range(self.s.repeats):
                     m = self.run_fleet(str(path), "--duration", str(self.s.scale_lockstep_s),
                                        "--startup-timeout", "180")
@@ -208,8 +263,17 @@ class Bench:
                     m = self.run_fleet(str(path), "--clock", "realtime", "--duration",
                                        str(self.s.scale_realtime_s), "--startup-timeout", "180")
                     miss.samples.append(float(m["deadline_misses"]))
+                    touch.samples.append(float(m["contacts"]))
 
-            self.measure(f"scale N={n} (lockstep, realtime)", body, rtf.name, miss.name)
+            self.measure(f"scale N={n} (lockstep, realtime)", body, rtf.name, miss.name,
+                         touch.name)
+        largest = self.figure("scale.largest_n_zero_misses", "robots",
+                              "the largest N of " + ", ".join(map(str, SCALE_SIZES))
+                              + " whose realtime runs at 100 Hz all missed no deadline (0: none)")
+        clean = [n for n in SCALE_SIZES
+                 if self.figures[f"scale.n{n}.realtime_deadline_misses"].samples
+                 and max(self.figures[f"scale.n{n}.realtime_deadline_misses"].samples) == 0]
+        largest.samples.append(float(max(clean, default=0)))
 
     def memory(self) -> None:
         rss = self.figure("memory.agent_peak_rss_mb", "MB",
@@ -237,19 +301,26 @@ class Bench:
         for name, samples in codec_us(paper, self.s.codec_calls, self.s.repeats).items():
             self.figure(f"cost.codec_{name}_us", "µs",
                         f"{name}: encode + validated decode").samples += samples
-        zen = self.figure("cost.zenoh_hop_us", "µs", "one zenoh hop between two processes "
-                          "(ping-pong / 2, 200 B), callback and wake-up included")
+        hops = {path: self.figure(f"cost.zenoh_hop_{path}_us", "µs", what) for path, what in (
+            ("runtime", "one zenoh hop between two processes as the nodes use it (ping-pong / "
+             "2, 200 B, unix socket): direct callback -> SimpleQueue -> the working thread, "
+             "lowlatency transport"),
+            ("indirect", "the same through the old path: zenoh's indirect callback (a Python "
+             "thread) and a Condition hand-off, default transport"))}
         udp = self.figure("cost.udp_hop_us", "µs", "one raw UDP hop between two processes "
                           "(ping-pong / 2, 200 B): this machine's floor")
         for _ in range(self.s.repeats):
-            zen.samples.append(zenoh_hop_us(self.s.hops))
+            for path, fig in hops.items():
+                fig.samples.append(zenoh_hop_us(self.s.hops, path))
             udp.samples.append(udp_hop_us(self.s.hops))
 
     def run_all(self) -> None:
         self.costs()
         self.lockstep_overhead()
+        self.paper_run()
         self.lockstep_rtf_500()
         self.realtime_loop()
+        self.realtime_paper()
         self.scale()
         self.memory()
 
@@ -339,9 +410,10 @@ def add_bench_command(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "bench", help="measure speed and memory against the targets; writes bench.json",
         description="Benchmarks, side by side in one sitting: lockstep overhead vs in-process, "
-        "the realtime loop at 500 Hz, scale to 3/10/30 robots, agent memory, and the costs "
-        "underneath (agent math, plant step, codec, one zenoh hop vs one UDP hop). Writes "
-        "bench.json and bench.md to --out. Takes ~20 min; --quick ~2-3 min.")
+        "README command 1 with and without recording, the realtime loop (lab at 500 Hz, paper "
+        "at 1 kHz), scale to 3/10/20/30 robots, agent memory, and the costs underneath (agent "
+        "math, plant step, codec, one zenoh hop by the runtime's path and the old one vs one "
+        "UDP hop). Writes bench.json and bench.md to --out. Takes ~30 min; --quick ~3 min.")
     p.add_argument("--quick", action="store_true",
                    help="short runs, one repeat: a smoke run that still writes every figure")
     p.add_argument("--out", default="runs/bench", help="output folder (default: runs/bench)")

@@ -21,12 +21,14 @@ from deploy.wire import (
     WIRE_VERSION,
     Codec,
     LeaderState,
-    NeighbourShare,
-    Perception,
-    RobotState,
+    Reply,
+    Sample,
     SensedBody,
+    ShareData,
+    StateLog,
+    StateRow,
     Telemetry,
-    WheelCommand,
+    TelemetryRow,
     encode,
 )
 
@@ -73,25 +75,30 @@ def plant_step_us_per_robot(sc: Scenario, kind: str, steps: int, repeats: int) -
     return samples
 
 
+BATCH = 32  # rows of a batched message here (leader states, telemetry, state log)
+
+
 def sample_messages(sc: Scenario) -> dict[str, object]:
-    """One realistic message of each type the control loop sends every step."""
+    """One realistic message of each type of wire v2: the two the control loop sends
+    per robot and step (Sample, Reply), and the batched ones (``BATCH`` steps each)."""
     rid = sc.robot_ids[0]
     v3, v4 = (1.0, 2.0, 0.5), (0.1, -0.2, 0.3, -0.4)
     body = SensedBody(sc.robot_ids[-1], (1.0, 2.0), (0.5, 0.5), 0.5)
     obstacle = SensedBody(-1, (3.0, 1.0), (0.0, 0.0), 0.0)
+    row = TelemetryRow(k=7, t=0.007, q_d=v3, e=v3, s=v3, v_cmd=v3, torques=v4, q0_hat=v3,
+                       q_fd=v3, fdb_error=0.1, order="FOCB>FRCB>FDB", nonfinite=False)
+    n = sc.n
     return {
-        "RobotState": RobotState(WIRE_VERSION, 0, 7, 123, robot=rid, k=7, t=0.007, q=v3, q_dot=v3),
-        "Perception": Perception(WIRE_VERSION, 0, 7, 123, robot=rid, k=7, t=0.007,
-                                 robots=[body, body], obstacles=[obstacle, obstacle]),
-        "WheelCommand": WheelCommand(WIRE_VERSION, rid, 7, 123, robot=rid, k=7, t=0.007,
-                                     torques=v4, v_cmd=v3, state_seq=7, state_stamp_ns=123),
-        "NeighbourShare": NeighbourShare(WIRE_VERSION, rid, 7, 123, robot=rid, k=7,
-                                         q0_hat=v3, v0_hat=v3, q=v3, q_dot=v3, zeta=v3,
-                                         zeta_dot=v3),
-        "LeaderState": LeaderState(WIRE_VERSION, 0, 7, 123, k=7, t=0.007, q=v3, q_dot=v3),
-        "Telemetry": Telemetry(WIRE_VERSION, rid, 7, 123, robot=rid, k=7, t=0.007, q_d=v3,
-                               e=v3, s=v3, v_cmd=v3, torques=v4, q0_hat=v3, q_fd=v3,
-                               fdb_error=0.1, order="FOCB>FRCB>FDB", nonfinite=False),
+        "Sample": Sample(WIRE_VERSION, 0, 7, 123, robot=rid, k=7, t=0.007, q=v3, q_dot=v3,
+                         robots=[body, body], obstacles=[obstacle, obstacle]),
+        "Reply": Reply(WIRE_VERSION, rid, 7, 123, robot=rid, k=7, t=0.007, torques=v4,
+                       v_cmd=v3, state_seq=7, state_stamp_ns=123,
+                       share=ShareData(v3, v3, v3, v3, v3, v3)),
+        "LeaderState": LeaderState(WIRE_VERSION, 0, 7, 123, k=7, t=0.007, q=[v3] * BATCH,
+                                   q_dot=[v3] * BATCH),
+        "Telemetry": Telemetry(WIRE_VERSION, rid, 7, 123, robot=rid, rows=[row] * BATCH),
+        "StateLog": StateLog(WIRE_VERSION, 0, 7, 123, robots=list(sc.robot_ids), rows=[
+            StateRow(7, 0.007, [v3] * n, [v3] * n, [False] * n)] * BATCH),
     }
 
 

@@ -1,54 +1,95 @@
 """The transport floor: one hop between two processes on this machine, over zenoh
-(the runtime's own path: a put, a subscriber callback, a wake-up of the waiting
-thread) and over a raw UDP socket (the physical limit for Python here).
+and over a raw UDP socket (the physical limit for Python here). Two zenoh paths:
+``runtime``, the nodes' own (a direct callback on zenoh's receive thread puts the
+payload on a ``queue.SimpleQueue``, the working thread takes it; lowlatency
+transport, unix socket), and ``indirect``, the path before wire v2 (zenoh's
+default indirect callback on a Python thread, a Condition hand-off, the default
+transport over TCP), so the two are compared in one sitting.
 
 Measured as ping-pong: the parent sends a 200-byte payload, a child process
 echoes it, the parent waits for the echo; one hop = round trip / 2. The child is
 ended by pid whatever happens.
 
 Also runnable alone as the echo side: ``python -m deploy.bench_transport echo
-zenoh|udp ADDRESS``.
+runtime|indirect|udp ADDRESS``.
 """
 
 from __future__ import annotations
 
+import os
+import queue
 import socket
 import statistics
 import subprocess
 import sys
+import tempfile
 import threading
 import time
+from collections.abc import Callable
+from typing import Any
 
 PAYLOAD = b"x" * 200
 WARMUP = 200
+PATHS = ("runtime", "indirect")
 
 
-def _zenoh_session(listen: str | None = None, connect: str | None = None):
+def _zenoh_session(path: str, listen: str | None = None, connect: str | None = None):
     import zenoh
 
     from deploy.transport import zenoh_config
 
-    return zenoh.open(zenoh_config(None, [listen] if listen else [], [connect] if connect else []))
+    return zenoh.open(zenoh_config(None, [listen] if listen else [], [connect] if connect else [],
+                                   gossip=False, lowlatency=path == "runtime"))
 
 
-def _echo_zenoh(endpoint: str) -> None:
-    session = _zenoh_session(connect=endpoint)
+def _receiver(session: Any, key: str, path: str) -> tuple[Any, Callable[[float], bytes | None]]:
+    """A subscription and its ``get(timeout)``, the way ``path`` receives."""
     import zenoh
 
-    pub = session.declare_publisher("bench/pong", express=True,
-                                    congestion_control=zenoh.CongestionControl.BLOCK)
-    done = threading.Event()
+    if path == "runtime":
+        box: queue.SimpleQueue = queue.SimpleQueue()
+        sub = session.declare_subscriber(key, zenoh.handlers.Callback(
+            lambda s: box.put(s.payload.to_bytes()), indirect=False))
 
-    def on_ping(sample) -> None:
-        data = sample.payload.to_bytes()
-        if data == b"stop":
-            done.set()
-        else:
-            pub.put(data)
+        def get(timeout: float) -> bytes | None:
+            try:
+                return box.get(timeout=timeout)
+            except queue.Empty:
+                return None
+        return sub, get
+    cond, items = threading.Condition(), []
 
-    sub = session.declare_subscriber("bench/ping", on_ping)
+    def on_sample(s: Any) -> None:
+        with cond:
+            items.append(s.payload.to_bytes())
+            cond.notify_all()
+    sub = session.declare_subscriber(key, on_sample)
+
+    def get_indirect(timeout: float) -> bytes | None:
+        with cond:
+            if not cond.wait_for(lambda: items, timeout):
+                return None
+            return items.pop(0)
+    return sub, get_indirect
+
+
+def _publisher(session: Any, key: str) -> Any:
+    import zenoh
+
+    return session.declare_publisher(key, express=True,
+                                     congestion_control=zenoh.CongestionControl.BLOCK)
+
+
+def _echo_zenoh(path: str, endpoint: str) -> None:
+    session = _zenoh_session(path, connect=endpoint)
+    pub = _publisher(session, "bench/pong")
+    sub, get = _receiver(session, "bench/ping", path)
     session.liveliness().declare_token("bench/echo")
-    done.wait()
+    while True:
+        data = get(60.0)
+        if data is None or data == b"stop":
+            break
+        pub.put(data)
     sub.undeclare()
     session.close()
 
@@ -74,32 +115,30 @@ def _end(proc: subprocess.Popen) -> None:
     proc.wait()
 
 
-def zenoh_hop_us(round_trips: int) -> float:
-    """Median one-way zenoh hop (µs) between this process and an echo child."""
+def zenoh_hop_us(round_trips: int, path: str = "runtime") -> float:
+    """Median one-way zenoh hop (µs) between this process and an echo child that
+    both receive the way ``path`` does (see the module's docstring)."""
     from deploy.launcher import free_tcp_port
 
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    session = _zenoh_session(listen=endpoint)
-    import zenoh
-
-    child = _child("zenoh", endpoint)
+    where = tempfile.mkdtemp(prefix="omnifleet-hop-")
+    endpoint = (f"unixsock-stream/{where}/hop.sock" if path == "runtime"
+                else f"tcp/127.0.0.1:{free_tcp_port()}")
+    session = _zenoh_session(path, listen=endpoint)
+    child = _child(path, endpoint)
     try:
-        arrived = threading.Event()
         ready = threading.Event()
-        sub = session.declare_subscriber("bench/pong", lambda _s: arrived.set())
+        sub, get = _receiver(session, "bench/pong", path)
         watch = session.liveliness().declare_subscriber(
             "bench/echo", lambda _s: ready.set(), history=True)
         if not ready.wait(30.0):
             raise RuntimeError("zenoh echo process did not come up: "
                                + child.stderr.read().decode(errors="replace")[-500:])
-        pub = session.declare_publisher("bench/ping", express=True,
-                                        congestion_control=zenoh.CongestionControl.BLOCK)
+        pub = _publisher(session, "bench/ping")
         times = []
         for i in range(WARMUP + round_trips):
-            arrived.clear()
             t0 = time.perf_counter_ns()
             pub.put(PAYLOAD)
-            if not arrived.wait(5.0):
+            if get(5.0) is None:
                 raise RuntimeError("zenoh echo lost a message")
             if i >= WARMUP:
                 times.append(time.perf_counter_ns() - t0)
@@ -110,6 +149,9 @@ def zenoh_hop_us(round_trips: int) -> float:
     finally:
         _end(child)
         session.close()
+        for name in os.listdir(where):
+            os.unlink(os.path.join(where, name))
+        os.rmdir(where)
 
 
 def udp_hop_us(round_trips: int) -> float:
@@ -148,6 +190,9 @@ def udp_hop_us(round_trips: int) -> float:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) != 4 or sys.argv[1] != "echo" or sys.argv[2] not in ("zenoh", "udp"):
-        sys.exit("usage: python -m deploy.bench_transport echo zenoh|udp ADDRESS")
-    (_echo_zenoh if sys.argv[2] == "zenoh" else _echo_udp)(sys.argv[3])
+    if len(sys.argv) != 4 or sys.argv[1] != "echo" or sys.argv[2] not in (*PATHS, "udp"):
+        sys.exit("usage: python -m deploy.bench_transport echo runtime|indirect|udp ADDRESS")
+    if sys.argv[2] == "udp":
+        _echo_udp(sys.argv[3])
+    else:
+        _echo_zenoh(sys.argv[2], sys.argv[3])

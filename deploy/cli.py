@@ -90,6 +90,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         step_deadline_s=args.step_deadline, startup_timeout_s=args.startup_timeout,
         record=not args.no_record, fleet=args.fleet, endpoint=args.endpoint, gui=args.gui,
         faults=fault_plan(args, sc), realtime_priority=args.priority,
+        lowlatency=args.zenoh_transport == "lowlatency",
     )
     launcher = Launcher(sc, opts)
     try:
@@ -246,11 +247,17 @@ def build_parser() -> argparse.ArgumentParser:
                      "on with what it last had, counted as late (default: 2)")
     run.add_argument("--startup-timeout", type=float, default=60.0, metavar="S",
                      help="how long to wait for every node to come up (default: 60)")
-    run.add_argument("--fleet", help="fleet name: keys are omr/<fleet>/... "
-                     "(default: <scenario>-<launcher pid>)")
+    run.add_argument("--fleet", help="fleet name: keys are omr/<fleet>/... (default: the "
+                     "scenario's name; two runs on one machine never link: each has its own "
+                     "private endpoints)")
     run.add_argument("--endpoint", metavar="ENDPOINT",
                      help="zenoh endpoint the launcher listens on and the nodes connect to "
-                     "(default: a free tcp/127.0.0.1 port)")
+                     "(default: a unix socket in the run's private directory)")
+    run.add_argument("--zenoh-transport", choices=("lowlatency", "default"),
+                     default="lowlatency",
+                     help="zenoh's unicast transport between the run's nodes: lowlatency (a "
+                     "put is written by the publishing thread; measured faster here, "
+                     "docs/distributed.md) or zenoh's default (default: lowlatency)")
     run.add_argument("--no-record", action="store_true",
                      help="do not write recording.mcap (distributed runs record by default)")
     run.add_argument("--out", metavar="DIR", help="output folder (default: runs/<scenario>)")
@@ -275,7 +282,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.set_defaults(func=_cmd_run)
     add_node_commands(sub)
     from bridges.bridge_cli import add_bridge_commands
-    from bridges.can_check import add_can_check_command
+    from bridges.can_check_cli import add_can_check_command
     from bridges.emulator_cli import add_emulate_command
     from deploy.bench import add_bench_command
     from deploy.fault_sweep import add_faults_command

@@ -114,6 +114,7 @@ class LaunchOptions:
     extra_agent_args: list[str] = field(default_factory=list)
     faults: FaultPlan | None = None  # given to every node; kills done by the launcher
     realtime_priority: int = REALTIME_PRIORITY  # nice -N for every node on the realtime clock
+    lowlatency: bool = True  # zenoh's low-latency transport on every link (docs/distributed.md)
 
 
 def free_udp_port() -> int:
@@ -162,6 +163,7 @@ class Launcher:
         o = self.opts
         args = ["--scenario", o.scenario_arg, "--fleet", self.fleet, "--clock", o.clock,
                 "--connect", endpoint, "--no-gossip", "--with-recorder",
+                *(["--lowlatency"] if o.lowlatency else []),
                 "--step-deadline", str(o.step_deadline_s),
                 "--startup-timeout", str(o.startup_timeout_s)]
         if o.duration_s is not None:
@@ -384,7 +386,7 @@ class Launcher:
         endpoint = o.endpoint or self.endpoint_of(LAUNCHER_ROLE)
         try:
             node = Node(LAUNCHER_ROLE, self.keys, self.codec,
-                        zenoh_config(listen=[endpoint], gossip=False))
+                        zenoh_config(listen=[endpoint], gossip=False, lowlatency=o.lowlatency))
         except BaseException:
             shutil.rmtree(self.run_dir, ignore_errors=True)
             raise

@@ -54,7 +54,8 @@ def _open(args: argparse.Namespace, sc: Scenario, role: str, sender: int) -> Nod
         die_with_parent()
         if os.getppid() == 1:  # the launcher is already gone
             sys.exit(EXIT_PEER_LOST)
-    cfg = zenoh_config(args.zenoh_config, args.listen, args.connect, gossip=not args.no_gossip)
+    cfg = zenoh_config(args.zenoh_config, args.listen, args.connect, gossip=not args.no_gossip,
+                       lowlatency=args.lowlatency)
     return Node(role, Keys(args.fleet or sc.name), Codec(sc.robot_ids), cfg, sender,
                 lossless=args.clock == "lockstep")
 
@@ -207,6 +208,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-gossip", action="store_true",
                    help="link only to the --connect endpoints (no peer discovery through "
                    "them): `omnifleet run` gives each node the nodes it talks to")
+    p.add_argument("--lowlatency", action="store_true",
+                   help="zenoh's low-latency transport (no transmit task, no QoS); every node "
+                   "of a run must use it (`omnifleet run` does; docs/distributed.md)")
     p.add_argument("--duration", type=float, metavar="S", help="override duration_s")
     p.add_argument("--control-rate", type=float, metavar="HZ", help="override control_rate_hz")
     p.add_argument("--step-deadline", type=float, default=2.0, metavar="S",

@@ -44,6 +44,7 @@ def zenoh_config(
     listen: Iterable[str] = (),
     connect: Iterable[str] = (),
     gossip: bool = True,
+    lowlatency: bool = False,
 ) -> Any:
     """A peer configuration: explicit endpoints, multicast scouting off.
 
@@ -52,6 +53,9 @@ def zenoh_config(
     common endpoint learn of each other and link directly (every pair: a full
     mesh). Off: a peer links only to the endpoints it is given, so the launcher
     hands each node the endpoints of the nodes it talks to (links as the graph).
+    ``lowlatency``: zenoh's low-latency unicast transport (a put is written by the
+    publishing thread, no transmit task to wake; QoS off, so no priorities): both
+    ends of a link must ask for it, else zenoh falls back to the default transport.
     """
     import zenoh
 
@@ -64,6 +68,9 @@ def zenoh_config(
             cfg.insert_json5("scouting/multicast/enabled", "false")
             if not gossip:
                 cfg.insert_json5("scouting/gossip/enabled", "false")
+            if lowlatency:
+                cfg.insert_json5("transport/unicast/lowlatency", "true")
+                cfg.insert_json5("transport/unicast/qos/enabled", "false")
         listen, connect = list(listen), list(connect)
         if listen:
             cfg.insert_json5("listen/endpoints", json.dumps(listen))
@@ -115,13 +122,9 @@ class Mailbox:
 
     def drain(self) -> None:
         """Handle everything already arrived, without waiting."""
-        get = self._queue.get_nowait
-        while True:
-            try:
-                entry = get()
-            except queue.Empty:
-                return
-            self._run(entry)
+        q = self._queue
+        while not q.empty():
+            self._run(q.get_nowait())  # one consumer: what empty() saw is still there
 
     def wait_until(self, ready: Callable[[], bool], timeout_s: float) -> bool:
         """Handle arrivals until ``ready()`` holds (True) or ``timeout_s`` passes

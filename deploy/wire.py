@@ -267,6 +267,17 @@ class StateRow(msgspec.Struct, array_like=True, frozen=True):
     faulted: list[bool]
 
 
+MAX_REGULAR_BYTES = 2400  # the regular traffic's messages stay under this (see StateLog)
+
+
+def log_rows_per_batch(robots: int) -> int:
+    """State rows per :class:`StateLog` so that a batch stays under
+    ``MAX_REGULAR_BYTES`` (~60 B per robot and row): zenoh 1.10 grows a process by
+    16-44 MB the first time it moves a message of more than ~3 kB (measured), which
+    alone broke the 60 MB budget of an agent."""
+    return max(1, min(32, MAX_REGULAR_BYTES // (60 * robots + 24)))
+
+
 class StateLog(Message, frozen=True):
     """The plant's (or a bridge's) robot states, batched for observers (the run's
     series, the recording, a live view), off the control path."""

@@ -53,6 +53,7 @@ from deploy.wire import (
     StateLog,
     StateRow,
     agent_role,
+    log_rows_per_batch,
     run_roles,
     sensed_bodies,
 )
@@ -79,7 +80,7 @@ class PlantNode:
         self.steps_done = 0
         self.last_state_seq: dict[int, int] = {}
         self.log_rows: list[StateRow] = []  # robot states for observers, sent in batches
-        self.log_every = TICK_EVERY
+        self.log_every = log_rows_per_batch(sc.n)
         self.peers = [r for r in run_roles(self.ids) if r != PLANT_ROLE]
         if with_recorder:
             self.peers.append(LAUNCHER_ROLE)

@@ -23,15 +23,23 @@ EXPECTED = {
     "lockstep.real_time_factor_500hz", "realtime.latency_p50_ms", "realtime.latency_p99_ms",
     "realtime.jitter_p99_ms", "realtime.deadline_misses_500hz", "memory.agent_peak_rss_mb",
     "cost.agent_step_us", "cost.pybullet_step_us_per_robot", "cost.model_step_us_per_robot",
-    "cost.zenoh_hop_us", "cost.udp_hop_us",
-    *(f"cost.codec_{m}_us" for m in ("RobotState", "Perception", "WheelCommand",
-                                     "NeighbourShare", "LeaderState", "Telemetry")),
+    "cost.zenoh_hop_runtime_us", "cost.zenoh_hop_indirect_us", "cost.udp_hop_us",
+    "run.paper_wall_s", "run.paper_no_record_wall_s", "run.recording_cost_ratio",
+    "realtime.paper_1khz_latency_p99_ms", "realtime.paper_1khz_latency_p50_ms",
+    "realtime.paper_1khz_contacts", "realtime.paper_1khz_unsettled_robots",
+    "scale.largest_n_zero_misses",
+    *(f"scale.n{n}.realtime_contacts" for n in SCALE_SIZES),
+    *(f"cost.codec_{m}_us" for m in ("Sample", "Reply", "LeaderState", "Telemetry",
+                                     "StateLog")),
     *(f"scale.n{n}.lockstep_real_time_factor" for n in SCALE_SIZES),
     *(f"scale.n{n}.realtime_deadline_misses" for n in SCALE_SIZES),
 }
 TARGETS = {"lockstep.overhead_ratio": "<= 1.5", "lockstep.real_time_factor_500hz": ">= 10",
            "realtime.latency_p99_ms": "<= 1", "realtime.jitter_p99_ms": "<= 0.5",
-           "scale.n30.realtime_deadline_misses": "<= 0", "memory.agent_peak_rss_mb": "<= 60"}
+           "realtime.paper_1khz_latency_p99_ms": "<= 1", "realtime.paper_1khz_contacts": "<= 0",
+           "realtime.paper_1khz_unsettled_robots": "<= 0",
+           "scale.n30.realtime_deadline_misses": "<= 0", "scale.n30.realtime_contacts": "<= 0",
+           "memory.agent_peak_rss_mb": "<= 60"}
 
 
 @pytest.mark.parametrize("n", [1, 3, 10, 30])

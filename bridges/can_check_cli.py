@@ -1,0 +1,33 @@
+"""``omnifleet can-check``'s command line. The check itself (bridges/can_check.py,
+python-can and the DBC) is imported only when it runs: every node process builds
+the whole parser, and importing python-can and cantools there cost each ~14 MB."""
+
+from __future__ import annotations
+
+import argparse
+
+from bridges.can_options import MAX_SPIN_TORQUE_NM, add_can_options
+
+
+def _run(args: argparse.Namespace) -> int:
+    from bridges.can_check import _cmd_can_check
+
+    return _cmd_can_check(args)
+
+
+def add_can_check_command(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "can-check", help="bring-up: list the motor drivers that answer on a CAN bus",
+        description="Lists the drivers that answer (node id, axis state, errors, bus voltage, "
+        "encoder). With --spin, turns each wheel briefly at a small torque and reports its "
+        "direction and speed. Exit 1 when nobody answers.")
+    add_can_options(p)
+    p.add_argument("--listen", type=float, default=1.0, metavar="S",
+                   help="how long to listen for heartbeats and encoders (default: 1)")
+    p.add_argument("--spin", action="store_true",
+                   help="turn each answering wheel briefly (the robot must be on blocks)")
+    p.add_argument("--spin-torque", type=float, default=0.05, metavar="NM",
+                   help=f"torque for --spin, at most {MAX_SPIN_TORQUE_NM} N m (default: 0.05)")
+    p.add_argument("--spin-time", type=float, default=0.5, metavar="S",
+                   help="how long each wheel is driven (default: 0.5)")
+    p.set_defaults(func=_run)
