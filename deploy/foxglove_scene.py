@@ -1,0 +1,434 @@
+"""A run's step k as Foxglove messages: the scene, the frames, the plot signals.
+
+Pure: (Scenario, TimeSeries, k) in, messages out, no I/O. The recorder writes
+them into the run's MCAP, the live view serves them over Foxglove's WebSocket
+protocol; both take the topic names from here (and so does the layout,
+``deploy/foxglove_layout.py``). Built only from the time series and the
+scenario, so it does not depend on the shape of the wire.
+
+Scene (``foxglove.SceneUpdate``, frame ``world``, z up, the plane z = 0):
+
+- ``/scene/obstacles``: each obstacle as a cylinder of its radius (at least
+  ``MIN_DRAWN_RADIUS_M``: the paper's obstacles are points), its R_a ring
+  (radius + ``obstacle_safe_distance_m``, as in Fig. 4);
+- ``/scene/robots``: each robot as a disc of its body radius with an arrow for
+  its heading, and the virtual leader;
+- ``/scene/formation``: each robot's desired formation position x_fd of
+  eq. (16) (as its agent estimates it) as a ghost disc, joined to the robot;
+- ``/scene/behaviors``: around each robot, the R_a ring while its FOCB is
+  active and the R_c ring while its FRCB is active (replaced every update);
+- ``/scene/traces``: the paths travelled so far (robots and leader).
+
+Frames: ``/tf`` (``FrameTransforms``: world -> ``robot-<id>``, world ->
+``leader``), ``/robots/poses`` (``PosesInFrame``), ``/leader/pose``
+(``PoseInFrame``).
+
+Plots (JSON, schema from ``deploy/foxglove_json.py``): ``/plot/robot/<id>``
+(:class:`RobotSignals`: tracking and formation errors of Fig. 5, estimator
+error, wheel torques of Fig. 6, active behaviors, safety and limit activity,
+clearances) and ``/plot/fleet`` (:class:`FleetSignals`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import msgspec
+import numpy as np
+from foxglove.messages import (
+    ArrowPrimitive,
+    Color,
+    CylinderPrimitive,
+    FrameTransform,
+    FrameTransforms,
+    LinePrimitive,
+    LinePrimitiveLineType,
+    Point3,
+    Pose,
+    PoseInFrame,
+    PosesInFrame,
+    Quaternion,
+    SceneEntity,
+    SceneEntityDeletion,
+    SceneEntityDeletionType,
+    SceneUpdate,
+    TextPrimitive,
+    Timestamp,
+    Vector3,
+)
+
+from deploy.figures import COLORS
+from deploy.runner import FormationTargets
+from deploy.scenario import Scenario
+from deploy.timeseries import BEHAVIOR_BITS, TimeSeries
+
+WORLD_FRAME = "world"
+LEADER_FRAME = "leader"
+SCENE_OBSTACLES = "/scene/obstacles"
+SCENE_ROBOTS = "/scene/robots"
+SCENE_FORMATION = "/scene/formation"
+SCENE_BEHAVIORS = "/scene/behaviors"
+SCENE_TRACES = "/scene/traces"
+SCENE_TOPICS = (SCENE_OBSTACLES, SCENE_ROBOTS, SCENE_FORMATION, SCENE_BEHAVIORS, SCENE_TRACES)
+TF_TOPIC = "/tf"
+POSES_TOPIC = "/robots/poses"
+LEADER_POSE_TOPIC = "/leader/pose"
+FRAME_TOPICS = (TF_TOPIC, POSES_TOPIC, LEADER_POSE_TOPIC)
+PLOT_FLEET = "/plot/fleet"
+
+SCENE_RATE_HZ = 30.0  # scenes per simulated second in a recording (a display's rate)
+PLOT_RATE_HZ = 250.0  # plot rows per simulated second at most (Fig. 5's transients last ~0.4 s)
+TRACE_STEP_S = 0.05  # one trace point per 50 ms of the run
+MIN_DRAWN_RADIUS_M = 0.15  # a point obstacle is drawn this big (as in figures.py)
+ROBOT_HEIGHT_M = 0.25
+LEADER_COLOR = "#1f3fbf"
+
+
+def robot_frame(rid: int) -> str:
+    return f"robot-{rid}"
+
+
+def plot_topic(rid: int) -> str:
+    return f"/plot/robot/{rid}"
+
+
+def plot_topics(sc: Scenario) -> list[str]:
+    return [*(plot_topic(r) for r in sc.robot_ids), PLOT_FLEET]
+
+
+def stride(sc: Scenario, rate_hz: float) -> int:
+    """Steps between two messages at (at most) ``rate_hz``."""
+    return max(1, int(round(1.0 / (rate_hz * sc.dt))))
+
+
+# -- plot signals ---------------------------------------------------------------------------
+class RobotSignals(msgspec.Struct, kw_only=True):
+    """One robot at step k, for Foxglove's Plot panel (``/plot/robot/<id>.field``)."""
+
+    t: float  # s
+    robot: int
+    tracking_error: float  # |e|, e = q - q_d, behavioral tracking error (Fig. 5)
+    e: tuple[float, float, float]  # its components x, y, psi
+    formation_error: float  # |x - (x_0 + rho_i)| with the true leader, m
+    fdb_error: float | None  # |x - x_fd| (FDB's task error), m; absent while FDB is inactive
+    estimator_error: float  # |p0_hat_i - p0|: eq. (14)'s position estimate against the leader, m
+    estimator_heading_error: float  # |psi0_hat_i - psi0|, rad
+    sliding: float  # |s|
+    torque: tuple[float, float, float, float]  # wheel torques, N m (Fig. 6)
+    torque_peak: float  # max |tau_j|, N m
+    speed: float  # |(x_dot, y_dot)|, m/s
+    command_speed: float  # |v_d| fused velocity command (translation), m/s
+    active: int  # active behaviors bitmask FDB=1 FOCB=2 FRCB=4
+    fdb: int  # 1 while active
+    focb: int
+    frcb: int
+    order: str  # active behaviors, highest priority first
+    nonfinite: int  # 1: the law gave NaN/Inf and the torques were zeroed
+    speed_limited: int  # 1: the velocity command sits at the scenario's max_speed_mps
+    torque_limited: int  # 1: a wheel torque sits at max_wheel_torque_nm
+    speed_factor: float  # degradation: 1 full speed
+    input_age_s: float  # age of the freshest leader information
+    obstacle_clearance: float | None  # to the nearest obstacle's surface, m
+    robot_clearance: float | None  # to the nearest robot's surface, m
+
+
+class FleetSignals(msgspec.Struct, kw_only=True):
+    t: float
+    leader_speed: float  # m/s
+    max_tracking_error: float
+    settle_threshold: float  # the band of the settling criterion
+    settled: int  # 1: every robot's |e| is inside the band now
+    settling_bound_s: float  # sqrt(2) T_p
+    min_obstacle_clearance: float | None
+    min_robot_separation: float | None
+    nonfinite: int  # robots whose law gave NaN/Inf at this step
+
+
+@dataclass(frozen=True)
+class _Static:
+    ids: list[int]
+    radius: float
+    obstacles: np.ndarray  # (m, 2)
+    obstacle_radii: np.ndarray  # (m,)
+    r_a: float
+    r_c: float
+    max_speed: float
+    max_torque: float
+    threshold: float
+    bound: float
+
+
+class FleetScene:
+    """Turns rows of a run's time series into Foxglove messages."""
+
+    def __init__(self, sc: Scenario) -> None:
+        s = sc.spec
+        self.sc = sc
+        self.st = _Static(
+            ids=list(sc.robot_ids), radius=s.robot.body_radius_m,
+            obstacles=np.array([o.position for o in s.obstacles], float).reshape(-1, 2),
+            obstacle_radii=np.array([o.radius_m for o in s.obstacles], float),
+            r_a=s.behaviors.obstacle_safe_distance_m, r_c=s.behaviors.robot_safe_distance_m,
+            max_speed=s.limits.max_speed_mps, max_torque=s.limits.max_wheel_torque_nm,
+            threshold=s.metrics.settle_threshold, bound=math.sqrt(2.0) * s.controller.T_p)
+        self.targets = FormationTargets(sc)
+        self.trace_stride = stride(sc, 1.0 / TRACE_STEP_S)
+        self._obstacle_entities = self._obstacles()
+
+    def time(self, k: int) -> float:
+        return k * self.sc.dt
+
+    # -- scene ------------------------------------------------------------------------
+    def scene_messages(self, ts: TimeSeries, k: int) -> dict[str, object]:
+        """Every scene and frame topic at step k (rows 0..k must be filled)."""
+        stamp = _stamp(self.time(k))
+        q = ts.q[k]
+        ok = np.isfinite(q).all(axis=1)
+        out: dict[str, object] = {
+            SCENE_OBSTACLES: SceneUpdate(entities=self._obstacle_entities),
+            SCENE_ROBOTS: SceneUpdate(entities=[
+                *(self._robot(rid, i, q[i], stamp) for i, rid in enumerate(self.st.ids) if ok[i]),
+                *self._leader(ts.leader_q[k], stamp)]),
+            SCENE_FORMATION: SceneUpdate(entities=[
+                self._desired(rid, i, q[i], ts.q_fd[k, i], stamp)
+                for i, rid in enumerate(self.st.ids)
+                if ok[i] and np.isfinite(ts.q_fd[k, i]).all()]),
+            SCENE_BEHAVIORS: SceneUpdate(
+                deletions=[SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletionType.All)],
+                entities=[e for i, rid in enumerate(self.st.ids) if ok[i]
+                          for e in self._behaviors(rid, i, q[i], int(ts.active[k, i]), stamp)]),
+            SCENE_TRACES: SceneUpdate(entities=self._traces(ts, k, stamp)),
+        }
+        poses = [_pose(q[i]) for i in range(len(self.st.ids)) if ok[i]]
+        transforms = [FrameTransform(timestamp=stamp, parent_frame_id=WORLD_FRAME,
+                                     child_frame_id=robot_frame(rid), translation=_vec(q[i]),
+                                     rotation=_yaw(q[i][2]))
+                      for i, rid in enumerate(self.st.ids) if ok[i]]
+        lq = ts.leader_q[k]
+        if np.isfinite(lq).all():
+            transforms.append(FrameTransform(
+                timestamp=stamp, parent_frame_id=WORLD_FRAME, child_frame_id=LEADER_FRAME,
+                translation=_vec(lq), rotation=_yaw(lq[2])))
+            out[LEADER_POSE_TOPIC] = PoseInFrame(timestamp=stamp, frame_id=WORLD_FRAME,
+                                                 pose=_pose(lq))
+        out[TF_TOPIC] = FrameTransforms(transforms=transforms)
+        out[POSES_TOPIC] = PosesInFrame(timestamp=stamp, frame_id=WORLD_FRAME, poses=poses)
+        return out
+
+    def _obstacles(self) -> list[SceneEntity]:
+        st, grey, ring = self.st, _color("#4d4d4d"), _color("#4d4d4d", 0.6)
+        out = []
+        for j, (p, r) in enumerate(zip(st.obstacles, st.obstacle_radii, strict=True)):
+            drawn = max(float(r), MIN_DRAWN_RADIUS_M)
+            out.append(SceneEntity(
+                frame_id=WORLD_FRAME, id=f"obstacle-{j + 1}",
+                cylinders=[CylinderPrimitive(
+                    pose=_pose((p[0], p[1], 0.0), z=0.5), size=Vector3(x=2 * drawn, y=2 * drawn, z=1.0),
+                    bottom_scale=1.0, top_scale=1.0, color=grey)],
+                lines=[_ring(p, float(r) + st.r_a, ring, dashed=True)],
+                texts=[_label((p[0], p[1]), f"o{j + 1}", grey)]))
+        return out
+
+    def _robot(self, rid: int, i: int, q: np.ndarray, stamp: Timestamp) -> SceneEntity:
+        r, c = self.st.radius, _color(COLORS[i % len(COLORS)])
+        return SceneEntity(
+            timestamp=stamp, frame_id=WORLD_FRAME, id=robot_frame(rid),
+            cylinders=[CylinderPrimitive(pose=_pose(q, z=ROBOT_HEIGHT_M / 2),
+                                         size=Vector3(x=2 * r, y=2 * r, z=ROBOT_HEIGHT_M),
+                                         bottom_scale=1.0, top_scale=1.0, color=c)],
+            arrows=[ArrowPrimitive(pose=_pose(q, z=ROBOT_HEIGHT_M + 0.05), shaft_length=1.2 * r,
+                                   shaft_diameter=0.15 * r, head_length=0.5 * r,
+                                   head_diameter=0.4 * r, color=_color("#222222"))],
+            texts=[_label(q, str(rid), c, dz=ROBOT_HEIGHT_M + 0.6)])
+
+    def _leader(self, lq: np.ndarray, stamp: Timestamp) -> list[SceneEntity]:
+        if not np.isfinite(lq).all():
+            return []
+        r, c = 0.6 * self.st.radius, _color(LEADER_COLOR)
+        return [SceneEntity(
+            timestamp=stamp, frame_id=WORLD_FRAME, id="leader",
+            cylinders=[CylinderPrimitive(pose=_pose(lq, z=0.05), size=Vector3(x=2 * r, y=2 * r, z=0.1),
+                                         bottom_scale=1.0, top_scale=1.0, color=c)],
+            arrows=[ArrowPrimitive(pose=_pose(lq, z=0.15), shaft_length=2 * r, shaft_diameter=0.2 * r,
+                                   head_length=0.8 * r, head_diameter=0.6 * r, color=c)],
+            texts=[_label(lq, "leader", c, dz=0.8)])]
+
+    def _desired(self, rid: int, i: int, q: np.ndarray, q_fd: np.ndarray,
+                 stamp: Timestamp) -> SceneEntity:
+        r, col = self.st.radius, COLORS[i % len(COLORS)]
+        return SceneEntity(
+            timestamp=stamp, frame_id=WORLD_FRAME, id=f"desired-{rid}",
+            cylinders=[CylinderPrimitive(pose=_pose(q_fd, z=0.01), size=Vector3(x=2 * r, y=2 * r, z=0.02),
+                                         bottom_scale=1.0, top_scale=1.0, color=_color(col, 0.3))],
+            lines=[LinePrimitive(type=LinePrimitiveLineType.LineList, thickness=2.0,
+                                 scale_invariant=True, color=_color(col, 0.6),
+                                 points=[_point(q, 0.02), _point(q_fd, 0.02)])])
+
+    def _behaviors(self, rid: int, i: int, q: np.ndarray, active: int,
+                   stamp: Timestamp) -> list[SceneEntity]:
+        col, out = COLORS[i % len(COLORS)], []
+        if active & BEHAVIOR_BITS["FOCB"]:
+            out.append(SceneEntity(timestamp=stamp, frame_id=WORLD_FRAME, id=f"focb-{rid}",
+                                   lines=[_ring(q, self.st.r_a, _color(col, 0.9))],
+                                   texts=[_label((q[0] + self.st.r_a, q[1]), "FOCB R_a", _color(col))]))
+        if active & BEHAVIOR_BITS["FRCB"]:
+            out.append(SceneEntity(timestamp=stamp, frame_id=WORLD_FRAME, id=f"frcb-{rid}",
+                                   lines=[_ring(q, self.st.r_c, _color(col, 0.9), dashed=True)],
+                                   texts=[_label((q[0] - self.st.r_c, q[1]), "FRCB R_c", _color(col))]))
+        return out
+
+    def _traces(self, ts: TimeSeries, k: int, stamp: Timestamp) -> list[SceneEntity]:
+        rows = np.r_[np.arange(0, k, self.trace_stride), k]
+        out = []
+        paths = [(robot_frame(rid), ts.q[rows, i], COLORS[i % len(COLORS)])
+                 for i, rid in enumerate(self.st.ids)]
+        paths.append((LEADER_FRAME, ts.leader_q[rows], LEADER_COLOR))
+        for name, path, col in paths:
+            pts = [Point3(x=float(x), y=float(y), z=0.0) for x, y in path[:, :2]
+                   if math.isfinite(x) and math.isfinite(y)]
+            out.append(SceneEntity(
+                timestamp=stamp, frame_id=WORLD_FRAME, id=f"trace-{name}",
+                lines=[LinePrimitive(type=LinePrimitiveLineType.LineStrip, thickness=2.0,
+                                     scale_invariant=True, points=pts, color=_color(col, 0.8))]))
+        return out
+
+    # -- plots ------------------------------------------------------------------------
+    def plot_messages(self, ts: TimeSeries, k: int) -> dict[str, msgspec.Struct]:
+        """Every plot topic at step k (the formation target computed here)."""
+        return next(iter(self.plot_rows(ts, [k], series_target=False)))[1]
+
+    def plot_rows(self, ts: TimeSeries, rows, series_target: bool = True):
+        """(k, {topic: message}) for each k of ``rows``, computed column-wise.
+        ``series_target``: take x_0 + rho_i from the series' ``target`` column
+        (a finished run's series has it; a live distributed one does not yet)."""
+        st = self.st
+        rows = np.asarray(list(rows), dtype=int)
+        if not len(rows):
+            return
+        q, lq, lv = ts.q[rows], ts.leader_q[rows], ts.leader_v[rows]
+        if series_target:
+            target = ts.target[rows]
+        else:
+            target = np.array([self.targets.at(self.time(k), lq[j], lv[j]) if np.isfinite(lq[j]).all()
+                               else np.full((len(st.ids), 2), np.nan) for j, k in enumerate(rows)])
+        e = ts.e[rows]
+        err = np.linalg.norm(e, axis=2)
+        tau = ts.torque[rows]
+        peak = np.max(np.abs(tau), axis=2)
+        vcmd = np.hypot(ts.v_cmd[rows, :, 0], ts.v_cmd[rows, :, 1])
+        d_h = ts.q0_hat[rows, :, 2] - lq[:, None, 2]
+        obst, rob = _clearances(q[:, :, :2], st.radius, st.obstacles, st.obstacle_radii)
+        cols = {
+            "tracking_error": err, "formation_error": np.linalg.norm(q[:, :, :2] - target, axis=2),
+            "fdb_error": ts.fdb_error[rows],
+            "estimator_error": np.linalg.norm(ts.q0_hat[rows, :, :2] - lq[:, None, :2], axis=2),
+            "estimator_heading_error": np.abs(np.arctan2(np.sin(d_h), np.cos(d_h))),
+            "sliding": np.linalg.norm(ts.s[rows], axis=2), "torque_peak": peak,
+            "speed": np.hypot(ts.q_dot[rows, :, 0], ts.q_dot[rows, :, 1]), "command_speed": vcmd,
+            "speed_factor": ts.speed_factor[rows], "input_age_s": ts.input_age[rows],
+            "obstacle_clearance": obst, "robot_clearance": rob,
+        }
+        nullable = ("fdb_error", "obstacle_clearance", "robot_clearance")
+        lists = {name: c.tolist() for name, c in cols.items()}
+        e_l, tau_l = e.tolist(), tau.tolist()
+        active = ts.active[rows].astype(int).tolist()
+        nonfinite = ts.nonfinite[rows].astype(int).tolist()
+        order = ts.order[rows].tolist()
+        speed_lim = (vcmd >= st.max_speed * (1 - 1e-9)).astype(int).tolist()
+        torque_lim = (peak >= st.max_torque * (1 - 1e-9)).astype(int).tolist()
+        settled = np.all(err < st.threshold, axis=1).astype(int).tolist()
+        max_err = np.max(err, axis=1).tolist()
+        leader_speed = np.hypot(lv[:, 0], lv[:, 1]).tolist()
+        min_obst, min_rob = np.min(obst, axis=1).tolist(), np.min(rob, axis=1).tolist()
+        fdb_bit, focb_bit, frcb_bit = (BEHAVIOR_BITS[b] for b in ("FDB", "FOCB", "FRCB"))
+        for j, k in enumerate(rows.tolist()):
+            t = self.time(k)
+            out: dict[str, msgspec.Struct] = {}
+            for i, rid in enumerate(st.ids):
+                v = {name: lists[name][j][i] for name in lists}
+                for name in nullable:
+                    v[name] = _finite(v[name])
+                a = active[j][i]
+                out[plot_topic(rid)] = RobotSignals(
+                    t=t, robot=rid, e=tuple(e_l[j][i]), torque=tuple(tau_l[j][i]), active=a,
+                    fdb=int(bool(a & fdb_bit)), focb=int(bool(a & focb_bit)),
+                    frcb=int(bool(a & frcb_bit)), order=order[j][i], nonfinite=nonfinite[j][i],
+                    speed_limited=speed_lim[j][i], torque_limited=torque_lim[j][i], **v)
+            out[PLOT_FLEET] = FleetSignals(
+                t=t, leader_speed=leader_speed[j], max_tracking_error=max_err[j],
+                settle_threshold=st.threshold, settled=settled[j], settling_bound_s=st.bound,
+                min_obstacle_clearance=_finite(min_obst[j]), min_robot_separation=_finite(min_rob[j]),
+                nonfinite=sum(nonfinite[j]))
+            yield k, out
+
+
+def _clearances(p: np.ndarray, radius: float, obstacles: np.ndarray,
+                obstacle_radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, n, 2) positions -> per row and robot: clearance to the nearest
+    obstacle's surface, to the nearest other robot's surface (inf: none)."""
+    rows, n = p.shape[:2]
+    if len(obstacles):
+        d = np.linalg.norm(p[:, :, None, :] - obstacles[None, None], axis=3)
+        obst = (d - radius - obstacle_radii[None, None]).min(axis=2)
+    else:
+        obst = np.full((rows, n), np.inf)
+    dr = np.linalg.norm(p[:, :, None, :] - p[:, None, :, :], axis=3) - 2 * radius
+    dr[:, np.arange(n), np.arange(n)] = np.inf
+    return obst, dr.min(axis=2)
+
+
+def _finite(x: float) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _tuple(a: np.ndarray) -> tuple:
+    return tuple(float(x) for x in a)
+
+
+def _stamp(t: float) -> Timestamp:
+    ns = max(0, int(round(t * 1e9)))
+    return Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
+
+
+def _color(hex_rgb: str, alpha: float = 1.0) -> Color:
+    h = hex_rgb.lstrip("#")
+    return Color(r=int(h[0:2], 16) / 255, g=int(h[2:4], 16) / 255, b=int(h[4:6], 16) / 255, a=alpha)
+
+
+def _vec(q) -> Vector3:
+    return Vector3(x=float(q[0]), y=float(q[1]), z=0.0)
+
+
+def _point(q, z: float = 0.0) -> Point3:
+    return Point3(x=float(q[0]), y=float(q[1]), z=z)
+
+
+def _yaw(psi: float) -> Quaternion:
+    return Quaternion(x=0.0, y=0.0, z=math.sin(psi / 2), w=math.cos(psi / 2))
+
+
+def _pose(q, z: float = 0.0) -> Pose:
+    return Pose(position=Vector3(x=float(q[0]), y=float(q[1]), z=z), orientation=_yaw(float(q[2])))
+
+
+def _label(p, text: str, color: Color, dz: float = 1.2) -> TextPrimitive:
+    return TextPrimitive(pose=Pose(position=Vector3(x=float(p[0]), y=float(p[1]), z=dz),
+                                   orientation=Quaternion(w=1.0)),
+                         billboard=True, font_size=14.0, scale_invariant=True, color=color, text=text)
+
+
+RING_SEGMENTS = 48
+
+
+def _ring(center, radius: float, color: Color, dashed: bool = False) -> LinePrimitive:
+    a = np.linspace(0.0, 2 * math.pi, RING_SEGMENTS, endpoint=False)
+    pts = [Point3(x=float(center[0] + radius * math.cos(x)), y=float(center[1] + radius * math.sin(x)),
+                  z=0.02) for x in a]
+    if dashed:  # every other segment
+        return LinePrimitive(type=LinePrimitiveLineType.LineList, thickness=1.5, scale_invariant=True,
+                             points=pts, color=color)
+    return LinePrimitive(type=LinePrimitiveLineType.LineLoop, thickness=2.0, scale_invariant=True,
+                         points=pts, color=color)
+
