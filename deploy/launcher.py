@@ -102,6 +102,9 @@ class LaunchOptions:
     extra_agent_args: list[str] = field(default_factory=list)
     faults: FaultPlan | None = None  # given to every node; kills done by the launcher
     realtime_priority: int = REALTIME_PRIORITY  # nice -N for every node on the realtime clock
+    # --- issue 18 hook: a McapRecorder made (and closed) by the caller, who adds the run's
+    # scene to it at the end; None: the launcher makes its own and closes it
+    recorder: Any = None
 
 
 def free_udp_port() -> int:
@@ -317,7 +320,7 @@ class Launcher:
         node = Node(LAUNCHER_ROLE, self.keys, self.codec,
                     zenoh_config(listen=[endpoint]))
         if o.record:
-            self.recorder = McapRecorder(o.out / "recording.mcap")
+            self.recorder = o.recorder or McapRecorder(o.out / "recording.mcap")  # issue 18 hook
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         start = time.perf_counter()
         try:
@@ -361,7 +364,7 @@ class Launcher:
                 signal.signal(s, h)
             self.stop_children()
             node.close()
-            if self.recorder is not None:
+            if self.recorder is not None and o.recorder is None:  # issue 18 hook: else the caller's
                 self.recorder.close()  # flushed, also after Ctrl-C
         return self._figures(wall)
 

@@ -103,18 +103,19 @@ class McapRecorder:
         return entry[0], ch
 
     def _log_time(self, msg: Any, arrival_ns: int) -> int:
+        """Lockstep: the step k's time (k * dt), else the message's time t, else
+        the newest simulation time heard (reports, control without a step)."""
         if self.sim_dt is None:
             return arrival_ns
-        t = getattr(msg, "t", None)
-        if isinstance(t, float) and t == t and abs(t) < 1e9:
-            self._sim_ns = max(self._sim_ns, int(round(t * 1e9)))
-            return int(round(t * 1e9))
-        k = getattr(msg, "k", None)
+        k, t = getattr(msg, "k", None), getattr(msg, "t", None)
         if isinstance(k, int) and 0 <= k < 2**40:
             ns = int(round(k * self.sim_dt * 1e9))
-            self._sim_ns = max(self._sim_ns, ns)
-            return ns
-        return self._sim_ns  # reports, control: when the run was at
+        elif isinstance(t, float) and 0.0 <= t < 1e9:
+            ns = int(round(t * 1e9))
+        else:
+            return self._sim_ns
+        self._sim_ns = max(self._sim_ns, ns)
+        return ns
 
     def _write_wire(self, key: str, arrival_ns: int, msg: Any) -> None:
         try:
