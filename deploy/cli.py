@@ -72,6 +72,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     finally:
         if live is not None:
             live.close()
+            print(f"live view: {live.published} messages served, {live.cpu_s:.2f} s CPU",
+                  file=sys.stderr)
     banner = divergence_banner(metrics["verdict"])
     if banner:
         print(banner, file=sys.stderr)

@@ -79,7 +79,8 @@ PLOT_FLEET = "/plot/fleet"
 
 SCENE_RATE_HZ = 30.0  # scenes per simulated second in a recording (a display's rate)
 PLOT_RATE_HZ = 250.0  # plot rows per simulated second at most (Fig. 5's transients last ~0.4 s)
-TRACE_STEP_S = 0.05  # one trace point per 50 ms of the run
+TRACE_STEP_S = 0.05  # one trace point per 50 ms of the run (the recent part, live)
+TRACE_RECENT_S = 2.0  # live: the last 2 s at TRACE_STEP_S, older history coarser
 MIN_DRAWN_RADIUS_M = 0.15  # a point obstacle is drawn this big (as in figures.py)
 ROBOT_HEIGHT_M = 0.25
 LEADER_COLOR = "#1f3fbf"
@@ -162,7 +163,9 @@ class _Static:
 class FleetScene:
     """Turns rows of a run's time series into Foxglove messages."""
 
-    def __init__(self, sc: Scenario) -> None:
+    def __init__(self, sc: Scenario, trace_history_step_s: float = TRACE_STEP_S) -> None:
+        """``trace_history_step_s``: spacing of trace points older than
+        ``TRACE_RECENT_S`` (a live view keeps its scenes small with a coarser one)."""
         s = sc.spec
         self.sc = sc
         self.st = _Static(
@@ -174,6 +177,8 @@ class FleetScene:
             threshold=s.metrics.settle_threshold, bound=math.sqrt(2.0) * s.controller.T_p)
         self.targets = FormationTargets(sc)
         self.trace_stride = stride(sc, 1.0 / TRACE_STEP_S)
+        self.history_stride = stride(sc, 1.0 / trace_history_step_s)
+        self.recent_steps = int(round(TRACE_RECENT_S / sc.dt))
         self._obstacle_entities = self._obstacles()
 
     def time(self, k: int) -> float:
@@ -278,8 +283,16 @@ class FleetScene:
                                    texts=[_label((q[0] - self.st.r_c, q[1]), "FRCB R_c", _color(col))]))
         return out
 
+    def _trace_rows(self, k: int) -> np.ndarray:
+        """Rows of the trace up to k: fine for the last TRACE_RECENT_S, the
+        history at its own spacing (the same as the recent part by default)."""
+        split = max(0, k - self.recent_steps)
+        split -= split % self.history_stride
+        return np.r_[np.arange(0, split, self.history_stride),
+                     np.arange(split, k, self.trace_stride), k]
+
     def _traces(self, ts: TimeSeries, k: int, stamp: Timestamp) -> list[SceneEntity]:
-        rows = np.r_[np.arange(0, k, self.trace_stride), k]
+        rows = self._trace_rows(k)
         out = []
         paths = [(robot_frame(rid), ts.q[rows, i], COLORS[i % len(COLORS)])
                  for i, rid in enumerate(self.st.ids)]

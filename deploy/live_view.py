@@ -43,7 +43,8 @@ from deploy.timeseries import TimeSeries
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765  # Foxglove's default for a WebSocket connection
-LIVE_PLOT_RATE_HZ = 100.0  # plot rows per simulated second, live (the recording has more)
+LIVE_PLOT_RATE_HZ = 50.0  # plot rows per simulated second, live (the recording has more)
+LIVE_TRACE_HISTORY_S = 0.25  # live: trace points older than 2 s this far apart (scenes stay small)
 MAX_ROWS_PER_TICK = 64  # a view that fell behind skips rows rather than lag
 
 
@@ -70,7 +71,7 @@ class LiveView:
     def __init__(self, sc: Scenario, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
                  realtime: bool = False) -> None:
         self.sc, self.realtime = sc, realtime
-        self.scene = FleetScene(sc)
+        self.scene = FleetScene(sc, LIVE_TRACE_HISTORY_S)
         self.context = foxglove.Context()
         self.server = foxglove.start_server(
             name=f"omnifleet {sc.name}", host=host, port=port, context=self.context,
@@ -97,6 +98,7 @@ class LiveView:
         self._thread: threading.Thread | None = None
         self.published = 0  # messages handed to the server
         self.errors = 0
+        self.cpu_s = 0.0  # CPU time the view's thread spent building and handing over messages
 
     @property
     def port(self) -> int:
@@ -126,11 +128,13 @@ class LiveView:
         ts, k = self._series, self._newest_row()
         if ts is None or k <= self._sent or k < 0:
             return
+        cpu = time.thread_time()
         try:
             self._send(ts, self._sent, min(k, ts.steps - 1))
         except Exception:  # noqa: BLE001 - a viewer never stops a run
             self.errors += 1
         self._sent = k
+        self.cpu_s += time.thread_time() - cpu
 
     def _send(self, ts: TimeSeries, after: int, k: int) -> None:
         log = (lambda _k: time.time_ns()) if self.realtime else (
