@@ -273,3 +273,13 @@ def test_the_summary_ends_with_the_verdict(in_process_run, capsys):
     from deploy.cli import _summary
 
     assert _summary(m, in_process_run).splitlines()[-1].startswith("verdict: PASS")
+
+
+def test_the_docs_screenshot_renders_from_a_recording(in_process_run, tmp_path):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("render_scene", REPO / "docs" / "render_scene.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mod.render(in_process_run, tmp_path / "scene.png")
+    assert (tmp_path / "scene.png").stat().st_size > 10_000
