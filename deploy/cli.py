@@ -72,7 +72,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     finally:
         if live is not None:
             live.close()
-            print(f"live view: {live.published} messages served, {live.cpu_s:.2f} s CPU",
+            print(f"live view: {live.published} messages served, {live.cpu_s:.2f} s CPU; stopped",
                   file=sys.stderr)
     banner = divergence_banner(metrics["verdict"])
     if banner:
@@ -107,7 +107,8 @@ def _start_live(args: argparse.Namespace, sc):
     """The --live view (None without it; False: a bad address, already said)."""
     if args.live is None:
         return None
-    from deploy.live_view import LiveAddressError, LiveView, parse_address
+    from deploy.live_view import LiveView
+    from deploy.ws_address import LiveAddressError, parse_address, url
 
     try:
         host, port = parse_address(args.live)
@@ -115,13 +116,9 @@ def _start_live(args: argparse.Namespace, sc):
     except (LiveAddressError, RuntimeError, OSError) as exc:
         print(f"omnifleet run: --live {args.live}: {exc}", file=sys.stderr)
         return False
-    print(f"live view: ws://{_url_host(host)}:{live.port} (Foxglove: Open connection -> "
+    print(f"live view: {url(host, live.port)} (Foxglove: Open connection -> "
           "Foxglove WebSocket; layout docs/foxglove-layout.json)", file=sys.stderr, flush=True)
     return live
-
-
-def _url_host(host: str) -> str:
-    return f"[{host}]" if ":" in host else host
 
 
 def _with_live(progress, live):

@@ -16,7 +16,6 @@ import json
 import sys
 from typing import Any
 
-from deploy.figures import COLORS
 from deploy.foxglove_scene import (
     LEADER_POSE_TOPIC,
     PLOT_FLEET,
@@ -29,6 +28,7 @@ from deploy.foxglove_scene import (
     WORLD_FRAME,
     plot_topic,
 )
+from deploy.palette import COLORS
 from deploy.scenario import Scenario, load_scenario
 
 SCENE_PANEL = "3D!fleet"

@@ -58,7 +58,7 @@ from foxglove.messages import (
     Vector3,
 )
 
-from deploy.figures import COLORS
+from deploy.palette import COLORS
 from deploy.runner import FormationTargets
 from deploy.scenario import Scenario
 from deploy.timeseries import BEHAVIOR_BITS, TimeSeries

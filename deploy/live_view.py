@@ -40,31 +40,12 @@ from deploy.foxglove_scene import (
 )
 from deploy.scenario import Scenario
 from deploy.timeseries import TimeSeries
+from deploy.ws_address import DEFAULT_HOST, DEFAULT_PORT
 
-DEFAULT_HOST = "127.0.0.1"
-DEFAULT_PORT = 8765  # Foxglove's default for a WebSocket connection
 LIVE_PLOT_RATE_HZ = 50.0  # plot rows per simulated second, live (the recording has more)
 LIVE_TRACE_HISTORY_S = 0.25  # live: trace points older than 2 s this far apart (scenes stay small)
 MAX_ROWS_PER_TICK = 64  # a view that fell behind skips rows rather than lag
 
-
-class LiveAddressError(ValueError):
-    """A ``[HOST:]PORT`` that is not one."""
-
-
-def parse_address(text: str) -> tuple[str, int]:
-    """``8765`` -> (127.0.0.1, 8765); ``0.0.0.0:8765``; ``[::1]:8765``."""
-    host, sep, port = text.rpartition(":")
-    if not sep:
-        host = DEFAULT_HOST
-    host = host.strip("[]") or DEFAULT_HOST
-    try:
-        p = int(port)
-    except ValueError:
-        raise LiveAddressError(f"{text!r} is not [HOST:]PORT") from None
-    if not 0 <= p <= 65535:
-        raise LiveAddressError(f"port {p} is out of range 0-65535")
-    return host, p
 
 
 class LiveView:

@@ -213,7 +213,7 @@ def test_live_serves_the_scene_while_the_run_goes_and_ends_cleanly(tmp_path):
 
 
 def test_view_serves_a_finished_recording(in_process_run):
-    from deploy.view import serve_recording
+    from deploy.recording_player import serve_recording
 
     sc = load_scenario("paper")
     stop, ready = threading.Event(), []
