@@ -16,7 +16,7 @@ import json
 import sys
 from typing import Any
 
-from deploy.foxglove_scene import (
+from deploy.foxglove_topics import (
     LEADER_POSE_TOPIC,
     PLOT_FLEET,
     POSES_TOPIC,

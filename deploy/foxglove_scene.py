@@ -1,9 +1,9 @@
-"""A run's step k as Foxglove messages: the scene, the frames, the plot signals.
+"""A run's step k as Foxglove messages: the scene and the frames.
 
 Pure: (Scenario, TimeSeries, k) in, messages out, no I/O. The recorder writes
 them into the run's MCAP, the live view serves them over Foxglove's WebSocket
-protocol; both take the topic names from here (and so does the layout,
-``deploy/foxglove_layout.py``). Built only from the time series and the
+protocol (topic names: ``deploy/foxglove_topics.py``; the plot signals:
+``deploy/foxglove_plots.py``). Built only from the time series and the
 scenario, so it does not depend on the shape of the wire.
 
 Scene (``foxglove.SceneUpdate``, frame ``world``, z up, the plane z = 0):
@@ -22,11 +22,6 @@ Scene (``foxglove.SceneUpdate``, frame ``world``, z up, the plane z = 0):
 Frames: ``/tf`` (``FrameTransforms``: world -> ``robot-<id>``, world ->
 ``leader``), ``/robots/poses`` (``PosesInFrame``), ``/leader/pose``
 (``PoseInFrame``).
-
-Plots (JSON, schema from ``deploy/foxglove_json.py``): ``/plot/robot/<id>``
-(:class:`RobotSignals`: tracking and formation errors of Fig. 5, estimator
-error, wheel torques of Fig. 6, active behaviors, safety and limit activity,
-clearances) and ``/plot/fleet`` (:class:`FleetSignals`).
 """
 
 from __future__ import annotations
@@ -34,7 +29,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import msgspec
 import numpy as np
 from foxglove.messages import (
     ArrowPrimitive,
@@ -58,92 +52,29 @@ from foxglove.messages import (
     Vector3,
 )
 
+from deploy.foxglove_topics import (
+    LEADER_FRAME,
+    LEADER_POSE_TOPIC,
+    POSES_TOPIC,
+    SCENE_BEHAVIORS,
+    SCENE_FORMATION,
+    SCENE_OBSTACLES,
+    SCENE_ROBOTS,
+    SCENE_TRACES,
+    TF_TOPIC,
+    WORLD_FRAME,
+    robot_frame,
+    stride,
+)
 from deploy.palette import COLORS
-from deploy.runner import FormationTargets
 from deploy.scenario import Scenario
 from deploy.timeseries import BEHAVIOR_BITS, TimeSeries
 
-WORLD_FRAME = "world"
-LEADER_FRAME = "leader"
-SCENE_OBSTACLES = "/scene/obstacles"
-SCENE_ROBOTS = "/scene/robots"
-SCENE_FORMATION = "/scene/formation"
-SCENE_BEHAVIORS = "/scene/behaviors"
-SCENE_TRACES = "/scene/traces"
-SCENE_TOPICS = (SCENE_OBSTACLES, SCENE_ROBOTS, SCENE_FORMATION, SCENE_BEHAVIORS, SCENE_TRACES)
-TF_TOPIC = "/tf"
-POSES_TOPIC = "/robots/poses"
-LEADER_POSE_TOPIC = "/leader/pose"
-FRAME_TOPICS = (TF_TOPIC, POSES_TOPIC, LEADER_POSE_TOPIC)
-PLOT_FLEET = "/plot/fleet"
-
-SCENE_RATE_HZ = 30.0  # scenes per simulated second in a recording (a display's rate)
-PLOT_RATE_HZ = 250.0  # plot rows per simulated second at most (Fig. 5's transients last ~0.4 s)
 TRACE_STEP_S = 0.05  # one trace point per 50 ms of the run (the recent part, live)
 TRACE_RECENT_S = 2.0  # live: the last 2 s at TRACE_STEP_S, older history coarser
 MIN_DRAWN_RADIUS_M = 0.15  # a point obstacle is drawn this big (as in figures.py)
 ROBOT_HEIGHT_M = 0.25
 LEADER_COLOR = "#1f3fbf"
-
-
-def robot_frame(rid: int) -> str:
-    return f"robot-{rid}"
-
-
-def plot_topic(rid: int) -> str:
-    return f"/plot/robot/{rid}"
-
-
-def plot_topics(sc: Scenario) -> list[str]:
-    return [*(plot_topic(r) for r in sc.robot_ids), PLOT_FLEET]
-
-
-def stride(sc: Scenario, rate_hz: float) -> int:
-    """Steps between two messages at (at most) ``rate_hz``."""
-    return max(1, int(round(1.0 / (rate_hz * sc.dt))))
-
-
-# -- plot signals ---------------------------------------------------------------------------
-class RobotSignals(msgspec.Struct, kw_only=True):
-    """One robot at step k, for Foxglove's Plot panel (``/plot/robot/<id>.field``)."""
-
-    t: float  # s
-    robot: int
-    tracking_error: float  # |e|, e = q - q_d, behavioral tracking error (Fig. 5)
-    e: tuple[float, float, float]  # its components x, y, psi
-    formation_error: float  # |x - (x_0 + rho_i)| with the true leader, m
-    fdb_error: float | None  # |x - x_fd| (FDB's task error), m; absent while FDB is inactive
-    estimator_error: float  # |p0_hat_i - p0|: eq. (14)'s position estimate against the leader, m
-    estimator_heading_error: float  # |psi0_hat_i - psi0|, rad
-    sliding: float  # |s|
-    torque: tuple[float, float, float, float]  # wheel torques, N m (Fig. 6)
-    torque_peak: float  # max |tau_j|, N m
-    speed: float  # |(x_dot, y_dot)|, m/s
-    command_speed: float  # |v_d| fused velocity command (translation), m/s
-    active: int  # active behaviors bitmask FDB=1 FOCB=2 FRCB=4
-    fdb: int  # 1 while active
-    focb: int
-    frcb: int
-    order: str  # active behaviors, highest priority first
-    nonfinite: int  # 1: the law gave NaN/Inf and the torques were zeroed
-    speed_limited: int  # 1: the velocity command sits at the scenario's max_speed_mps
-    torque_limited: int  # 1: a wheel torque sits at max_wheel_torque_nm
-    speed_factor: float  # degradation: 1 full speed
-    input_age_s: float  # age of the freshest leader information
-    obstacle_clearance: float | None  # to the nearest obstacle's surface, m
-    robot_clearance: float | None  # to the nearest robot's surface, m
-
-
-class FleetSignals(msgspec.Struct, kw_only=True):
-    t: float
-    leader_speed: float  # m/s
-    max_tracking_error: float
-    settle_threshold: float  # the band of the settling criterion
-    settled: int  # 1: every robot's |e| is inside the band now
-    settling_bound_s: float  # sqrt(2) T_p
-    min_obstacle_clearance: float | None
-    min_robot_separation: float | None
-    nonfinite: int  # robots whose law gave NaN/Inf at this step
 
 
 @dataclass(frozen=True)
@@ -154,28 +85,25 @@ class _Static:
     obstacle_radii: np.ndarray  # (m,)
     r_a: float
     r_c: float
-    max_speed: float
-    max_torque: float
-    threshold: float
-    bound: float
 
 
 class FleetScene:
-    """Turns rows of a run's time series into Foxglove messages."""
+    """Turns rows of a run's time series into scene and frame messages."""
 
-    def __init__(self, sc: Scenario, trace_history_step_s: float = TRACE_STEP_S) -> None:
+    def __init__(self, sc: Scenario, trace_history_step_s: float = TRACE_STEP_S,
+                 stamp_offset_ns: int = 0) -> None:
         """``trace_history_step_s``: spacing of trace points older than
-        ``TRACE_RECENT_S`` (a live view keeps its scenes small with a coarser one)."""
+        ``TRACE_RECENT_S`` (a live view keeps its scenes small with a coarser one);
+        ``stamp_offset_ns``: added to t in the messages' own stamps (the wall clock
+        at t = 0 when the file's log time is the wall clock)."""
         s = sc.spec
         self.sc = sc
         self.st = _Static(
             ids=list(sc.robot_ids), radius=s.robot.body_radius_m,
             obstacles=np.array([o.position for o in s.obstacles], float).reshape(-1, 2),
             obstacle_radii=np.array([o.radius_m for o in s.obstacles], float),
-            r_a=s.behaviors.obstacle_safe_distance_m, r_c=s.behaviors.robot_safe_distance_m,
-            max_speed=s.limits.max_speed_mps, max_torque=s.limits.max_wheel_torque_nm,
-            threshold=s.metrics.settle_threshold, bound=math.sqrt(2.0) * s.controller.T_p)
-        self.targets = FormationTargets(sc)
+            r_a=s.behaviors.obstacle_safe_distance_m, r_c=s.behaviors.robot_safe_distance_m)
+        self.stamp_offset_ns = stamp_offset_ns
         self.trace_stride = stride(sc, 1.0 / TRACE_STEP_S)
         self.history_stride = stride(sc, 1.0 / trace_history_step_s)
         self.recent_steps = int(round(TRACE_RECENT_S / sc.dt))
@@ -187,7 +115,7 @@ class FleetScene:
     # -- scene ------------------------------------------------------------------------
     def scene_messages(self, ts: TimeSeries, k: int) -> dict[str, object]:
         """Every scene and frame topic at step k (rows 0..k must be filled)."""
-        stamp = _stamp(self.time(k))
+        stamp = _stamp(self.time(k), self.stamp_offset_ns)
         q = ts.q[k]
         ok = np.isfinite(q).all(axis=1)
         out: dict[str, object] = {
@@ -306,102 +234,8 @@ class FleetScene:
                                      scale_invariant=True, points=pts, color=_color(col, 0.8))]))
         return out
 
-    # -- plots ------------------------------------------------------------------------
-    def plot_messages(self, ts: TimeSeries, k: int) -> dict[str, msgspec.Struct]:
-        """Every plot topic at step k (the formation target computed here)."""
-        return next(iter(self.plot_rows(ts, [k], series_target=False)))[1]
-
-    def plot_rows(self, ts: TimeSeries, rows, series_target: bool = True):
-        """(k, {topic: message}) for each k of ``rows``, computed column-wise.
-        ``series_target``: take x_0 + rho_i from the series' ``target`` column
-        (a finished run's series has it; a live distributed one does not yet)."""
-        st = self.st
-        rows = np.asarray(list(rows), dtype=int)
-        if not len(rows):
-            return
-        q, lq, lv = ts.q[rows], ts.leader_q[rows], ts.leader_v[rows]
-        if series_target:
-            target = ts.target[rows]
-        else:
-            target = np.array([self.targets.at(self.time(k), lq[j], lv[j]) if np.isfinite(lq[j]).all()
-                               else np.full((len(st.ids), 2), np.nan) for j, k in enumerate(rows)])
-        e = ts.e[rows]
-        err = np.linalg.norm(e, axis=2)
-        tau = ts.torque[rows]
-        peak = np.max(np.abs(tau), axis=2)
-        vcmd = np.hypot(ts.v_cmd[rows, :, 0], ts.v_cmd[rows, :, 1])
-        d_h = ts.q0_hat[rows, :, 2] - lq[:, None, 2]
-        obst, rob = _clearances(q[:, :, :2], st.radius, st.obstacles, st.obstacle_radii)
-        cols = {
-            "tracking_error": err, "formation_error": np.linalg.norm(q[:, :, :2] - target, axis=2),
-            "fdb_error": ts.fdb_error[rows],
-            "estimator_error": np.linalg.norm(ts.q0_hat[rows, :, :2] - lq[:, None, :2], axis=2),
-            "estimator_heading_error": np.abs(np.arctan2(np.sin(d_h), np.cos(d_h))),
-            "sliding": np.linalg.norm(ts.s[rows], axis=2), "torque_peak": peak,
-            "speed": np.hypot(ts.q_dot[rows, :, 0], ts.q_dot[rows, :, 1]), "command_speed": vcmd,
-            "speed_factor": ts.speed_factor[rows], "input_age_s": ts.input_age[rows],
-            "obstacle_clearance": obst, "robot_clearance": rob,
-        }
-        nullable = ("fdb_error", "obstacle_clearance", "robot_clearance")
-        lists = {name: c.tolist() for name, c in cols.items()}
-        e_l, tau_l = e.tolist(), tau.tolist()
-        active = ts.active[rows].astype(int).tolist()
-        nonfinite = ts.nonfinite[rows].astype(int).tolist()
-        order = ts.order[rows].tolist()
-        speed_lim = (vcmd >= st.max_speed * (1 - 1e-9)).astype(int).tolist()
-        torque_lim = (peak >= st.max_torque * (1 - 1e-9)).astype(int).tolist()
-        settled = np.all(err < st.threshold, axis=1).astype(int).tolist()
-        max_err = np.max(err, axis=1).tolist()
-        leader_speed = np.hypot(lv[:, 0], lv[:, 1]).tolist()
-        min_obst, min_rob = np.min(obst, axis=1).tolist(), np.min(rob, axis=1).tolist()
-        fdb_bit, focb_bit, frcb_bit = (BEHAVIOR_BITS[b] for b in ("FDB", "FOCB", "FRCB"))
-        for j, k in enumerate(rows.tolist()):
-            t = self.time(k)
-            out: dict[str, msgspec.Struct] = {}
-            for i, rid in enumerate(st.ids):
-                v = {name: lists[name][j][i] for name in lists}
-                for name in nullable:
-                    v[name] = _finite(v[name])
-                a = active[j][i]
-                out[plot_topic(rid)] = RobotSignals(
-                    t=t, robot=rid, e=tuple(e_l[j][i]), torque=tuple(tau_l[j][i]), active=a,
-                    fdb=int(bool(a & fdb_bit)), focb=int(bool(a & focb_bit)),
-                    frcb=int(bool(a & frcb_bit)), order=order[j][i], nonfinite=nonfinite[j][i],
-                    speed_limited=speed_lim[j][i], torque_limited=torque_lim[j][i], **v)
-            out[PLOT_FLEET] = FleetSignals(
-                t=t, leader_speed=leader_speed[j], max_tracking_error=max_err[j],
-                settle_threshold=st.threshold, settled=settled[j], settling_bound_s=st.bound,
-                min_obstacle_clearance=_finite(min_obst[j]), min_robot_separation=_finite(min_rob[j]),
-                nonfinite=sum(nonfinite[j]))
-            yield k, out
-
-
-def _clearances(p: np.ndarray, radius: float, obstacles: np.ndarray,
-                obstacle_radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(rows, n, 2) positions -> per row and robot: clearance to the nearest
-    obstacle's surface, to the nearest other robot's surface (inf: none)."""
-    rows, n = p.shape[:2]
-    if len(obstacles):
-        d = np.linalg.norm(p[:, :, None, :] - obstacles[None, None], axis=3)
-        obst = (d - radius - obstacle_radii[None, None]).min(axis=2)
-    else:
-        obst = np.full((rows, n), np.inf)
-    dr = np.linalg.norm(p[:, :, None, :] - p[:, None, :, :], axis=3) - 2 * radius
-    dr[:, np.arange(n), np.arange(n)] = np.inf
-    return obst, dr.min(axis=2)
-
-
-def _finite(x: float) -> float | None:
-    x = float(x)
-    return x if math.isfinite(x) else None
-
-
-def _tuple(a: np.ndarray) -> tuple:
-    return tuple(float(x) for x in a)
-
-
-def _stamp(t: float) -> Timestamp:
-    ns = max(0, int(round(t * 1e9)))
+def _stamp(t: float, offset_ns: int = 0) -> Timestamp:
+    ns = max(0, int(round(t * 1e9)) + offset_ns)
     return Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
 
 

@@ -25,16 +25,15 @@ from foxglove import channels as fc
 from foxglove.websocket import Capability
 
 from deploy.foxglove_json import StructJson
-from deploy.foxglove_scene import (
+from deploy.foxglove_plots import FleetPlots, FleetSignals, RobotSignals
+from deploy.foxglove_scene import FleetScene
+from deploy.foxglove_topics import (
     LEADER_POSE_TOPIC,
     PLOT_FLEET,
     POSES_TOPIC,
     SCENE_RATE_HZ,
     SCENE_TOPICS,
     TF_TOPIC,
-    FleetScene,
-    FleetSignals,
-    RobotSignals,
     plot_topic,
     stride,
 )
@@ -53,6 +52,7 @@ class LiveView:
                  realtime: bool = False) -> None:
         self.sc, self.realtime = sc, realtime
         self.scene = FleetScene(sc, LIVE_TRACE_HISTORY_S)
+        self.plots = FleetPlots(sc)
         self.context = foxglove.Context()
         self.server = foxglove.start_server(
             name=f"omnifleet {sc.name}", host=host, port=port, context=self.context,
@@ -126,7 +126,7 @@ class LiveView:
                 self.channels[PLOT_FLEET].has_sinks():
             first = (after // self.plot_stride + 1) * self.plot_stride
             rows = list(range(first, k + 1, self.plot_stride))[-MAX_ROWS_PER_TICK:]
-            for row, msgs in self.scene.plot_rows(ts, rows, series_target=False):
+            for row, msgs in self.plots.rows(ts, rows, series_target=False):
                 for topic, msg in msgs.items():
                     ch = self.channels[topic]
                     if ch.has_sinks():

@@ -186,16 +186,19 @@ class McapRecorder:
 
         ``t0_unix_ns``: wall clock at t = 0 (default: now); ``step_unix_ns``: wall
         clock at each step when known (the publish time; else t0 + t)."""
-        from deploy.foxglove_scene import PLOT_RATE_HZ, SCENE_RATE_HZ, FleetScene, stride
+        from deploy.foxglove_plots import FleetPlots
+        from deploy.foxglove_scene import FleetScene
+        from deploy.foxglove_topics import PLOT_RATE_HZ, SCENE_RATE_HZ, stride
 
         self._drain()
-        fs = FleetScene(sc)
         t0 = int(t0_unix_ns) if t0_unix_ns is not None else time.time_ns()
+        fs = FleetScene(sc, stamp_offset_ns=0 if self.sim_dt is not None else t0)
+        fp = FleetPlots(sc)
         steps = series.steps
         scene_rows = set(range(0, steps, stride(sc, SCENE_RATE_HZ))) | ({steps - 1} if steps else set())
         plot_rows = set(range(0, steps, stride(sc, PLOT_RATE_HZ))) | scene_rows
         with self._lock:
-            for k, plots in fs.plot_rows(series, sorted(plot_rows)):
+            for k, plots in fp.rows(series, sorted(plot_rows)):
                 t_ns = int(round(k * sc.dt * 1e9))
                 wall = int(step_unix_ns[k]) if step_unix_ns is not None else t0 + t_ns
                 log = t_ns if self.sim_dt is not None else t0 + t_ns

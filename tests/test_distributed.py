@@ -62,7 +62,7 @@ def test_run_reports_processes_messages_and_a_recording(distributed_run):
     assert msg["sent"] > 0 and msg["invalid"] == 0 and msg["late"] == 0 and msg["dropped"] == 0
     from foxglove_decode import decode
 
-    from deploy.foxglove_scene import SCENE_ROBOTS
+    from deploy.foxglove_topics import SCENE_ROBOTS
 
     robots = set()
     with open(distributed_run / "recording.mcap", "rb") as f:

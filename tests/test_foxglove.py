@@ -24,7 +24,7 @@ from procs import finish, pids_with, start
 from deploy import wire
 from deploy.cli import main
 from deploy.foxglove_json import StructJson
-from deploy.foxglove_scene import (
+from deploy.foxglove_topics import (
     PLOT_FLEET,
     SCENE_OBSTACLES,
     SCENE_ROBOTS,
