@@ -137,11 +137,8 @@ def _with_live(progress, live):
 def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label: str, live=None):
     import time
 
-    import numpy as np
-
     from deploy.launcher import Launcher, LaunchOptions, RunFailed
-    from deploy.live_view import collector_rows
-    from deploy.outputs import write_run
+    from deploy.outputs import run_wall_clock, write_run
     from deploy.recorder import McapRecorder
     from deploy.runner import terminal_progress
 
@@ -159,6 +156,8 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     )
     launcher = Launcher(sc, opts)
     if live is not None:
+        from deploy.live_view import collector_rows
+
         live.follow(launcher.collector.ts, collector_rows(launcher.collector, args.clock == "realtime"))
     try:
         extra = launcher.run(terminal_progress(label))
@@ -190,17 +189,12 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     wall = extra.pop("wall_time_s")
     messages = extra.pop("messages")
     contact_log, contacts_total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
-    # the wall clock of each step: known on the wire (the recording's publish times);
-    # for the scene, spread over the run (lockstep) or from the run's t = 0 (realtime)
-    t0_unix_ns = end_unix_ns - int(wall * 1e9)
-    if launcher.run_t0 is not None:
-        t0_unix_ns = end_unix_ns - int((time.monotonic() - launcher.run_t0) * 1e9)
-    steps = np.linspace(t0_unix_ns, end_unix_ns, series.steps).astype(np.int64) \
-        if args.clock == "lockstep" else None
+    # the wall clock of each step for the scene (the wire messages carry their own)
     return write_run(sc, series, out, plant, args.clock, wall, messages, extra,
                      figures=not args.no_figures, contact_log=contact_log,
-                     contacts_total=contacts_total, recorder=recorder, step_unix_ns=steps,
-                     t0_unix_ns=t0_unix_ns)
+                     contacts_total=contacts_total, recorder=recorder,
+                     **run_wall_clock(end_unix_ns, wall, launcher.run_t0, series.steps,
+                                      args.clock == "lockstep"))
 
 
 def emulator_lag_ms(truth_files: dict[int, Path]) -> dict[str, float | None]:

@@ -50,3 +50,17 @@ def write_run(
     if figures:
         write_figures(sc, series, out_dir)
     return metrics
+
+
+def run_wall_clock(end_unix_ns: int, wall_s: float, run_t0_monotonic: float | None, steps: int,
+                   lockstep: bool) -> dict[str, Any]:
+    """``t0_unix_ns`` and ``step_unix_ns`` for :func:`write_run` after a distributed
+    run that ended at ``end_unix_ns``: t = 0 from the run's start (realtime:
+    ``ctl/start``, a monotonic time), each lockstep step spread over the run."""
+    import time
+
+    t0 = end_unix_ns - int(wall_s * 1e9)
+    if run_t0_monotonic is not None:
+        t0 = time.time_ns() - int((time.monotonic() - run_t0_monotonic) * 1e9)
+    return {"t0_unix_ns": t0, "step_unix_ns": np.linspace(t0, end_unix_ns, steps).astype(np.int64)
+            if lockstep else None}
