@@ -18,15 +18,14 @@ from deploy.node_cli import CLOCKS, add_node_commands, fault_plan, gui_problem
 from deploy.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
 from deploy.scenario import PLANT_KINDS, ScenarioError, load_scenario
 from deploy.transport import TransportError
+from deploy.verdict import divergence_banner, judge, verdict_line
 from deploy.wire import FleetNameError
 
 EXIT_BAD_INPUT = 2
+RECORDING = "recording.mcap"
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from deploy.outputs import write_run
-    from deploy.runner import run_in_process, terminal_progress
-
     sc = load_scenario(args.scenario)
     if args.control_rate is not None:
         if not 0 < args.control_rate <= 100_000:
@@ -60,44 +59,119 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"note: {note}", file=sys.stderr)
     out = Path(args.out) if args.out else Path("runs") / sc.name
     label = f"{sc.name} ({plant}, {'in-process' if args.in_process else args.clock})"
-    if args.in_process:
-        result = run_in_process(sc, plant, args.duration, terminal_progress(label), gui=args.gui,
-                                faults=plan)
-        extra = {} if plan is None else {"faults": fault_metrics(plan, result.faults or {})}
-        metrics = write_run(sc, result.series, out, plant, "lockstep", result.wall_time_s,
-                            extra=extra, figures=not args.no_figures,
-                            contact_log=result.contacts)
-    else:
-        metrics = _run_distributed(sc, args, plant, out, label)
-        if metrics is None:
-            return 1
+    live = _start_live(args, sc)
+    if live is False:
+        return EXIT_BAD_INPUT
+    try:
+        if args.in_process:
+            metrics = _run_in_process(sc, args, plant, plan, out, label, live)
+        else:
+            metrics = _run_distributed(sc, args, plant, out, label, live)
+            if metrics is None:
+                return 1
+    finally:
+        if live is not None:
+            live.close()
+            print(f"live view: {live.published} messages served, {live.cpu_s:.2f} s CPU; stopped",
+                  file=sys.stderr)
+    banner = divergence_banner(metrics["verdict"])
+    if banner:
+        print(banner, file=sys.stderr)
     print(_summary(metrics, out))
-    if args.check and not meets_paper_criteria(metrics):
-        print("omnifleet run: the run does NOT meet the criteria (settling, no contact)",
-              file=sys.stderr)
+    if args.check and not metrics["verdict"]["pass"]:
+        print("omnifleet run: the run does NOT meet the criteria (settling, no contact, "
+              "nothing non-finite)", file=sys.stderr)
         return 1
     return 0
 
 
-def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label: str):
-    from deploy.launcher import Launcher, LaunchOptions, RunFailed
+def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, label: str, live):
     from deploy.outputs import write_run
+    from deploy.recorder import McapRecorder
+    from deploy.runner import run_in_process, terminal_progress
+
+    progress = _with_live(terminal_progress(label), live)
+    result = run_in_process(sc, plant, args.duration, progress, gui=args.gui, faults=plan,
+                            on_series=None if live is None else live.follow)
+    extra = {} if plan is None else {"faults": fault_metrics(plan, result.faults or {})}
+    recorder = None
+    if not args.no_record:
+        out.mkdir(parents=True, exist_ok=True)
+        recorder = McapRecorder(out / RECORDING, sim_dt=sc.dt)
+    return write_run(sc, result.series, out, plant, "lockstep", result.wall_time_s,
+                     extra=extra, figures=not args.no_figures, contact_log=result.contacts,
+                     recorder=recorder, step_unix_ns=result.step_unix_ns)
+
+
+def _start_live(args: argparse.Namespace, sc):
+    """The --live view (None without it; False: a bad address, already said)."""
+    if args.live is None:
+        return None
+    from deploy.live_view import LiveView
+    from deploy.ws_address import LiveAddressError, parse_address, url
+
+    try:
+        host, port = parse_address(args.live)
+        live = LiveView(sc, host, port, realtime=args.clock == "realtime")
+    except (LiveAddressError, RuntimeError, OSError) as exc:
+        print(f"omnifleet run: --live {args.live}: {exc}", file=sys.stderr)
+        return False
+    print(f"live view: {url(host, live.port)} (Foxglove: Open connection -> "
+          "Foxglove WebSocket; layout docs/foxglove-layout.json)", file=sys.stderr, flush=True)
+    return live
+
+
+def _with_live(progress, live):
+    """A progress callback that also tells the live view how far the series is."""
+    if live is None:
+        return progress
+
+    def both(done: int, total: int) -> None:
+        live.publish(done - 1)
+        if progress is not None:
+            progress(done, total)
+
+    return both
+
+
+def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label: str, live=None):
+    import time
+
+    from deploy.launcher import Launcher, LaunchOptions, RunFailed
+    from deploy.outputs import run_wall_clock, write_run
+    from deploy.recorder import McapRecorder
     from deploy.runner import terminal_progress
 
+    recorder = None
+    if not args.no_record:  # ours, so that the scene joins it at the end (LaunchOptions.recorder)
+        out.mkdir(parents=True, exist_ok=True)
+        recorder = McapRecorder(out / RECORDING,
+                                sim_dt=sc.dt if args.clock == "lockstep" else None)
     opts = LaunchOptions(
         scenario_arg=args.scenario, plant=plant, clock=args.clock, out=out,
         duration_s=args.duration, control_rate_hz=args.control_rate,
         step_deadline_s=args.step_deadline, startup_timeout_s=args.startup_timeout,
         record=not args.no_record, fleet=args.fleet, endpoint=args.endpoint, gui=args.gui,
-        faults=fault_plan(args, sc), realtime_priority=args.priority,
+        faults=fault_plan(args, sc), realtime_priority=args.priority, recorder=recorder,
         lowlatency=args.zenoh_transport == "lowlatency",
     )
     launcher = Launcher(sc, opts)
+    if live is not None:
+        from deploy.live_view import collector_rows
+
+        live.follow(launcher.collector.ts, collector_rows(launcher.collector, args.clock == "realtime"))
     try:
         extra = launcher.run(terminal_progress(label))
     except RunFailed as exc:
         print(f"omnifleet run: FAILED: {exc}", file=sys.stderr)
+        if recorder is not None:
+            recorder.close()
         return None
+    except BaseException:
+        if recorder is not None:
+            recorder.close()  # flushed, also after Ctrl-C
+        raise
+    end_unix_ns = time.time_ns()
     series = launcher.collector.series(realtime=args.clock == "realtime")
     if args.clock == "realtime":
         extra["series_cells_filled"] = launcher.collector.filled
@@ -116,9 +190,12 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     wall = extra.pop("wall_time_s")
     messages = extra.pop("messages")
     contact_log, contacts_total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
+    # the wall clock of each step for the scene (the wire messages carry their own)
     return write_run(sc, series, out, plant, args.clock, wall, messages, extra,
                      figures=not args.no_figures, contact_log=contact_log,
-                     contacts_total=contacts_total)
+                     contacts_total=contacts_total, recorder=recorder,
+                     **run_wall_clock(end_unix_ns, wall, launcher.run_t0, series.steps,
+                                      args.clock == "lockstep"))
 
 
 def emulator_lag_ms(truth_files: dict[int, Path]) -> dict[str, float | None]:
@@ -154,10 +231,8 @@ def can_fault_counts(truth_files: dict[int, Path]) -> dict[str, dict[str, int]]:
 
 
 def meets_paper_criteria(m: dict) -> bool:
-    """Every robot settles before sqrt(2) T_p; no contact, ever."""
-    settle_ok = all(s is not None and s < m["settling_bound_s"] for s in m["settling_time_s"])
-    clear = [m["min_obstacle_clearance_m"], m["min_robot_separation_m"]]
-    return settle_ok and m["contacts"] == 0 and all(c is None or c > 0 for c in clear)
+    """Every robot settles before sqrt(2) T_p; no contact, ever; nothing non-finite."""
+    return (m["verdict"] if "verdict" in m else judge(m))["pass"]
 
 
 def _fmt_list(xs) -> str:
@@ -182,7 +257,8 @@ def _summary(m: dict, out: Path) -> str:
         f"  peak / RMS torque (N m)    {m['peak_torque_nm']:.4g} / {m['rms_torque_nm']:.4g}",
         *_transport_lines(m),
         f"  written to {out}/ (metrics.json, timeseries.npz, figures"
-        + (", recording.mcap)" if "recording" in m else ")"),
+        + (f", {RECORDING})" if "recording" in m else ")"),
+        *([verdict_line(m["verdict"])] if "verdict" in m else []),
     ])
 
 
@@ -259,7 +335,12 @@ def build_parser() -> argparse.ArgumentParser:
                      "put is written by the publishing thread; measured faster here, "
                      "docs/distributed.md) or zenoh's default (default: lowlatency)")
     run.add_argument("--no-record", action="store_true",
-                     help="do not write recording.mcap (distributed runs record by default)")
+                     help="do not write recording.mcap (the scene, plot signals and, for one "
+                     "process per node, every wire message, in Foxglove's schemas; docs/foxglove.md)")
+    run.add_argument("--live", metavar="[HOST:]PORT", nargs="?", const=str(8765),
+                     help="serve the scene and plots over Foxglove's WebSocket protocol while the "
+                     "run goes (default 127.0.0.1:8765; loopback unless HOST is given, e.g. "
+                     "0.0.0.0:8765; port 0: any free one)")
     run.add_argument("--out", metavar="DIR", help="output folder (default: runs/<scenario>)")
     run.add_argument("--duration", type=float, metavar="S",
                      help="simulate S seconds instead of the scenario's duration_s")
@@ -278,7 +359,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "delayed or partitioned links, killed and restarted processes, CAN frame "
                      "loss; counted per link in metrics.json")
     run.add_argument("--check", action="store_true",
-                     help="exit 1 unless every robot settles before sqrt(2) T_p with no contact")
+                     help="exit 1 unless the verdict is PASS: every robot settles before "
+                     "sqrt(2) T_p, no contact, nothing non-finite")
     run.set_defaults(func=_cmd_run)
     add_node_commands(sub)
     from bridges.bridge_cli import add_bridge_commands
@@ -295,8 +377,10 @@ def build_parser() -> argparse.ArgumentParser:
     from deploy.deploy_cli import add_deploy_commands
     from deploy.record import add_record_command
     from deploy.router import add_router_command
+    from deploy.view import add_view_command
 
     add_record_command(sub)
+    add_view_command(sub)
     add_router_command(sub)
     add_deploy_commands(sub)
     return p

@@ -13,11 +13,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Circle  # noqa: E402
 
+from deploy.palette import COLORS  # noqa: E402
 from deploy.scenario import Scenario  # noqa: E402
 from deploy.timeseries import TimeSeries  # noqa: E402
 
 SNAPSHOT_TIMES_S = (0.0, 0.96, 8.4, 10.8, 15.0, 24.0)  # the paper's Fig. 4 snapshots
-COLORS = ("#fc7d00", "#2b9e78", "#e02b8f", "#1f77b4", "#9467bd", "#8c564b", "#7f7f7f")
 
 
 def _color(i: int) -> str:

@@ -115,6 +115,9 @@ class LaunchOptions:
     faults: FaultPlan | None = None  # given to every node; kills done by the launcher
     realtime_priority: int = REALTIME_PRIORITY  # nice -N for every node on the realtime clock
     lowlatency: bool = True  # zenoh's low-latency transport on every link (docs/distributed.md)
+    # --- issue 18 hook: a McapRecorder made (and closed) by the caller, who adds the run's
+    # scene to it at the end; None: the launcher makes its own and closes it
+    recorder: Any = None
 
 
 def free_udp_port() -> int:
@@ -391,7 +394,7 @@ class Launcher:
             shutil.rmtree(self.run_dir, ignore_errors=True)
             raise
         if o.record:
-            self.recorder = McapRecorder(o.out / "recording.mcap")
+            self.recorder = o.recorder or McapRecorder(o.out / "recording.mcap")  # issue 18 hook
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         start = time.perf_counter()
         self.launcher_zid = node.zid
@@ -440,7 +443,7 @@ class Launcher:
             self.stop_children()
             node.close()
             shutil.rmtree(self.run_dir, ignore_errors=True)
-            if self.recorder is not None:
+            if self.recorder is not None and o.recorder is None:  # issue 18 hook: else the caller's
                 self.recorder.close()  # flushed, also after Ctrl-C
         return self._figures(wall)
 

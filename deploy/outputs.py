@@ -1,14 +1,18 @@
-"""Write a run's folder: metrics.json, timeseries.npz, figures."""
+"""Write a run's folder: metrics.json (with the verdict), timeseries.npz, figures."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from deploy.figures import write_figures
 from deploy.metrics import compute_metrics, write_metrics
+from deploy.recorder import McapRecorder
 from deploy.scenario import Scenario
 from deploy.timeseries import TimeSeries
+from deploy.verdict import divergence, judge
 
 
 def write_run(
@@ -23,13 +27,40 @@ def write_run(
     figures: bool = True,
     contact_log: list[dict[str, Any]] | None = None,
     contacts_total: int | None = None,
+    recorder: McapRecorder | None = None,
+    step_unix_ns: np.ndarray | None = None,
+    t0_unix_ns: int | None = None,
 ) -> dict[str, Any]:
+    """``recorder``: the run's open recording; the scene and plots of ``series``
+    are added to it (``step_unix_ns``: each step's wall clock, when known;
+    ``t0_unix_ns``: the wall clock at t = 0) and it is closed."""
     out_dir.mkdir(parents=True, exist_ok=True)
     metrics = compute_metrics(sc, series, plant, clock, wall_time_s, messages, contact_log,
                               contacts_total)
     metrics.update(extra or {})
+    if recorder is not None:
+        try:
+            recorder.write_scene(sc, series, t0_unix_ns, step_unix_ns)
+        finally:
+            recorder.close({"scenario": sc.name, "plant": plant, "clock": clock})
+        metrics["recording"] = recorder.summary()
+    metrics["verdict"] = judge(metrics, divergence(series, sc.robot_ids))
     write_metrics(metrics, out_dir / "metrics.json")
     series.save(out_dir / "timeseries.npz")
     if figures:
         write_figures(sc, series, out_dir)
     return metrics
+
+
+def run_wall_clock(end_unix_ns: int, wall_s: float, run_t0_monotonic: float | None, steps: int,
+                   lockstep: bool) -> dict[str, Any]:
+    """``t0_unix_ns`` and ``step_unix_ns`` for :func:`write_run` after a distributed
+    run that ended at ``end_unix_ns``: t = 0 from the run's start (realtime:
+    ``ctl/start``, a monotonic time), each lockstep step spread over the run."""
+    import time
+
+    t0 = end_unix_ns - int(wall_s * 1e9)
+    if run_t0_monotonic is not None:
+        t0 = time.time_ns() - int((time.monotonic() - run_t0_monotonic) * 1e9)
+    return {"t0_unix_ns": t0, "step_unix_ns": np.linspace(t0, end_unix_ns, steps).astype(np.int64)
+            if lockstep else None}

@@ -50,7 +50,7 @@ class Recorder(Launcher):
         self.node = node
         self.launcher_zid = node.zid
         if o.record:
-            self.recorder = McapRecorder(o.out / "recording.mcap")
+            self.recorder = o.recorder or McapRecorder(o.out / "recording.mcap")  # issue 18 hook
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         roles = run_roles(self.sc.robot_ids)
         try:
@@ -80,7 +80,7 @@ class Recorder(Launcher):
                 signal.signal(s, h)
             closing_ns = time.time_ns()  # tokens seen to go after this: our own closing
             node.close()
-            if self.recorder is not None:
+            if self.recorder is not None and o.recorder is None:  # issue 18 hook: else the caller's
                 self.recorder.close()
         out = self._figures(wall)
         out["processes"] += [  # the nodes ran elsewhere: what each reported
@@ -131,7 +131,7 @@ def log_progress(every_s: float = 1.0):
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
-    from deploy.outputs import write_run
+    from deploy.outputs import run_wall_clock, write_run
     from deploy.runner import terminal_progress
 
     sc: Scenario = load_scenario(args.scenario)
@@ -143,22 +143,37 @@ def _cmd_record(args: argparse.Namespace) -> int:
                          control_rate_hz=args.control_rate,
                          startup_timeout_s=args.startup_timeout, fleet=args.fleet or sc.name,
                          record=not args.no_record)
+    recording = None
+    if not args.no_record:  # ours, so that the scene joins it at the end (docs/foxglove.md)
+        from deploy.recorder import McapRecorder
+
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        recording = McapRecorder(Path(args.out) / "recording.mcap",
+                                 sim_dt=sc.dt if args.clock == "lockstep" else None)
+        opts.recorder = recording
     rec = Recorder(sc, opts)
     rec.zenoh_file, rec.listen, rec.connect = args.zenoh_config, args.listen, args.connect
     try:
         extra = rec.run(terminal_progress(f"{sc.name} ({plant}, {args.clock})")
                         or log_progress())
-    except TimeoutError as exc:
-        print(f"omnifleet record: {exc}", file=sys.stderr)
-        return 4
-    except Interrupted as exc:
-        print(f"omnifleet record: interrupted ({exc.signal_name})", file=sys.stderr)
-        return 143 if exc.signal_name == "SIGTERM" else 130
+    except BaseException as exc:
+        if recording is not None:
+            recording.close()  # flushed, also when the run did not end
+        if isinstance(exc, TimeoutError):
+            print(f"omnifleet record: {exc}", file=sys.stderr)
+            return 4
+        if isinstance(exc, Interrupted):
+            print(f"omnifleet record: interrupted ({exc.signal_name})", file=sys.stderr)
+            return 143 if exc.signal_name == "SIGTERM" else 130
+        raise
+    end_unix_ns = time.time_ns()
     series = rec.collector.series(realtime=args.clock == "realtime")
     wall, messages = extra.pop("wall_time_s"), extra.pop("messages")
     contact_log, total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
     write_run(sc, series, Path(args.out), plant, args.clock, wall, messages, extra,
-              figures=not args.no_figures, contact_log=contact_log, contacts_total=total)
+              figures=not args.no_figures, contact_log=contact_log, contacts_total=total,
+              recorder=recording, **run_wall_clock(end_unix_ns, wall, rec.run_t0, series.steps,
+                                                   args.clock == "lockstep"))
     print(f"omnifleet record: {series.steps} steps written to {args.out}", file=sys.stderr)
     return 0
 

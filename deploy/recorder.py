@@ -1,104 +1,237 @@
-"""Record a run's traffic and telemetry to MCAP (JSON messages with a JSON
-schema per message type: Foxglove opens it as it is).
+"""The run's recording: one MCAP file that Foxglove (or Lichtblick) opens as it is.
+
+It holds
+
+- the wire messages (any ``msgspec.Struct``, whatever ``deploy.wire`` defines):
+  JSON with a root-object JSON Schema per type (``deploy/foxglove_json.py``),
+  on the key without its ``omr/<fleet>/`` prefix (``/robot/1/state``), so two
+  runs have the same topics;
+- the scene, frames and plot signals of ``deploy/foxglove_scene.py``
+  (:meth:`McapRecorder.write_scene`, at the end of a run, from its time
+  series): Foxglove's own protobuf schemas, taken from the ``foxglove-sdk``
+  package, encoded by it.
+
+Times: ``publish_time`` is always the wall clock (when the message was heard,
+or when the step ran); ``log_time`` — the time Foxglove's timeline shows — is
+the simulation time of lockstep runs (``sim_dt`` given; t = 0 is the epoch,
+1970-01-01T00:00:00Z) and the wall clock of realtime runs. A metadata record
+``omnifleet`` in the file says which.
+
+Why the ``mcap`` writer and not the SDK's ``open_mcap``: the SDK's MCAP sink
+writes ``publish_time = log_time`` and numbers messages itself; this file needs
+two clocks, the wire's own sequence numbers and the wire's JSON channels beside
+the SDK's protobuf ones. The SDK still provides every scene schema and encoding.
 
 Messages are appended from zenoh threads and written by one writer thread in
-batches, so a slow disk never blocks a subscriber; :meth:`close` drains what
-is queued and writes the MCAP summary (also after Ctrl-C).
+batches, so a slow disk never blocks a subscriber; :meth:`close` drains what is
+queued and writes the MCAP summary (also after Ctrl-C). A message that cannot
+be written (a value JSON cannot hold) is counted in ``failed``, never raised:
+``written`` is exactly the number of messages in the file.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import threading
+import time
 from collections import deque
 from pathlib import Path
 from typing import Any
 
 import msgspec
+import numpy as np
 from mcap.writer import Writer
 
-from deploy.wire import MESSAGE_TYPES, Message, Sample, SensedBody
+from deploy.foxglove_json import StructJson
+
+WIRE_PREFIX = re.compile(r"^omr/[^/]+/")  # Keys.root: omr/<fleet>/
+UINT32 = 0xFFFF_FFFF
+UINT64_MAX = 2**64 - 1
+LIBRARY = "omnifleet"
 
 
-def _json_schema(kind: type[Message]) -> dict[str, Any]:
-    """An object schema (field names, not positions) for one message type."""
-    fields = []
-    for f in msgspec.structs.fields(kind):
-        typ = f.type
-        if kind is Sample and f.name in ("robots", "obstacles"):
-            typ = list[_SENSED_JSON]
-        fields.append((f.name, typ) if f.default is msgspec.NODEFAULT
-                      else (f.name, typ, f.default))
-    mirror = msgspec.defstruct(kind.__name__, fields, kw_only=True)
-    return msgspec.json.schema(mirror)
+def wire_topic(key: str) -> str:
+    """``omr/paper-15255/robot/1/state`` -> ``/robot/1/state`` (stable across runs)."""
+    return "/" + WIRE_PREFIX.sub("", key, count=1).lstrip("/")
 
 
-_SENSED_JSON = msgspec.defstruct(
-    "SensedBody", [(f.name, f.type) for f in msgspec.structs.fields(SensedBody)])
-
-
-def as_json_object(msg: msgspec.Struct) -> dict[str, Any]:
-    out = {}
-    for name in msg.__struct_fields__:
-        v = getattr(msg, name)
-        if isinstance(v, list) and v and isinstance(v[0], msgspec.Struct):
-            v = [as_json_object(x) for x in v]
-        out[name] = v
-    return out
+def _clamp_ns(t: int) -> int:
+    return min(max(int(t), 0), UINT64_MAX)
 
 
 class McapRecorder:
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, sim_dt: float | None = None) -> None:
+        """``sim_dt``: the step of a lockstep run; log time is then simulation time."""
         self.path = path
+        self.sim_dt = sim_dt
         self._file = open(path, "wb")  # noqa: SIM115 - closed in close()
         self._writer = Writer(self._file)
-        self._writer.start(profile="", library="omnifleet")
-        self._schemas = {
-            kind: self._writer.register_schema(
-                name=f"omnifleet.{kind.__name__}", encoding="jsonschema",
-                data=json.dumps(_json_schema(kind)).encode())
-            for kind in MESSAGE_TYPES
-        }
+        self._writer.start(profile="", library=LIBRARY)
+        self._lock = threading.Lock()  # the mcap writer is not thread-safe
+        self._json: dict[type, tuple[StructJson, int]] = {}  # type -> (codec, schema id)
+        self._schemas: dict[str, int] = {}  # protobuf schema name -> id
         self._channels: dict[str, int] = {}
-        self._queue: deque[tuple[str, int, Message]] = deque()
+        self._sequence: dict[int, int] = {}  # channel -> next sequence (messages without seq)
+        self._queue: deque[tuple[str, int, Any]] = deque()
         self._wake = threading.Event()
         self._closing = False
+        self._closed = False
+        self._sim_ns = 0  # newest simulation time seen on the wire (messages without one)
         self.written = 0
-        self._encoder = msgspec.json.Encoder()
+        self.failed = 0  # messages that could not be written (counted, never raised)
+        self.first_error: str | None = None
         self._thread = threading.Thread(target=self._drain_forever, name="mcap", daemon=True)
         self._thread.start()
 
-    def add(self, key: str, arrival_unix_ns: int, msg: Message) -> None:
-        """Thread-safe (deque.append is atomic)."""
+    # -- wire messages --------------------------------------------------------------
+    def add(self, key: str, arrival_unix_ns: int, msg: msgspec.Struct) -> None:
+        """Thread-safe (deque.append is atomic). ``arrival_unix_ns``: the wall clock."""
         self._queue.append((key, arrival_unix_ns, msg))
 
-    def _channel(self, key: str, kind: type[Message]) -> int:
-        ch = self._channels.get(key)
+    def _json_channel(self, topic: str, kind: type) -> tuple[StructJson, int]:
+        entry = self._json.get(kind)
+        if entry is None:
+            codec = StructJson(kind)
+            sid = self._writer.register_schema(
+                name=codec.schema["title"], encoding="jsonschema",
+                data=json.dumps(codec.schema).encode())
+            entry = self._json[kind] = (codec, sid)
+        ch = self._channels.get(topic)
         if ch is None:
-            ch = self._writer.register_channel(key, "json", self._schemas[kind])
-            self._channels[key] = ch
-        return ch
+            ch = self._channels[topic] = self._writer.register_channel(topic, "json", entry[1])
+        return entry[0], ch
+
+    def _log_time(self, msg: Any, arrival_ns: int) -> int:
+        """Lockstep: the step k's time (k * dt), else the message's time t, else
+        the newest simulation time heard (reports, control without a step)."""
+        if self.sim_dt is None:
+            return arrival_ns
+        k, t = getattr(msg, "k", None), getattr(msg, "t", None)
+        if isinstance(k, int) and 0 <= k < 2**40:
+            ns = int(round(k * self.sim_dt * 1e9))
+        elif isinstance(t, float) and 0.0 <= t < 1e9:
+            ns = int(round(t * 1e9))
+        else:
+            return self._sim_ns
+        self._sim_ns = max(self._sim_ns, ns)
+        return ns
+
+    def _write_wire(self, key: str, arrival_ns: int, msg: Any) -> None:
+        try:
+            codec, ch = self._json_channel(wire_topic(key), type(msg))
+            data = codec.encode(msg)
+            seq = getattr(msg, "seq", None)
+            if not isinstance(seq, int):
+                seq = self._next_sequence(ch)
+            self._writer.add_message(ch, log_time=_clamp_ns(self._log_time(msg, arrival_ns)),
+                                     data=data, publish_time=_clamp_ns(arrival_ns),
+                                     sequence=seq & UINT32)  # MCAP's sequence is uint32
+        except Exception as exc:  # noqa: BLE001 - a recorder never dies on a value
+            self.failed += 1
+            self.first_error = self.first_error or f"{key}: {type(exc).__name__}: {exc}"
+            return
+        self.written += 1
+
+    def _next_sequence(self, ch: int) -> int:
+        n = self._sequence.get(ch, 0)
+        self._sequence[ch] = n + 1
+        return n
 
     def _drain(self) -> None:
         q = self._queue
-        while q:
-            key, t_ns, msg = q.popleft()
-            data = self._encoder.encode(as_json_object(msg))
-            # stamp_ns is the sender's monotonic clock, not a date: log and publish
-            # times are the arrival on the wall clock, which Foxglove shows
-            self._writer.add_message(self._channel(key, type(msg)), log_time=t_ns,
-                                     data=data, publish_time=t_ns, sequence=msg.seq)
-            self.written += 1
+        with self._lock:
+            while q:
+                self._write_wire(*q.popleft())
 
     def _drain_forever(self) -> None:
         while not self._closing:
             self._wake.wait(0.25)
             self._drain()
 
-    def close(self) -> None:
+    # -- scene and plots ------------------------------------------------------------
+    def write_message(self, topic: str, msg: Any, log_time_ns: int, publish_time_ns: int) -> None:
+        """One scene message (a ``foxglove.messages`` type) or plot message (a Struct)."""
+        try:
+            if isinstance(msg, msgspec.Struct):
+                codec, ch = self._json_channel(topic, type(msg))
+                data = codec.encode(msg)
+            else:
+                ch = self._protobuf_channel(topic, msg)
+                data = msg.encode()
+            self._writer.add_message(ch, log_time=_clamp_ns(log_time_ns), data=data,
+                                     publish_time=_clamp_ns(publish_time_ns),
+                                     sequence=self._next_sequence(ch) & UINT32)
+        except Exception as exc:  # noqa: BLE001
+            self.failed += 1
+            self.first_error = self.first_error or f"{topic}: {type(exc).__name__}: {exc}"
+            return
+        self.written += 1
+
+    def _protobuf_channel(self, topic: str, msg: Any) -> int:
+        ch = self._channels.get(topic)
+        if ch is None:
+            schema = type(msg).get_schema()
+            sid = self._schemas.get(schema.name)
+            if sid is None:
+                sid = self._schemas[schema.name] = self._writer.register_schema(
+                    name=schema.name, encoding=schema.encoding, data=bytes(schema.data))
+            ch = self._channels[topic] = self._writer.register_channel(topic, "protobuf", sid)
+        return ch
+
+    def write_scene(self, sc, series, t0_unix_ns: int | None = None,
+                    step_unix_ns: np.ndarray | None = None) -> None:
+        """The scene, frames and plot signals of a whole run, from its time series,
+        on the file's clock (simulation time with ``sim_dt``, else the wall clock).
+
+        ``t0_unix_ns``: wall clock at t = 0 (default: now); ``step_unix_ns``: wall
+        clock at each step when known (the publish time; else t0 + t)."""
+        from deploy.foxglove_plots import FleetPlots
+        from deploy.foxglove_scene import FleetScene
+        from deploy.foxglove_topics import PLOT_RATE_HZ, SCENE_RATE_HZ, stride
+
+        self._drain()
+        t0 = int(t0_unix_ns) if t0_unix_ns is not None else time.time_ns()
+        fs = FleetScene(sc, stamp_offset_ns=0 if self.sim_dt is not None else t0)
+        fp = FleetPlots(sc)
+        steps = series.steps
+        scene_rows = set(range(0, steps, stride(sc, SCENE_RATE_HZ))) | ({steps - 1} if steps else set())
+        plot_rows = set(range(0, steps, stride(sc, PLOT_RATE_HZ))) | scene_rows
+        with self._lock:
+            for k, plots in fp.rows(series, sorted(plot_rows)):
+                t_ns = int(round(k * sc.dt * 1e9))
+                wall = int(step_unix_ns[k]) if step_unix_ns is not None else t0 + t_ns
+                log = t_ns if self.sim_dt is not None else t0 + t_ns
+                for topic, msg in plots.items():
+                    self.write_message(topic, msg, log, wall)
+                if k in scene_rows:
+                    for topic, msg in fs.scene_messages(series, k).items():
+                        self.write_message(topic, msg, log, wall)
+
+    # -- the end --------------------------------------------------------------------
+    def close(self, metadata: dict[str, str] | None = None) -> None:
+        """Drain, write the summary, close the file. Idempotent."""
+        if self._closed:
+            return
         self._closing = True
         self._wake.set()
         self._thread.join()
         self._drain()
-        self._writer.finish()
-        self._file.close()
+        with self._lock:
+            self._writer.add_metadata(LIBRARY, {
+                "log_time": "simulation time (t = 0 is 1970-01-01T00:00:00Z)"
+                if self.sim_dt is not None else "wall clock",
+                "publish_time": "wall clock",
+                "messages_failed": str(self.failed),
+                **(metadata or {})})
+            self._writer.finish()
+            self._file.close()
+        self._closed = True
+
+    def summary(self) -> dict[str, Any]:
+        """For metrics.json."""
+        out: dict[str, Any] = {"file": self.path.name, "messages": self.written,
+                               "failed": self.failed}
+        if self.first_error:
+            out["first_error"] = self.first_error
+        return out

@@ -40,6 +40,7 @@ class RunResult:
     wall_time_s: float
     contacts: list[dict] | None = None  # physical contact events (pybullet); None: not simulated
     faults: dict[str, dict[str, int]] | None = None  # injected faults per edge (with a plan)
+    step_unix_ns: np.ndarray | None = None  # wall clock as each step began (the recording)
 
 
 def make_plant(sc: Scenario, kind: str, gui: bool = False):
@@ -108,9 +109,12 @@ def run_in_process(
     progress: Callable[[int, int], None] | None = None,
     gui: bool = False,
     faults: FaultPlan | None = None,
+    on_series: Callable[[TimeSeries], None] | None = None,
 ) -> RunResult:
     """The lockstep reference run; ``faults``: a fault plan (no process kills),
-    applied exactly as the distributed run applies it."""
+    applied exactly as the distributed run applies it; ``on_series``: called
+    with the run's time series before the first step (a live view reads its rows
+    0..k once ``progress(k + 1, steps)`` has been called)."""
     if faults is not None and faults.kills:
         raise ValueError("process kills need separate processes: run without --in-process")
     plant_kind = plant_kind or sc.spec.plant.kind
@@ -118,19 +122,23 @@ def run_in_process(
     steps = sc.steps if duration_s is None else int(round(duration_s / dt))
     plant = make_plant(sc, plant_kind, gui=gui)
     try:
-        return _run(sc, plant, plant_kind, steps, progress, FaultModel(faults, dt))
+        return _run(sc, plant, plant_kind, steps, progress, FaultModel(faults, dt), on_series)
     finally:
         getattr(plant, "close", lambda: None)()
 
 
 def _run(sc: Scenario, plant, plant_kind: str, steps: int,
-         progress: Callable[[int, int], None] | None, model: FaultModel) -> RunResult:
+         progress: Callable[[int, int], None] | None, model: FaultModel,
+         on_series: Callable[[TimeSeries], None] | None = None) -> RunResult:
     dt = sc.dt
     agents = make_agents(sc)
     leader = LeaderGenerator(sc.leader_spec(), dt)
     sense = sensor_for(plant, sc)
     ids = sc.robot_ids
     series = TimeSeries.allocate(steps, sc.n)
+    step_unix_ns = np.zeros(steps, np.int64)
+    if on_series is not None:
+        on_series(series)
     b = sc.leader_weights
     torques = np.zeros((sc.n, 4))
     v_cmd = np.zeros((sc.n, 3))
@@ -153,6 +161,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
 
     start = time.perf_counter()
     for k in range(steps):
+        step_unix_ns[k] = time.time_ns()
         t = k * dt
         q0, v0 = leader.state()
         leaders[k] = (q0, v0)
@@ -190,7 +199,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
             progress(k + 1, steps)
     wall = time.perf_counter() - start
     return RunResult(sc, plant_kind, series, wall, contact_log(plant), model.report()
-                     if model.plan is not None else None)
+                     if model.plan is not None else None, step_unix_ns)
 
 
 def _forget(before: int, by_step: dict, leaders: dict, *by_robot_step: dict) -> None:

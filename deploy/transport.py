@@ -319,14 +319,13 @@ class Node:
             lambda s: post(callback, (str(s.key_expr), s.payload.to_bytes())))))
 
     def linked_peers(self) -> list[str]:
-        """The zenoh ids of the peers this session has a link to (zenoh's own info):
-        as noted once the run started (:meth:`note_links`), or now."""
-        if self.links_noted is not None:
-            return self.links_noted
-        return sorted(str(z) for z in self.session.info.peers_zid())
+        """The zenoh ids of the peers this session had a link with (zenoh's own
+        info): now, and when the run started (:meth:`note_links`; at the end of a run
+        peers leave one by one, and a link can still be forming at its start)."""
+        now = {str(z) for z in self.session.info.peers_zid()}
+        return sorted(now | set(self.links_noted or ()))
 
     def note_links(self) -> None:
-        self.links_noted = None
         self.links_noted = self.linked_peers()
 
     @property

@@ -60,16 +60,24 @@ def test_run_reports_processes_messages_and_a_recording(distributed_run):
     assert all(p["peak_rss_mb"] and p["peak_rss_mb"] > 0 for p in m["processes"])
     msg = m["messages"]
     assert msg["sent"] > 0 and msg["invalid"] == 0 and msg["late"] == 0 and msg["dropped"] == 0
+    from foxglove_decode import decode
+
+    from deploy.foxglove_topics import SCENE_ROBOTS
+
+    robots = set()
     with open(distributed_run / "recording.mcap", "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
-        topics = {c.topic for c in summary.channels.values()}
         assert summary.statistics.message_count == m["recording"]["messages"] > 0
-        for _schema, channel, message in reader.iter_messages(topics=[topics.pop()]):
-            assert channel.message_encoding == "json"
-            assert isinstance(json.loads(message.data), dict)
-            break
-    assert any(t.endswith("/robot/3/cmd") for t in {c.topic for c in summary.channels.values()})
+        for schema, channel, message in reader.iter_messages():  # as Foxglove decodes them
+            value = decode(schema.name, schema.encoding, schema.data, channel.message_encoding,
+                           message.data)
+            assert message.log_time <= float(DURATION) * 1e9  # lockstep: simulation time
+            if channel.topic == SCENE_ROBOTS:
+                robots |= {e.id for e in value.entities}
+    topics = {c.topic for c in summary.channels.values()}
+    assert "/robot/3/cmd" in topics and SCENE_ROBOTS in topics  # no omr/<fleet>/ prefix
+    assert robots >= {"robot-1", "robot-2", "robot-3"}
 
 
 def test_each_agent_hears_only_its_graph_neighbours(distributed_run):

@@ -174,7 +174,8 @@ def test_a_cut_agent_link_is_detected_counted_and_the_run_goes_on(tmp_path):
     m = json.loads((out / "metrics.json").read_text())
     assert m["steps"] == round(CUT_DURATION * 1000)  # the run went on to its end
     with open(out / "recording.mcap", "rb") as f:
-        messages = [(ch.topic, msg.log_time) for _s, ch, msg in make_reader(f).iter_messages()]
+        # publish time: the wall clock (log time is simulation time in lockstep)
+        messages = [(ch.topic, msg.publish_time) for _s, ch, msg in make_reader(f).iter_messages()]
     cmd_times = [t for topic, t in messages if topic.endswith("/robot/2/cmd")]
     end_ns = min([t for topic, t in messages if topic.endswith("/ctl/end")] or [2**63])
     live = m["liveliness"]["agent-2"]
