@@ -314,14 +314,17 @@ class Bench:
                 fig.samples.append(zenoh_hop_us(self.s.hops, path))
             udp.samples.append(udp_hop_us(self.s.hops))
 
-    def run_all(self) -> None:
-        self.costs()
-        self.lockstep_overhead()
-        self.paper_run()
-        self.lockstep_rtf_500()
-        self.realtime_loop()
-        self.realtime_paper()
-        self.scale()
+    def groups(self) -> dict[str, Callable[[], None]]:
+        """The benchmarks by name, in the order a full run takes them."""
+        return {"costs": self.costs, "lockstep": self.lockstep_overhead,
+                "paper-run": self.paper_run, "rtf500": self.lockstep_rtf_500,
+                "realtime": self.realtime_loop, "realtime-paper": self.realtime_paper,
+                "scale": self.scale}
+
+    def run_all(self, only: list[str] | None = None) -> None:
+        for name, run in self.groups().items():
+            if only is None or name in only:
+                run()
         self.memory()
 
     # -- outputs --------------------------------------------------------------------------
@@ -385,9 +388,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print(f"[bench {time.monotonic() - started:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
     bench = Bench(out, settings, log)
+    only = None if args.only is None else [g.strip() for g in args.only.split(",") if g.strip()]
+    unknown = sorted(set(only or ()) - set(bench.groups()))
+    if unknown:
+        print(f"omnifleet bench: no group {', '.join(unknown)}; the groups are "
+              f"{', '.join(bench.groups())}", file=sys.stderr)
+        return 2
     interrupted = False
     try:
-        bench.run_all()
+        bench.run_all(only)
     except KeyboardInterrupt:
         interrupted = True
         log("interrupted: writing what was measured")
@@ -419,6 +428,9 @@ def add_bench_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="runs/bench", help="output folder (default: runs/bench)")
     p.add_argument("--repeats", type=int, default=None, metavar="N",
                    help="repeats per figure (default: 3, --quick: 1)")
+    p.add_argument("--only", metavar="GROUP[,GROUP]",
+                   help="run only these groups: costs, lockstep, paper-run, rtf500, realtime, "
+                   "realtime-paper, scale (memory is always judged on the fleet runs made)")
     p.add_argument("--keep-runs", action="store_true",
                    help="keep the fleet runs' folders (metrics.json, logs) under --out")
     p.set_defaults(func=cmd_bench)
