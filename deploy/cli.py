@@ -375,6 +375,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_bench_command(sub)
     add_faults_command(sub)
     from deploy.deploy_cli import add_deploy_commands
+    from deploy.scenario_cli import add_scenario_commands
+
+    add_scenario_commands(sub)
     from deploy.record import add_record_command
     from deploy.router import add_router_command
     from deploy.view import add_view_command

@@ -1,5 +1,5 @@
 """Odometry drift of a run on CAN: the bridges' states (the run's series, built
-from robot/i/state) against each emulator's ground truth, matched in time on the
+from the bridges' state logs) against each emulator's ground truth, matched in time on the
 host's monotonic clock (every process of one host shares it)."""
 
 from __future__ import annotations

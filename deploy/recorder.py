@@ -22,7 +22,7 @@ writes ``publish_time = log_time`` and numbers messages itself; this file needs
 two clocks, the wire's own sequence numbers and the wire's JSON channels beside
 the SDK's protobuf ones. The SDK still provides every scene schema and encoding.
 
-Messages are appended from zenoh threads and written by one writer thread in
+Messages are appended by the launcher's thread and written by one writer thread in
 batches, so a slow disk never blocks a subscriber; :meth:`close` drains what is
 queued and writes the MCAP summary (also after Ctrl-C). A message that cannot
 be written (a value JSON cannot hold) is counted in ``failed``, never raised:

@@ -1,0 +1,117 @@
+"""``omnifleet scenario``: start from a scenario rather than from a blank file.
+
+- ``list``: the bundled scenarios, with their description;
+- ``show NAME``: a bundled scenario's TOML, to read or to copy (``> mine.toml``);
+- ``check FILE``: load and validate a scenario file (exit 2 with the key when bad);
+- ``generate --robots N --control-rate HZ [--duration S] [--seed K] --out FILE``: the
+  scale benchmark's scenario (``deploy/bench_scenarios.py``: N lab robots in a
+  5-wide grid behind a straight leader, a binary-tree graph from robot 1), written
+  only after it validates, so anyone can reproduce ``omnifleet bench``'s scale
+  figures or start a new fleet from it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+from deploy.bench_scenarios import scale_scenario
+from deploy.scenario import SCENARIO_DIR, ScenarioError, load_scenario, parse_scenario
+
+EXIT_BAD_INPUT = 2
+MAX_GENERATED_ROBOTS = 256  # a perception message carries at most 256 bodies (wire.MAX_BODIES)
+
+
+def _cmd_list(_args: argparse.Namespace) -> int:
+    for path in sorted(SCENARIO_DIR.glob("*.toml")):
+        try:
+            sc = load_scenario(path)
+            print(f"{path.stem:18s} {sc.n} robots, {1.0 / sc.dt:g} Hz, {sc.spec.duration_s:g} s: "
+                  f"{sc.spec.description}")
+        except ScenarioError as exc:  # a bundled file that does not load is a bug: say so
+            print(f"{path.stem:18s} DOES NOT LOAD: {exc}")
+    return 0
+
+
+def _cmd_show(args: argparse.Namespace) -> int:
+    path = SCENARIO_DIR / f"{args.name.removesuffix('.toml')}.toml"
+    if not path.exists():
+        known = ", ".join(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
+        print(f"omnifleet scenario show: no bundled scenario {args.name!r} ({known})",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    sys.stdout.write(path.read_text())
+    return 0
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    sc = load_scenario(args.file)  # ScenarioError: exit 2 with file and key (cli.main)
+    for note in sc.notes:
+        print(f"note: {note}", file=sys.stderr)
+    print(f"{args.file}: valid: {sc.n} robots, {1.0 / sc.dt:g} Hz, {sc.spec.duration_s:g} s, "
+          f"{len(sc.obstacle_bodies())} obstacles, plant {sc.spec.plant.kind}")
+    return 0
+
+
+def _positive(name: str, value: float) -> str | None:
+    if not math.isfinite(value) or value <= 0:
+        return f"{name} must be a positive number, not {value!r}"
+    return None
+
+
+def _cmd_generate(args: argparse.Namespace) -> int:
+    problems = [p for p in (
+        None if 1 <= args.robots <= MAX_GENERATED_ROBOTS
+        else f"--robots must be within 1..{MAX_GENERATED_ROBOTS}, not {args.robots}",
+        _positive("--control-rate", args.control_rate),
+        _positive("--duration", args.duration),
+    ) if p]
+    if not problems and args.control_rate > 100_000:
+        problems.append("--control-rate must be at most 100000 Hz")
+    if problems:
+        for p in problems:
+            print(f"omnifleet scenario generate: {p}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    out = Path(args.out)
+    if out.exists() and not args.force:
+        print(f"omnifleet scenario generate: {out} exists (--force to replace it)", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    text = scale_scenario(args.robots, args.control_rate, args.duration, args.seed)
+    sc = parse_scenario(text, str(out))  # validated before anything is written
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    print(f"wrote {out}: {sc.n} robots at {1.0 / sc.dt:g} Hz for {sc.spec.duration_s:g} s "
+          f"(run it: omnifleet run {out})")
+    return 0
+
+
+def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("scenario", help="list, show, check or generate scenarios",
+                       description="Start from a scenario: list and show the bundled ones, "
+                       "check a file, or generate an N-robot fleet (the scale benchmark's).")
+    cmds = p.add_subparsers(dest="scenario_command", required=True, metavar="ACTION")
+    cmds.add_parser("list", help="the bundled scenarios").set_defaults(func=_cmd_list)
+    show = cmds.add_parser("show", help="print a bundled scenario's TOML (to copy it)")
+    show.add_argument("name", help="bundled scenario name (see `omnifleet scenario list`)")
+    show.set_defaults(func=_cmd_show)
+    check = cmds.add_parser("check", help="validate a scenario file")
+    check.add_argument("file", help="scenario file (or bundled name)")
+    check.set_defaults(func=_cmd_check)
+    gen = cmds.add_parser(
+        "generate", help="write an N-robot scenario (the scale benchmark's)",
+        description="N lab robots in a 5-wide grid formation behind a leader driving "
+        "straight at 0.5 m/s, a binary-tree graph from robot 1 (which hears the leader), "
+        "obstacles beside the lanes. Validated before it is written.")
+    gen.add_argument("--robots", type=int, required=True, metavar="N", help="how many robots")
+    gen.add_argument("--control-rate", type=float, required=True, metavar="HZ",
+                     help="control rate of every node (the bench uses 100)")
+    gen.add_argument("--duration", type=float, default=20.0, metavar="S",
+                     help="simulated duration (default: 20)")
+    gen.add_argument("--seed", type=int, default=None, metavar="K",
+                     help="jitter every start by up to 5 cm per axis, reproducibly "
+                     "(default: the bench's fixed layout)")
+    gen.add_argument("--out", required=True, metavar="FILE", help="where to write the TOML")
+    gen.add_argument("--force", action="store_true", help="replace --out if it exists")
+    gen.set_defaults(func=_cmd_generate)
