@@ -64,6 +64,13 @@ class Figure:
     target: tuple[str, float] | None = None  # ("<=", 1.5) or (">=", 10)
     error: str | None = None
 
+    def add(self, value: float | None, why: str = "not measured") -> None:
+        """One sample; a run that could not measure it (None) is noted, never a crash."""
+        if value is None:
+            self.error = why
+        else:
+            self.samples.append(float(value))
+
     @property
     def median(self) -> float | None:
         return statistics.median(self.samples) if self.samples else None
@@ -198,8 +205,8 @@ class Bench:
             for _ in range(self.s.repeats):
                 m = self.run_fleet("paper", "--clock", "realtime",
                                    "--duration", str(self.s.realtime_paper_s))
-                p50.samples.append(m["latency_ms"]["p50"])
-                p99.samples.append(m["latency_ms"]["p99"])
+                p50.add(m["latency_ms"]["p50"], "the plant reported no latency (its report did not arrive)")
+                p99.add(m["latency_ms"]["p99"], "the plant reported no latency (its report did not arrive)")
                 contacts.samples.append(float(m["contacts"]))
                 late.samples.append(float(sum(
                     s is None or s > m["settling_bound_s"] for s in m["settling_time_s"])))
@@ -233,9 +240,9 @@ class Bench:
             for _ in range(self.s.repeats):
                 m = self.run_fleet("lab", "--clock", "realtime", "--control-rate", "500",
                                    "--duration", str(self.s.realtime_s))
-                p50.samples.append(m["latency_ms"]["p50"])
-                p99.samples.append(m["latency_ms"]["p99"])
-                jit.samples.append(m["jitter_ms"]["p99"])
+                p50.add(m["latency_ms"]["p50"], "the plant reported no latency (its report did not arrive)")
+                p99.add(m["latency_ms"]["p99"], "the plant reported no latency (its report did not arrive)")
+                jit.add(m["jitter_ms"]["p99"])
                 miss.samples.append(float(m["deadline_misses"]))
 
         self.measure("realtime loop at 500 Hz (lab)", body, p50.name, p99.name, jit.name, miss.name)
@@ -303,8 +310,8 @@ class Bench:
                         f"{name}: encode + validated decode").samples += samples
         hops = {path: self.figure(f"cost.zenoh_hop_{path}_us", "µs", what) for path, what in (
             ("runtime", "one zenoh hop between two processes as the nodes use it (ping-pong / "
-             "2, 200 B, unix socket): direct callback -> SimpleQueue -> the working thread, "
-             "lowlatency transport"),
+             "2, 200 B, unix socket): direct callback -> SimpleQueue -> the working thread"),
+            ("lowlatency", "the same on zenoh's lowlatency transport (--zenoh-transport)"),
             ("indirect", "the same through the old path: zenoh's indirect callback (a Python "
              "thread) and a Condition hand-off, default transport"))}
         udp = self.figure("cost.udp_hop_us", "µs", "one raw UDP hop between two processes "

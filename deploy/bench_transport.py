@@ -1,10 +1,11 @@
 """The transport floor: one hop between two processes on this machine, over zenoh
-and over a raw UDP socket (the physical limit for Python here). Two zenoh paths:
+and over a raw UDP socket (the physical limit for Python here). Three zenoh paths:
 ``runtime``, the nodes' own (a direct callback on zenoh's receive thread puts the
-payload on a ``queue.SimpleQueue``, the working thread takes it; lowlatency
-transport, unix socket), and ``indirect``, the path before wire v2 (zenoh's
-default indirect callback on a Python thread, a Condition hand-off, the default
-transport over TCP), so the two are compared in one sitting.
+payload on a ``queue.SimpleQueue``, the working thread takes it; zenoh's default
+transport over a unix socket), ``lowlatency`` (the same on zenoh's low-latency
+transport: ``omnifleet run --zenoh-transport lowlatency``), and ``indirect``, the
+path before wire v2 (zenoh's default indirect callback on a Python thread, a
+Condition hand-off, over TCP), so they are compared in one sitting.
 
 Measured as ping-pong: the parent sends a 200-byte payload, a child process
 echoes it, the parent waits for the echo; one hop = round trip / 2. The child is
@@ -30,7 +31,7 @@ from typing import Any
 
 PAYLOAD = b"x" * 200
 WARMUP = 200
-PATHS = ("runtime", "indirect")
+PATHS = ("runtime", "lowlatency", "indirect")
 
 
 def _zenoh_session(path: str, listen: str | None = None, connect: str | None = None):
@@ -39,14 +40,14 @@ def _zenoh_session(path: str, listen: str | None = None, connect: str | None = N
     from deploy.transport import zenoh_config
 
     return zenoh.open(zenoh_config(None, [listen] if listen else [], [connect] if connect else [],
-                                   gossip=False, lowlatency=path == "runtime"))
+                                   gossip=False, lowlatency=path == "lowlatency"))
 
 
 def _receiver(session: Any, key: str, path: str) -> tuple[Any, Callable[[float], bytes | None]]:
     """A subscription and its ``get(timeout)``, the way ``path`` receives."""
     import zenoh
 
-    if path == "runtime":
+    if path != "indirect":
         box: queue.SimpleQueue = queue.SimpleQueue()
         sub = session.declare_subscriber(key, zenoh.handlers.Callback(
             lambda s: box.put(s.payload.to_bytes()), indirect=False))
@@ -121,7 +122,7 @@ def zenoh_hop_us(round_trips: int, path: str = "runtime") -> float:
     from deploy.launcher import free_tcp_port
 
     where = tempfile.mkdtemp(prefix="omnifleet-hop-")
-    endpoint = (f"unixsock-stream/{where}/hop.sock" if path == "runtime"
+    endpoint = (f"unixsock-stream/{where}/hop.sock" if path != "indirect"
                 else f"tcp/127.0.0.1:{free_tcp_port()}")
     session = _zenoh_session(path, listen=endpoint)
     child = _child(path, endpoint)
@@ -191,7 +192,8 @@ def udp_hop_us(round_trips: int) -> float:
 
 if __name__ == "__main__":
     if len(sys.argv) != 4 or sys.argv[1] != "echo" or sys.argv[2] not in (*PATHS, "udp"):
-        sys.exit("usage: python -m deploy.bench_transport echo runtime|indirect|udp ADDRESS")
+        sys.exit("usage: python -m deploy.bench_transport echo runtime|lowlatency|indirect|udp "
+                 "ADDRESS")
     if sys.argv[2] == "udp":
         _echo_udp(sys.argv[3])
     else:
