@@ -73,16 +73,17 @@ def test_the_acl_follows_the_graph(paper):
     roles = fleet_roles(paper)
     tail = lambda keys: {x.split("/", 2)[2] for x in keys}  # noqa: E731
     ctl = {"ctl/start", "ctl/tick", "ctl/end", "ctl/stop", "ctl/estop"}
+    # an agent hears its robot's sample and its neighbours' replies (their shares)
     assert tail(receives("agent-1", paper, k, roles)) == {
-        "robot/1/state", "robot/1/perception", "leader/state"} | ctl
+        "robot/1/sample", "leader/state"} | ctl
     assert tail(receives("agent-2", paper, k, roles)) == {
-        "robot/2/state", "robot/2/perception", "agent/1/share"} | ctl
+        "robot/2/sample", "robot/1/cmd"} | ctl
     assert tail(receives("agent-3", paper, k, roles)) == {
-        "robot/3/state", "robot/3/perception", "agent/1/share", "agent/2/share"} | ctl
+        "robot/3/sample", "robot/1/cmd", "robot/2/cmd"} | ctl
     acl = access_control(paper, "f", "plant", roles)
     rules = {r["id"]: r for r in acl["rules"]}
     assert tail(rules["from:agent-2"]["key_exprs"]) == {"robot/2/cmd"}
-    assert tail(rules["to:agent-2"]["key_exprs"]) == {"robot/2/state", "robot/2/perception",
+    assert tail(rules["to:agent-2"]["key_exprs"]) == {"robot/2/sample",
                                                      "ctl/start", "ctl/tick", "ctl/end",
                                                      "ctl/stop", "ctl/estop"}
     assert "from:leader" not in rules  # the plant takes nothing from the leader

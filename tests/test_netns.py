@@ -120,8 +120,7 @@ def test_lockstep_across_namespaces_equals_the_single_host_run(tmp_path, router)
     heard = {p["role"]: {k.split("/", 2)[2] for k in p["received"]} for p in ma["processes"]
              if p["role"] != "launcher"}
     assert set(heard) == {"plant", "leader", "agent-1", "agent-2", "agent-3"}
-    assert heard["agent-2"] == {"robot/2/state", "robot/2/perception", "agent/1/share",
-                                "ctl/tick", "ctl/end"}
+    assert heard["agent-2"] == {"robot/2/sample", "robot/1/cmd", "ctl/tick", "ctl/end"}
 
 
 def _wait_for_step(log: Path, k: int, proc: subprocess.Popen, timeout: float) -> None:
@@ -202,7 +201,7 @@ def test_a_cut_agent_link_is_detected_counted_and_the_run_goes_on(tmp_path):
     reports = {p["role"]: p for p in m["processes"] if p["role"] != "launcher"}
     plant, agent2 = reports["plant"], reports["agent-2"]
     key = lambda tail: next(k for k in plant["received"] if k.endswith(tail))  # noqa: E731
-    states_lost = plant["steps"] - agent2["received"][key("/robot/2/cmd").replace("cmd", "state")]
+    states_lost = plant["steps"] - agent2["received"][key("/robot/2/cmd").replace("cmd", "sample")]
     cmds_lost = agent2["steps"] - plant["received"][key("/robot/2/cmd")]
     assert states_lost > 0  # published while the link was dead: gone
     assert plant["late"] > 0  # the plant went on with agent-2's held command
