@@ -547,11 +547,16 @@ class Launcher:
         for c in self.children:
             r = reports.get(c.role)
             c.peak_rss_mb = r.peak_rss_kb / 1024.0 if r is not None and r.peak_rss_kb else None
+        refused: dict[str, int] = {}
         for r in reports.values():
             messages["sent"] += r.sent
             messages["dropped"] += r.dropped
             messages["late"] += r.late
             messages["invalid"] += r.invalid
+            for why, n in r.refused.items():
+                refused[f"{r.role}: {why}"] = n
+        if refused:  # counted in "dropped" too; here by node and reason
+            messages["refused"] = refused
         # who had a link with whom, from each node's zenoh session (ids -> roles)
         role_of = {r.zid: role for role, r in reports.items() if r.zid}
         role_of[self.launcher_zid] = LAUNCHER_ROLE

@@ -341,6 +341,7 @@ class NodeReport(Message, frozen=True):
     # plant (realtime) or CAN bridge: robots whose torques were zeroed for want of a
     # fresh command, as (robot, age of its newest command then, s; run time, s)
     command_stops: list[tuple[int, float, float]] = []
+    refused: dict[str, int] = {}  # messages refused on arrival, by reason (forged, implausible)
     zid: str = ""  # this node's zenoh id
     peers: list[str] = []  # the zenoh ids it had a link with as it ended (zenoh's own info)
 

@@ -1,7 +1,8 @@
 """What a plant applies of a wheel command, whoever sent it: each wheel torque
 clamped to ``limits.max_wheel_torque_nm`` (as a drive clamps its setpoint, and as
-the CAN bridge and the drive emulator do), the velocity command (the kinematic
-plant moves at it) saturated to ``max_speed_mps`` / ``max_yaw_rate_radps``.
+the CAN bridge and the drive emulator do) and never beyond a plausibility bound,
+the velocity command (the kinematic plant moves at it) saturated to
+``max_speed_mps`` / ``max_yaw_rate_radps``.
 
 The agents already respect the limits, so this changes nothing for them (the
 in-process runner and the plant node apply it alike, so they stay equal); it
@@ -15,18 +16,37 @@ from typing import Any
 
 from agents.fusion import saturate_velocity_vec
 
+# No wheel torque beyond this is ever applied, whatever the scenario's limit (none on
+# `paper`): the paper's own unconstrained law peaks at 4.6e5 N m on its scenario, so
+# 1e7 N m never touches it, while a forged command of 1e30 N m can no longer fling a
+# robot to 5e108 m. The plant and the CAN bridge count a command that hits it.
+PLAUSIBLE_TORQUE_NM = 1.0e7
+
+
+def torque_bound(limits: Any) -> float:
+    """The largest wheel torque a plant applies: the scenario's limit, never beyond
+    :data:`PLAUSIBLE_TORQUE_NM`."""
+    return min(float(limits.max_wheel_torque_nm), PLAUSIBLE_TORQUE_NM)
+
+
+def implausible(torques: Sequence[float], plan: Sequence[Sequence[float]] = ()) -> bool:
+    """A command that asks for more than :data:`PLAUSIBLE_TORQUE_NM` on some wheel
+    (now or in its look-ahead plan)."""
+    return any(abs(x) > PLAUSIBLE_TORQUE_NM for x in torques) or any(
+        abs(x) > PLAUSIBLE_TORQUE_NM for u in plan for x in u)
+
 
 def applied_command(torques: Sequence[float], v_cmd: Sequence[float],
                     limits: Any) -> tuple[tuple[float, ...], tuple[float, float, float]]:
     """(torques, v_cmd) to step the plant with; ``limits`` is the scenario's [limits]."""
     vx, vy, w = (float(x) for x in v_cmd)
     v = saturate_velocity_vec((vx, vy, w), limits.max_speed_mps, limits.max_yaw_rate_radps)
-    return _clamped(torques, limits.max_wheel_torque_nm), v
+    return _clamped(torques, torque_bound(limits)), v
 
 
 def clamped_plan(plan: Sequence[Sequence[float]], limits: Any) -> list[tuple[float, ...]]:
     """A command's look-ahead torques, each clamped as :func:`applied_command` clamps."""
-    return [_clamped(u, limits.max_wheel_torque_nm) for u in plan]
+    return [_clamped(u, torque_bound(limits)) for u in plan]
 
 
 def _clamped(torques: Sequence[float], lim: float) -> tuple[float, ...]:

@@ -57,7 +57,7 @@ from deploy.wire import (
     run_roles,
     sensed_bodies,
 )
-from plant.command import applied_command, command_for_step, held_step
+from plant.command import applied_command, command_for_step, held_step, implausible
 from plant.perception import sensor_for
 
 
@@ -73,6 +73,9 @@ class PlantNode:
         self.torques = np.zeros((sc.n, 4))
         self.v_cmd = np.zeros((sc.n, 3))
         self.commands: dict[tuple[int, int], Reply] = {}
+        self.published_k = -1  # the newest step whose samples went out
+        # commands refused on arrival, by reason (a forged step, an implausible torque)
+        self.refused: dict[str, int] = {}
         self.newest: dict[int, Reply] = {}
         self.newest_at: dict[int, float] = {}
         self.command_timeout_s = command_timeout_s
@@ -91,6 +94,9 @@ class PlantNode:
             HeldInput(self.faults, self.faults.edge(agent_role(rid), PLANT_ROLE),
                       exempt_first=False) for rid in self.ids]
         self.keep_steps = 1 + self.faults.max_lag_steps
+        # how far back a command may answer: the fault plan's lag (lockstep), or the
+        # command timeout (realtime: an older command would be zeroed anyway)
+        self.window_steps = max(self.keep_steps, int(command_timeout_s / sc.dt) + 2)
         self.gate = FaultGate(self.faults, node.mailbox) if realtime and faults else None
         self.unpowered: set[int] = set()  # realtime: robots whose commands stopped coming
         self.command_stops: list[tuple[int, float, float]] = []  # (robot, command age, t)
@@ -101,9 +107,25 @@ class PlantNode:
         self.control = ControlInbox(node, stop)
         node.declare_alive()
 
+    def _refuse(self, why: str) -> None:
+        self.refused[why] = self.refused.get(why, 0) + 1
+        self.node.counters.dropped += 1
+
     def _on_cmd(self, m: Reply) -> None:  # on the node's thread
         if m.k < 0:
             return  # an initial share: no command in it
+        # a command answers a sample already sent: a later step is forged (it could
+        # otherwise pin the newest command or fill the table), and one older than the
+        # table keeps is of no use; either costs only itself
+        if m.k > self.published_k:
+            self._refuse("future step")
+            return
+        if m.k < self.published_k - self.window_steps:
+            self._refuse("stale step")
+            return
+        if implausible(m.torques, m.plan):
+            self.refused["implausible torque (clamped)"] = self.refused.get(
+                "implausible torque (clamped)", 0) + 1
         self.commands[(m.robot, m.k)] = m
         old = self.newest.get(m.robot)
         # newer by step, then by sequence (an agent restarted after a crash
@@ -141,6 +163,7 @@ class PlantNode:
                 q_dot=tuple(qd[i]), robots=sensed_bodies(r), obstacles=sensed_bodies(o)))
             if msg is not None:
                 self.last_state_seq[rid] = msg.seq
+        self.published_k = k
         self.log_rows.append(StateRow(k, t, [tuple(x) for x in q], [tuple(x) for x in qd],
                                       [False] * len(self.ids)))
         if len(self.log_rows) >= self.log_every:
@@ -273,6 +296,7 @@ class PlantNode:
             self.gate.close()
         publish_report(self.node, -1, self.steps_done, self.timing, contacts=contacts,
                        contacts_total=0 if log is None else len(log),
-                       faults=self.faults.report(), command_stops=self.command_stops[:1000])
+                       faults=self.faults.report(), command_stops=self.command_stops[:1000],
+                       refused=dict(self.refused))
         others = set(self.peers) - {LAUNCHER_ROLE}
         self.node.mailbox.wait_until(lambda: not (others & self.node.peers_alive), linger_s)

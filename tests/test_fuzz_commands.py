@@ -31,6 +31,7 @@ from bridges.protocol import OdriveCanSimple, SetInputTorque
 from deploy.node_runtime import StopFlag
 from deploy.scenario import Scenario, load_scenario
 from deploy.wire import WIRE_VERSION, Reply, ShareData, encode
+from plant.command import PLAUSIBLE_TORQUE_NM
 from plant.node import PlantNode
 
 NODE_IDS = [0, 1, 2, 3]
@@ -63,7 +64,11 @@ def within(values: np.ndarray | tuple[float, ...], limit: float) -> bool:
 @pytest.fixture(scope="module", params=SCENARIOS)
 def plant(request: pytest.FixtureRequest) -> PlantNode:
     sc = load_scenario(request.param)
-    return PlantNode(sc, "model", FakeNode(sc.robot_ids, "plant"), StopFlag())
+    p = PlantNode(sc, "model", FakeNode(sc.robot_ids, "plant"), StopFlag())
+    # every step counts as sent and recent: the fuzzing reaches the clamps behind the
+    # plant's step guard (tested on its own below)
+    p.published_k, p.window_steps = 2**63, 2**64
+    return p
 
 
 def check_plant_inputs(p: PlantNode) -> None:
@@ -143,11 +148,13 @@ def test_plant_clamps_each_wheel_and_the_velocity_command(name: str) -> None:
     lab robots, limit 2 N m)."""
     sc = load_scenario(name)
     p = PlantNode(sc, "model", FakeNode(sc.robot_ids, "plant"), StopFlag())
+    p.published_k = 0  # the sample of step 0 went out
     p.node.deliver(p.node.keys.cmd(1), command((1e300, -3.0, 1.0, 0.0), (1e300, 0.0, -1e300)))
     p._take_lockstep_commands(0)
     lim = sc.spec.limits
-    if math.isinf(lim.max_wheel_torque_nm):
-        assert tuple(p.torques[0]) == (1e300, -3.0, 1.0, 0.0)
+    if math.isinf(lim.max_wheel_torque_nm):  # no limit: the plausibility bound still holds
+        assert tuple(p.torques[0]) == (PLAUSIBLE_TORQUE_NM, -3.0, 1.0, 0.0)
+        assert p.refused == {"implausible torque (clamped)": 1}
         assert tuple(p.v_cmd[0]) == (1e300, 0.0, -1e300)
     else:
         assert tuple(p.torques[0]) == (2.0, -2.0, 1.0, 0.0)
@@ -170,3 +177,38 @@ def test_bridge_without_a_scenario_limit_clamps_to_what_the_protocol_encodes() -
     finally:
         b.close()
         bus.shutdown()
+
+
+@pytest.mark.parametrize("clock", ["lockstep", "realtime"])
+def test_a_command_for_a_step_not_yet_sent_is_refused_and_costs_only_itself(clock: str) -> None:
+    """Found by probing (issue 21): one command for step 2^62 made a realtime plant
+    order every real command after it (all dropped: robot 2 zeroed for the run), and
+    future-step commands filled the lockstep table without bound. A command answers a
+    sample already sent: a later step is refused, counted, and the real ones apply."""
+    sc = load_scenario("lab")
+    p = PlantNode(sc, "model", FakeNode(sc.robot_ids, "plant"), StopFlag(),
+                  realtime=clock == "realtime")
+    key = p.node.keys.cmd(1)
+    for k in range(3):
+        p.published_k = k
+        p.node.deliver(key, reply(k, 2**62 if k == 0 else 0, (0.5, 0.5, 0.5, 0.5)))
+        p.node.deliver(key, reply(2**62, 0, (-2.0, -2.0, -2.0, -2.0)))  # forged
+        for future in range(k + 1, k + 1000):  # a flood of future steps
+            p.node.deliver(key, reply(future, 1, (-2.0, -2.0, -2.0, -2.0)))
+        if clock == "lockstep":
+            p._take_lockstep_commands(k)
+        else:
+            p._apply_newest_commands(time.monotonic())
+        assert tuple(p.torques[0]) == (0.5, 0.5, 0.5, 0.5)
+    assert p.refused == {"future step": 3 * 1000}
+    assert len(p.commands) <= 3 and all(k <= 2 for _r, k in p.commands)
+    p.published_k = 500  # a command far older than the plant keeps: refused too
+    p.node.deliver(key, reply(2, 0, (0.1, 0.1, 0.1, 0.1)))
+    assert p.refused["stale step"] == 1
+
+
+def reply(k: int, seq: int, torques: tuple[float, ...]) -> bytes:
+    zero = (0.0, 0.0, 0.0)
+    return encode(Reply(WIRE_VERSION, 1, seq, 0, robot=1, k=k, t=0.0, torques=torques,
+                        v_cmd=zero, state_seq=0, state_stamp_ns=0,
+                        share=ShareData(zero, zero, zero, zero, zero, zero)))

@@ -98,13 +98,14 @@ def paper_head(horizon: int | None, seed: int, drop: float, duration_s: float):
 def test_look_ahead_keeps_the_paper_law_stable_under_30_percent_loss() -> None:
     """Seed 5 of the 30 % sweep: commands lost at a behavior switch (robot 3,
     t = 13-14 ms) leave it at 600 m/s into the obstacle's band, and the law
-    throws it off (beyond 1e5 m/s within 25 ms). With the default look-ahead
+    throws it off (beyond 1e5 m/s within 25 ms; ~4e4 m/s since no torque beyond
+    the plausibility bound of 1e7 N m is applied). With the default look-ahead
     the fault-free run's top speed (670 m/s) is not exceeded by more than 2x."""
     fault_free, _ = paper_head(None, 5, 0.0, 0.1)
     without, _ = paper_head(0, 5, 0.3, 0.1)
     with_plan, contacts = paper_head(None, 5, 0.3, 0.1)
     assert 600.0 < fault_free < 700.0
-    assert without > 1e5  # the failure is real
+    assert without > 30 * fault_free  # the failure is real
     assert with_plan < 2.0 * fault_free
     assert contacts == 0
 
@@ -130,6 +131,7 @@ def test_plant_node_plays_the_newest_plan_for_missing_steps(clock: str) -> None:
     sc = load_scenario("lab")
     p = PlantNode(sc, "model", FakeNode(sc.robot_ids, "plant"), StopFlag())
     own, plan = (0.1, 0.2, 0.3, 0.4), [(1.0, 1.0, -1.0, -1.0), (0.5, 0.0, 0.0, 9.0)]
+    p.published_k = 5  # the sample of step 5 went out
     zero = (0.0, 0.0, 0.0)
     p.node.deliver(p.node.keys.cmd(1), encode(Reply(
         WIRE_VERSION, 1, 0, 0, robot=1, k=5, t=0.025, torques=own, v_cmd=zero,
