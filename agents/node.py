@@ -25,12 +25,14 @@ import numpy as np
 
 from agents.core import AgentCore, AgentOutput, Body, Share
 from agents.degradation import InputAges, predict
+from agents.leader_node import LOOKAHEAD, TICK_EVERY
 from agents.look_ahead import LookAhead
 from deploy.fault_model import FaultModel
 from deploy.fault_plan import FaultPlan
 from deploy.lockstep_inputs import AgentLinks
 from deploy.node_runtime import ControlInbox, FaultGate, StopFlag, Timing, publish_report
 from deploy.scenario import Scenario
+from deploy.step_guard import JUMP_OK, StepGuard
 from deploy.transport import Node
 from deploy.wire import (
     LAUNCHER_ROLE,
@@ -51,6 +53,10 @@ from deploy.wire import (
 
 KEEP_STEPS = 4  # lockstep inputs kept behind the current step
 FORGET_EVERY = 32  # lockstep: older inputs are dropped every this many steps (a scan)
+# how far past the newest sample a stored input may be: the leader's batches run up to
+# LOOKAHEAD + TICK_EVERY steps ahead; a neighbour answers the samples we get too
+LEADER_AHEAD_STEPS = LOOKAHEAD + TICK_EVERY + JUMP_OK
+SHARE_AHEAD_STEPS = JUMP_OK + 1
 TELEMETRY_HZ = 100.0  # realtime telemetry rate (lockstep: every step)
 TELEMETRY_BATCH_S = 0.1  # telemetry rows go out in batches of this much run time (at most)
 # ... and at most this many rows (lockstep: 8 steps a message, ~2.1 kB): zenoh 1.10 grows a
@@ -169,6 +175,11 @@ class AgentNode:
         horizon = sc.spec.degradation.command_horizon if (faults or realtime) else 0
         self.look_ahead = LookAhead(self.core, horizon) if horizon else None
         self.timing = Timing()
+        # the newest step of each input stream (lockstep starts before step 0; a
+        # realtime agent may join a running fleet: it takes the first step it hears)
+        self.guards: dict[str, StepGuard] = {
+            "sample": StepGuard(newest=None if realtime else -1), "leader": StepGuard()}
+        self.refused: dict[str, int] = {}  # messages refused on arrival, by reason
         self.steps_done = 0
         self.telemetry_every = 1  # realtime decimates (see run_realtime)
         self.telemetry_batch = TELEMETRY_BATCH_MAX
@@ -187,23 +198,39 @@ class AgentNode:
     def _subscribe(self) -> None:
         keys, inp, rid = self.node.keys, self.inputs, self.rid
 
-        dt = self.sc.dt
+        dt, guards, refuse = self.sc.dt, self.guards, self._refuse
 
+        # What becomes the newest, and what is stored, is judged by the step a message
+        # carries against the stream so far (deploy/step_guard.py): a forged step far
+        # ahead is held until confirmed, never adopted by itself, so it cannot hang a
+        # lockstep agent or silence a realtime one; what is stored stays near the
+        # newest (bounded tables), and a step already stored is not overwritten.
         def on_sample(m: Sample) -> None:
-            inp.states[m.k] = m
-            if inp.newest_state is None or m.seq > inp.newest_state.seq:
+            g = guards["sample"]
+            if g.admit(m.k):
+                inp.states[m.k] = m
                 inp.newest_state = m
+            elif g.newest is not None and g.newest - self.keep_steps < m.k <= g.newest:
+                inp.states.setdefault(m.k, m)  # late, but still of use (a delayed link)
+            else:
+                refuse("sample step")
 
         def on_leader(m: LeaderState) -> None:
+            g, ahead = guards["leader"], guards["sample"]
             for p in leader_points(m, dt):
-                inp.leaders[p.k] = p
-                if inp.newest_leader is None or p.k > inp.newest_leader.k:
+                if not ahead.within(p.k, LEADER_AHEAD_STEPS):
+                    refuse("leader step")
+                    continue
+                inp.leaders.setdefault(p.k, p)
+                if g.admit(p.k):
                     inp.newest_leader = p
 
         def on_share(m: Reply) -> None:
-            inp.shares[(m.robot, m.k)] = m
-            old = inp.newest_share.get(m.robot)
-            if old is None or m.k > old.k:
+            if not guards["sample"].within(m.k, SHARE_AHEAD_STEPS):
+                refuse("share step")
+                return
+            inp.shares.setdefault((m.robot, m.k), m)
+            if guards.setdefault(f"share-{m.robot}", StepGuard()).admit(m.k):
                 inp.newest_share[m.robot] = m
 
         me, gate = agent_role(rid), self._gated
@@ -213,6 +240,10 @@ class AgentNode:
             self.node.subscribe(keys.leader_state, LeaderState, gate(LEADER_ROLE, me, on_leader))
         for j in self.neighbours:
             self.node.subscribe(keys.cmd(j), Reply, gate(agent_role(j), me, on_share), robot=j)
+
+    def _refuse(self, why: str) -> None:
+        self.refused[why] = self.refused.get(why, 0) + 1
+        self.node.counters.dropped += 1
 
     def _gated(self, src: str, dst: str, on_message):
         """Realtime with a fault plan: the edge's faults act as messages arrive
@@ -366,15 +397,15 @@ class AgentNode:
         self.telemetry_every = max(1, round(1.0 / (dt * telemetry_hz)))
         self.telemetry_batch = max(1, min(TELEMETRY_BATCH_MAX,
                                           round(TELEMETRY_BATCH_S * telemetry_hz)))
-        last_seq = -1
+        last_k = -1
         last_step = None
         last_t: float | None = None
         share_msgs: dict[int, Reply] = {}
         synced = t0_mono is not None
         while not self.stop():
             box.wait_until(
-                lambda seen=last_seq: self.stop() or (inp.newest_state is not None
-                                                      and inp.newest_state.seq > seen),
+                lambda seen=last_k: self.stop() or (inp.newest_state is not None
+                                                    and inp.newest_state.k > seen),
                 1.5 * dt,
             )
             if self.stop():
@@ -384,7 +415,7 @@ class AgentNode:
                 state = inp.newest_state
                 if state is None:
                     continue
-                fresh = state.seq > last_seq
+                fresh = state.k > last_k
                 leader = inp.newest_leader
                 share_msgs.update(inp.newest_share)
                 for by_step in (inp.states, inp.leaders, inp.shares):
@@ -398,7 +429,7 @@ class AgentNode:
             if last_step is not None:
                 self.timing.add_jitter(int(abs((now - last_step) - dt) * 1e9))
             last_step = now
-            last_seq = state.seq
+            last_k = state.k
             # the observer and the reference advance by the plant's own step
             # between the states we answer (more than dt when we missed some)
             h = dt if last_t is None or state.t <= last_t else state.t - last_t
@@ -443,5 +474,9 @@ class AgentNode:
         self.flush_telemetry()
         if self.gate is not None:
             self.gate.close()
+        refused = dict(self.refused)
+        held = self.guards["sample"].held
+        if held:
+            refused["unconfirmed jump"] = held
         publish_report(self.node, self.rid, self.steps_done, self.timing,
-                       faults=self.faults.report())
+                       faults=self.faults.report(), refused=refused)

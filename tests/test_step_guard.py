@@ -1,0 +1,82 @@
+"""StepGuard: a forged far-future step never becomes the newest and costs at most
+itself; the real stream moves on, also across a real jump (pause, cut, restart)."""
+
+from __future__ import annotations
+
+from deploy.step_guard import JUMP_OK, StepGuard
+
+
+def test_the_real_stream_moves_forward_with_small_gaps():
+    g = StepGuard(newest=-1)
+    assert [g.admit(k) for k in (0, 1, 2, 5, 6)] == [True, True, True, True, True]
+    assert g.newest == 6 and g.held == 0
+    assert not g.admit(6) and not g.admit(3)  # not newer
+
+
+def test_one_forged_step_far_ahead_is_held_and_the_real_ones_go_on():
+    g = StepGuard(newest=10)
+    assert not g.admit(2**62)
+    assert [g.admit(k) for k in range(11, 20)] == [True] * 9
+    assert g.newest == 19 and g.held == 1
+
+
+def test_a_real_jump_is_adopted_when_the_next_step_confirms_it():
+    g = StepGuard(newest=10)
+    assert not g.admit(2010)  # 2 s at 1 kHz after a pause: held once
+    assert g.admit(2011) and g.newest == 2011
+    assert g.admit(2012)
+
+
+def test_a_forged_step_just_ahead_costs_at_most_jump_ok_steps():
+    g = StepGuard(newest=10)
+    assert g.admit(10 + JUMP_OK)  # believed: within the allowed gap
+    lost = [k for k in range(11, 11 + 2 * JUMP_OK) if not g.admit(k)]
+    assert len(lost) <= JUMP_OK
+
+
+def test_two_forged_steps_far_apart_never_confirm_each_other():
+    g = StepGuard(newest=0)
+    assert not g.admit(10**6) and not g.admit(10**9)
+    assert g.newest == 0 and g.admit(1)
+
+
+def test_within_bounds_what_a_node_stores_ahead():
+    g = StepGuard(newest=100)
+    assert g.within(164, 64) and not g.within(165, 64)
+    assert StepGuard().within(10**9, 0)
+
+
+def _sample(k: int, seq: int) -> bytes:
+    from deploy.wire import WIRE_VERSION, Sample, encode
+
+    return encode(Sample(WIRE_VERSION, 0, seq, 0, robot=2, k=k, t=k * 0.005, q=(0.0, 0.0, 0.0),
+                         q_dot=(0.0, 0.0, 0.0), robots=[], obstacles=[]))
+
+
+def test_an_agent_never_takes_a_forged_sample_as_its_newest():
+    """Found by probing (issue 21): one sample for a future step hung a lockstep run
+    (the agent waited for that step's other inputs every step), one with a huge seq
+    silenced a realtime agent (every real sample after it looked older)."""
+    import pytest
+
+    pytest.importorskip("zenoh")
+    from fuzz_fakes import FakeNode
+
+    from agents.node import AgentNode
+    from deploy.node_runtime import StopFlag
+    from deploy.scenario import load_scenario
+
+    sc = load_scenario("lab")
+    for realtime in (False, True):
+        a = AgentNode(sc, 2, FakeNode(sc.robot_ids, "agent-2"), StopFlag(), realtime=realtime)
+        key = a.node.keys.sample(2)
+        a.node.deliver(key, _sample(0, 0))
+        a.node.deliver(key, _sample(2**62, 2**62))  # forged: a far step, a huge seq
+        for k in range(1, 6):
+            a.node.deliver(key, _sample(k, k))
+            assert a.inputs.newest_state.k == k
+        for k in range(10**6, 10**6 + 500):  # a flood of far steps, each alone
+            a.node.deliver(key, _sample(k * 7, 1))
+        assert a.inputs.newest_state.k == 5
+        assert max(a.inputs.states) == 5 and len(a.inputs.states) <= 6  # bounded
+        assert a.refused["sample step"] == 501
