@@ -36,13 +36,13 @@ from deploy.fault_plan import FaultPlan
 from deploy.kill_schedule import KillSchedule
 from deploy.node_runtime import START_LEAD_S, StopFlag, peak_rss_kb
 from deploy.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
+from deploy.run_secret import RUN_SECRET_ENV, control_is_genuine, new_secret
 from deploy.scenario import Scenario
 from deploy.transport import Node, zenoh_config
 from deploy.wire import (
     LAUNCHER_ROLE,
     LEADER_ROLE,
     PLANT_ROLE,
-    WIRE_VERSION,
     Codec,
     Control,
     Keys,
@@ -50,6 +50,7 @@ from deploy.wire import (
     StateLog,
     agent_role,
     bridge_role,
+    control,
 )
 
 STOP_GRACE_S = 3.0
@@ -162,6 +163,8 @@ class Launcher:
         self.kills = KillSchedule(opts.faults.kills if opts.faults else ())
         self.run_dir: Path | None = None  # the private directory of the run's sockets
         self.launcher_zid = ""  # our zenoh id (links in metrics.json name it "launcher")
+        self.secret = new_secret()  # the run's: only its own nodes can sign ctl/* (run_secret.py)
+        self.control_refused = 0  # control messages heard whose signature did not check
 
     # -- children -------------------------------------------------------------------
     def _common_args(self, endpoint: str) -> list[str]:
@@ -297,6 +300,7 @@ class Launcher:
         child.log_path.parent.mkdir(parents=True, exist_ok=True)
         child.log = open(child.log_path, "wb")  # noqa: SIM115 - closed in _reap
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        env[RUN_SECRET_ENV] = self.secret  # signs the run's control messages (run_secret.py)
         env.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
         child.proc = subprocess.Popen(
             child.argv, stdout=child.log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
@@ -368,6 +372,9 @@ class Launcher:
         if self.recorder is not None:
             self.recorder.add(key, time.time_ns(), msg)
         if isinstance(msg, Control):
+            if not control_is_genuine(self.secret, msg):
+                self.control_refused += 1
+                return
             if msg.command == "start" and self.run_t0 is None:
                 self.run_t0 = time.monotonic() + (msg.start_unix_ns - time.time_ns()) * 1e-9
             elif msg.command == "tick":
@@ -506,9 +513,8 @@ class Launcher:
         self._control(node, "start", start_unix_ns)
 
     def _control(self, node: Node, command: str, start_unix_ns: int = 0) -> None:
-        node.publish(self.keys.ctl(command), lambda seq, stamp: Control(
-            WIRE_VERSION, 0, seq, stamp, command=command, k=0, t=0.0,
-            start_unix_ns=start_unix_ns))
+        node.publish(self.keys.ctl(command), lambda seq, stamp: control(
+            command, seq, stamp, self.secret, start_unix_ns=start_unix_ns))
 
     def _wait_for_exit(self, node: Node, roles: list[str], timeout_s: float = 20.0) -> None:
         """After ``end``: every node sends its report and exits 0; then the children
@@ -555,6 +561,8 @@ class Launcher:
             messages["invalid"] += r.invalid
             for why, n in r.refused.items():
                 refused[f"{r.role}: {why}"] = n
+        if self.control_refused:
+            refused["launcher: forged control"] = self.control_refused
         if refused:  # counted in "dropped" too; here by node and reason
             messages["refused"] = refused
         # who had a link with whom, from each node's zenoh session (ids -> roles)

@@ -8,6 +8,7 @@ import ctypes
 import heapq
 import itertools
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -15,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from deploy.fault_model import FaultModel
+from deploy.run_secret import control_is_genuine, run_secret
 from deploy.transport import Mailbox, Node
 from deploy.wire import WIRE_VERSION, Control, NodeReport
 
@@ -124,9 +126,19 @@ class ControlInbox:
         self.node, self.stop = node, stop
         self.start: Control | None = None
         self.tick = -1
+        self.secret = run_secret()  # set by `omnifleet run`: control must be signed with it
+        self.refused = 0  # control messages whose signature did not check
         node.subscribe(node.keys.ctl_all, Control, self._on)
 
     def _on(self, msg: Control) -> None:  # on the node's thread
+        if not control_is_genuine(self.secret, msg):
+            self.refused += 1
+            self.node.counters.dropped += 1
+            self.node.refused["forged control"] = self.refused
+            if self.refused <= 3:
+                print(f"{self.node.role}: refused an unsigned or forged ctl/{msg.command}",
+                      file=sys.stderr, flush=True)
+            return
         if msg.command == "start" and self.start is None:
             self.start = msg
         elif msg.command == "tick":
@@ -227,6 +239,7 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
     """The node's :class:`NodeReport`; ``extra``: further NodeReport fields."""
     c = node.counters
     timing = timing or Timing()
+    extra["refused"] = {**node.refused, **extra.get("refused", {})}
     node.publish(node.keys.report(node.role), lambda seq, stamp: NodeReport(
         WIRE_VERSION, node.sender, seq, stamp, role=node.role, robot=robot, sent=c.sent,
         dropped=c.dropped, late=c.late, invalid=c.invalid, steps=steps,

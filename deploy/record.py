@@ -41,6 +41,10 @@ class Recorder(Launcher):
     def run(self, progress=None) -> dict[str, Any]:
         from deploy.recorder import McapRecorder
 
+        # the nodes run elsewhere, started by hand or by systemd, with no run secret:
+        # across hosts the ACL says who may publish ctl/* (deploy/acl.py)
+        self.secret = None
+
         o = self.opts
         o.out.mkdir(parents=True, exist_ok=True)
         self.reported_ns: dict[str, int] = {}

@@ -177,6 +177,7 @@ class Node:
         self.lossless = lossless
         self._version_warned = False
         self.links_noted: list[str] | None = None
+        self.refused: dict[str, int] = {}  # messages refused on arrival, by reason
         try:
             self.session = zenoh.open(config)
         except Exception as exc:

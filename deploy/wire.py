@@ -303,11 +303,25 @@ class Control(Message, frozen=True):
     k: int = 0  # tick: the step the plant is publishing
     t: float = 0.0
     start_unix_ns: int = 0  # start (realtime): when t = 0 is, on the wall clock
+    mac: str = ""  # HMAC of the above with the run's secret (deploy/run_secret.py)
 
     def __post_init__(self) -> None:
+        if len(self.mac) > 64:
+            raise ValueError("mac too long")
         if self.command not in CONTROL_COMMANDS:
             raise ValueError(f"unknown command {self.command!r}")
         super().__post_init__()
+
+
+def control(command: str, seq: int, stamp_ns: int, secret: str | None, k: int = 0,
+            t: float = 0.0, start_unix_ns: int = 0, sender: int = 0) -> Control:
+    """A control message, signed with the run's secret when this process has one."""
+    from deploy.run_secret import control_mac
+
+    mac = "" if secret is None else control_mac(secret, command, k, t, start_unix_ns, seq,
+                                                stamp_ns)
+    return Control(WIRE_VERSION, sender, seq, stamp_ns, command=command, k=k, t=t,
+                   start_unix_ns=start_unix_ns, mac=mac)
 
 
 class ContactRecord(msgspec.Struct, array_like=True, frozen=True):

@@ -47,12 +47,12 @@ from deploy.wire import (
     PLANT_ROLE,
     WIRE_VERSION,
     ContactRecord,
-    Control,
     Reply,
     Sample,
     StateLog,
     StateRow,
     agent_role,
+    control,
     log_rows_per_batch,
     run_roles,
     sensed_bodies,
@@ -177,8 +177,9 @@ class PlantNode:
                 WIRE_VERSION, 0, seq, stamp, robots=list(self.ids), rows=rows))
 
     def _control(self, command: str, k: int = 0, t: float = 0.0, start_unix_ns: int = 0) -> None:
-        self.node.publish(self.node.keys.ctl(command), lambda seq, stamp: Control(
-            WIRE_VERSION, 0, seq, stamp, command=command, k=k, t=t, start_unix_ns=start_unix_ns))
+        secret = self.control.secret
+        self.node.publish(self.node.keys.ctl(command), lambda seq, stamp: control(
+            command, seq, stamp, secret, k=k, t=t, start_unix_ns=start_unix_ns))
 
     # -- lockstep -------------------------------------------------------------------
     def run_lockstep(self, steps: int, step_deadline_s: float) -> None:

@@ -24,6 +24,7 @@ class FakeNode:
         self.counters = Counters()
         self.mailbox = Mailbox()
         self.received: dict[str, int] = {}
+        self.refused: dict[str, int] = {}
         self.peers_alive: set[str] = set()
         self.published: list[tuple[str, Message]] = []
         self._subs: list[tuple[str, type[Message], Callable[[Message], None], int | None]] = []

@@ -301,3 +301,31 @@ def test_each_node_links_only_to_the_nodes_it_talks_to(tmp_path, robots):
     agent_pairs = sum(len(v - {"launcher", "plant", "leader"}) for k, v in links.items()
                       if k.startswith("agent")) // 2
     assert agent_pairs == (3 if robots == 3 else robots - 1)  # a tree: N - 1 edges
+
+
+def test_a_forged_stop_from_a_peer_on_the_fleet_neither_stops_nor_steers_the_run(tmp_path):
+    """Found by probing (issue 21): a well-formed ``ctl/stop`` or ``ctl/estop`` from any
+    process that reached the fleet ended the run early with exit 0, and ``--check``
+    passed it. Control messages are now signed with the run's secret (given to the
+    nodes in their environment, never on the wire): the forged ones are refused and
+    counted, the run goes to its end, equal to the reference."""
+    from deploy.wire import WIRE_VERSION, Control, Keys, encode
+
+    out = tmp_path / "forged-stop"
+    with running_fleet("forged", "--duration", "1.0", "--out", str(out)) as (
+            proc, fleet, session):
+        keys = Keys(fleet)
+        for seq, command in enumerate(("stop", "estop", "end", "stop")):
+            forged = Control(WIRE_VERSION, 0, seq, 0, command=command, k=10**9, t=1.0)
+            session.put(keys.ctl(command), encode(forged))
+        rc, _, err = finish(proc)
+    assert rc == 0, err
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["steps"] == 1000 and m["verdict"]["pass"], m["verdict"]
+    refused = m["messages"].get("refused", {})
+    assert sum(n for why, n in refused.items() if "forged control" in why) >= 4, refused
+    rc, _, err = finish(start("run", "paper", "--in-process", "--duration", "1.0",
+                              "--out", str(tmp_path / "ref"), "--no-figures"))
+    assert rc == 0, err
+    assert_same_series(TimeSeries.load(out / "timeseries.npz"),
+                       TimeSeries.load(tmp_path / "ref" / "timeseries.npz"))
