@@ -382,6 +382,12 @@ class Launcher:
             elif msg.command == "end":
                 self.ended = True
             return
+        if isinstance(msg, NodeReport) and key != self.keys.report(msg.role):
+            # a report is filed under the role of the key it came on, never the role its
+            # body claims (a "plant" report on report/agent-2 put a fake contact in
+            # metrics.json); across hosts the ACL lets each role put only its own key
+            self.invalid += 1
+            return
         if isinstance(msg, StateLog) and self.opts.clock == "realtime":
             self.progress_k = max(self.progress_k, msg.rows[-1].k)
         self.collector.add(msg)

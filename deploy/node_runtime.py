@@ -18,12 +18,12 @@ from typing import Any
 from deploy.fault_model import FaultModel
 from deploy.run_secret import control_is_genuine, run_secret
 from deploy.transport import Mailbox, Node
-from deploy.wire import WIRE_VERSION, Control, NodeReport
+from deploy.wire import MAX_REPORT_SAMPLES, WIRE_VERSION, Control, NodeReport
 
 START_LEAD_S = 0.3  # realtime: t = 0 this long after ``start`` is sent
 
 CLOCKS = ("lockstep", "realtime")
-MAX_SAMPLES = 200_000  # timing samples kept per node (enough for 200 s at 1 kHz)
+MAX_SAMPLES = MAX_REPORT_SAMPLES  # timing samples kept per node (200 s at 1 kHz)
 
 
 class StopFlag:

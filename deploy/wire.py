@@ -40,6 +40,8 @@ MAX_ORDER_CHARS = 32
 MAX_ROLE_CHARS = 32
 MAX_BATCH = 256  # steps per batched message (leader, telemetry, state log)
 MAX_CONTACTS = 10_000  # contact events carried by a plant's report (the count is exact)
+MAX_REPORT_SAMPLES = 200_000  # timing samples a report carries (node_runtime.MAX_SAMPLES)
+MAX_REPORT_KEYS = 1024  # entries of a report's per-key and per-reason tables
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -360,6 +362,10 @@ class NodeReport(Message, frozen=True):
     peers: list[str] = []  # the zenoh ids it had a link with as it ended (zenoh's own info)
 
     def __post_init__(self) -> None:
+        if (len(self.latency_ns) > MAX_REPORT_SAMPLES or len(self.jitter_ns) > MAX_REPORT_SAMPLES
+                or len(self.received) > MAX_REPORT_KEYS or len(self.faults) > MAX_REPORT_KEYS
+                or len(self.refused) > MAX_REPORT_KEYS or len(self.command_stops) > 1000):
+            raise ValueError("report too large")
         if len(self.zid) > MAX_ROLE_CHARS or len(self.peers) > MAX_BODIES or any(
                 len(p) > MAX_ROLE_CHARS for p in self.peers):
             raise ValueError("bad link report")
