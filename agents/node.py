@@ -180,6 +180,7 @@ class AgentNode:
         self.guards: dict[str, StepGuard] = {
             "sample": StepGuard(newest=None if realtime else -1), "leader": StepGuard()}
         self.refused: dict[str, int] = {}  # messages refused on arrival, by reason
+        self.law_resets = 0  # realtime: the law restarted from the robot after a long gap
         self.steps_done = 0
         self.telemetry_every = 1  # realtime decimates (see run_realtime)
         self.telemetry_batch = TELEMETRY_BATCH_MAX
@@ -437,6 +438,15 @@ class AgentNode:
             if any(j not in share_msgs for j in self.neighbours):
                 continue
             ages = realtime_ages(state, leader, share_msgs, dt)
+            if synced and h > self.core.cfg.degradation.stale_after_s:
+                # this process was off the CPU (paused, starved) longer than its inputs
+                # stay fresh: the plant has zeroed the robot meanwhile. Integrating the
+                # observer, the estimator and the reference across the gap left a
+                # paused lab agent 5 cm off for good (SIGSTOP 2 s): start them again from
+                # where the robot and the leader are now, as a restarted agent does
+                if self._resync(state, leader, share_msgs, ages):
+                    self.law_resets += 1
+                    h = dt
             if not synced:
                 if not self._resync(state, leader, share_msgs, ages):
                     continue
@@ -475,8 +485,11 @@ class AgentNode:
         if self.gate is not None:
             self.gate.close()
         refused = dict(self.refused)
+        if self.law_resets:
+            print(f"{self.node.role}: law restarted from the robot's state {self.law_resets} "
+                  "time(s) after a gap longer than its inputs stay fresh", file=sys.stderr)
         held = self.guards["sample"].held
         if held:
             refused["unconfirmed jump"] = held
         publish_report(self.node, self.rid, self.steps_done, self.timing,
-                       faults=self.faults.report(), refused=refused)
+                       faults=self.faults.report(), refused=refused, law_resets=self.law_resets)

@@ -567,6 +567,11 @@ class Launcher:
             messages["invalid"] += r.invalid
             for why, n in r.refused.items():
                 refused[f"{r.role}: {why}"] = n
+        resets = {r.robot: r.law_resets for r in reports.values() if r.law_resets}
+        if resets:  # realtime agents that restarted their law after being off the CPU
+            out_resets = {str(k): v for k, v in sorted(resets.items())}
+        else:
+            out_resets = None
         if self.control_refused:
             refused["launcher: forged control"] = self.control_refused
         if refused:  # counted in "dropped" too; here by node and reason
@@ -589,6 +594,8 @@ class Launcher:
                   "peak_rss_mb": round(peak_rss_kb() / 1024.0, 1), "exit_code": None,
                   "reported": True}],
         }
+        if out_resets:
+            out["law_resets"] = out_resets
         plant = reports.get(PLANT_ROLE)
         bridges = [reports[bridge_role(r)] for r in self.sc.robot_ids if bridge_role(r) in reports]
         stops = sorted((s for r in [plant, *bridges] if r is not None for s in r.command_stops),

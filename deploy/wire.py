@@ -358,6 +358,7 @@ class NodeReport(Message, frozen=True):
     # fresh command, as (robot, age of its newest command then, s; run time, s)
     command_stops: list[tuple[int, float, float]] = []
     refused: dict[str, int] = {}  # messages refused on arrival, by reason (forged, implausible)
+    law_resets: int = 0  # agent: its law restarted from the robot after a long gap (realtime)
     zid: str = ""  # this node's zenoh id
     peers: list[str] = []  # the zenoh ids it had a link with as it ended (zenoh's own info)
 
