@@ -200,6 +200,7 @@ class AgentNode:
         keys, inp, rid = self.node.keys, self.inputs, self.rid
 
         dt, guards, refuse = self.sc.dt, self.guards, self._refuse
+        share_guards = {j: StepGuard() for j in self.neighbours}  # one stream per neighbour
 
         # What becomes the newest, and what is stored, is judged by the step a message
         # carries against the stream so far (deploy/step_guard.py): a forged step far
@@ -231,7 +232,7 @@ class AgentNode:
                 refuse("share step")
                 return
             inp.shares.setdefault((m.robot, m.k), m)
-            if guards.setdefault(f"share-{m.robot}", StepGuard()).admit(m.k):
+            if share_guards[m.robot].admit(m.k):
                 inp.newest_share[m.robot] = m
 
         me, gate = agent_role(rid), self._gated

@@ -117,9 +117,6 @@ class Mailbox:
         with self.lock:
             handler(item)
 
-    def pending(self) -> int:
-        return self._queue.qsize()
-
     def drain(self) -> None:
         """Handle everything already arrived, without waiting."""
         q = self._queue
