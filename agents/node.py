@@ -179,7 +179,6 @@ class AgentNode:
         # realtime agent may join a running fleet: it takes the first step it hears)
         self.guards: dict[str, StepGuard] = {
             "sample": StepGuard(newest=None if realtime else -1), "leader": StepGuard()}
-        self.refused: dict[str, int] = {}  # messages refused on arrival, by reason
         self.law_resets = 0  # realtime: the law restarted from the robot after a long gap
         self.steps_done = 0
         self.telemetry_every = 1  # realtime decimates (see run_realtime)
@@ -199,7 +198,7 @@ class AgentNode:
     def _subscribe(self) -> None:
         keys, inp, rid = self.node.keys, self.inputs, self.rid
 
-        dt, guards, refuse = self.sc.dt, self.guards, self._refuse
+        dt, guards, refuse = self.sc.dt, self.guards, self.node.refuse
         share_guards = {j: StepGuard() for j in self.neighbours}  # one stream per neighbour
 
         # What becomes the newest, and what is stored, is judged by the step a message
@@ -242,10 +241,6 @@ class AgentNode:
             self.node.subscribe(keys.leader_state, LeaderState, gate(LEADER_ROLE, me, on_leader))
         for j in self.neighbours:
             self.node.subscribe(keys.cmd(j), Reply, gate(agent_role(j), me, on_share), robot=j)
-
-    def _refuse(self, why: str) -> None:
-        self.refused[why] = self.refused.get(why, 0) + 1
-        self.node.counters.dropped += 1
 
     def _gated(self, src: str, dst: str, on_message):
         """Realtime with a fault plan: the edge's faults act as messages arrive
@@ -485,12 +480,11 @@ class AgentNode:
         self.flush_telemetry()
         if self.gate is not None:
             self.gate.close()
-        refused = dict(self.refused)
         if self.law_resets:
             print(f"{self.node.role}: law restarted from the robot's state {self.law_resets} "
                   "time(s) after a gap longer than its inputs stay fresh", file=sys.stderr)
         held = self.guards["sample"].held
         if held:
-            refused["unconfirmed jump"] = held
+            self.node.refused["unconfirmed jump"] = held
         publish_report(self.node, self.rid, self.steps_done, self.timing,
-                       faults=self.faults.report(), refused=refused, law_resets=self.law_resets)
+                       faults=self.faults.report(), law_resets=self.law_resets)

@@ -127,15 +127,12 @@ class ControlInbox:
         self.start: Control | None = None
         self.tick = -1
         self.secret = run_secret()  # set by `omnifleet run`: control must be signed with it
-        self.refused = 0  # control messages whose signature did not check
         node.subscribe(node.keys.ctl_all, Control, self._on)
 
     def _on(self, msg: Control) -> None:  # on the node's thread
         if not control_is_genuine(self.secret, msg):
-            self.refused += 1
-            self.node.counters.dropped += 1
-            self.node.refused["forged control"] = self.refused
-            if self.refused <= 3:
+            self.node.refuse("forged control")
+            if self.node.refused["forged control"] <= 3:
                 print(f"{self.node.role}: refused an unsigned or forged ctl/{msg.command}",
                       file=sys.stderr, flush=True)
             return
@@ -239,11 +236,11 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
     """The node's :class:`NodeReport`; ``extra``: further NodeReport fields."""
     c = node.counters
     timing = timing or Timing()
-    extra["refused"] = {**node.refused, **extra.get("refused", {})}
     node.publish(node.keys.report(node.role), lambda seq, stamp: NodeReport(
         WIRE_VERSION, node.sender, seq, stamp, role=node.role, robot=robot, sent=c.sent,
         dropped=c.dropped, late=c.late, invalid=c.invalid, steps=steps,
         latency_ns=timing.latency_ns, jitter_ns=timing.jitter_ns,
         deadline_misses=timing.deadline_misses, peak_rss_kb=peak_rss_kb(),
-        received=dict(node.received), zid=node.zid, peers=node.linked_peers(), **extra,
+        received=dict(node.received), refused=dict(node.refused), zid=node.zid,
+        peers=node.linked_peers(), **extra,
     ))

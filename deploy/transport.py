@@ -301,6 +301,14 @@ class Node:
                 post(handle, s.payload.to_bytes())
         self._subs.append(self.session.declare_subscriber(key, self._direct(arrived)))
 
+    def refuse(self, why: str, dropped: bool = True) -> None:
+        """Count a message refused on arrival (a forged step, a bad signature), by
+        reason; reported in ``NodeReport.refused``. ``dropped``: it was not used at all
+        (counted in ``messages.dropped`` too); False: used, but clamped."""
+        self.refused[why] = self.refused.get(why, 0) + 1
+        if dropped:
+            self.counters.dropped += 1
+
     def _warn_version(self) -> None:
         c = self.codec
         if c.wrong_version and not self._version_warned:

@@ -74,8 +74,6 @@ class PlantNode:
         self.v_cmd = np.zeros((sc.n, 3))
         self.commands: dict[tuple[int, int], Reply] = {}
         self.published_k = -1  # the newest step whose samples went out
-        # commands refused on arrival, by reason (a forged step, an implausible torque)
-        self.refused: dict[str, int] = {}
         self.newest: dict[int, Reply] = {}
         self.newest_at: dict[int, float] = {}
         self.command_timeout_s = command_timeout_s
@@ -107,10 +105,6 @@ class PlantNode:
         self.control = ControlInbox(node, stop)
         node.declare_alive()
 
-    def _refuse(self, why: str) -> None:
-        self.refused[why] = self.refused.get(why, 0) + 1
-        self.node.counters.dropped += 1
-
     def _on_cmd(self, m: Reply) -> None:  # on the node's thread
         if m.k < 0:
             return  # an initial share: no command in it
@@ -118,14 +112,13 @@ class PlantNode:
         # otherwise pin the newest command or fill the table), and one older than the
         # table keeps is of no use; either costs only itself
         if m.k > self.published_k:
-            self._refuse("future step")
+            self.node.refuse("future step")
             return
         if m.k < self.published_k - self.window_steps:
-            self._refuse("stale step")
+            self.node.refuse("stale step")
             return
         if implausible(m.torques, m.plan):
-            self.refused["implausible torque (clamped)"] = self.refused.get(
-                "implausible torque (clamped)", 0) + 1
+            self.node.refuse("implausible torque (clamped)", dropped=False)
         self.commands[(m.robot, m.k)] = m
         old = self.newest.get(m.robot)
         # newer by step, then by sequence (an agent restarted after a crash
@@ -297,7 +290,6 @@ class PlantNode:
             self.gate.close()
         publish_report(self.node, -1, self.steps_done, self.timing, contacts=contacts,
                        contacts_total=0 if log is None else len(log),
-                       faults=self.faults.report(), command_stops=self.command_stops[:1000],
-                       refused=dict(self.refused))
+                       faults=self.faults.report(), command_stops=self.command_stops[:1000])
         others = set(self.peers) - {LAUNCHER_ROLE}
         self.node.mailbox.wait_until(lambda: not (others & self.node.peers_alive), linger_s)

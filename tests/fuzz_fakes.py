@@ -48,6 +48,11 @@ class FakeNode:
             out = msg
         return out
 
+    def refuse(self, why: str, dropped: bool = True) -> None:  # as Node.refuse
+        self.refused[why] = self.refused.get(why, 0) + 1
+        if dropped:
+            self.counters.dropped += 1
+
     def publish(self, key: str, factory: Callable[[int, int], Message]) -> Message | None:
         try:
             msg = factory(len(self.published), 0)

@@ -154,7 +154,7 @@ def test_plant_clamps_each_wheel_and_the_velocity_command(name: str) -> None:
     lim = sc.spec.limits
     if math.isinf(lim.max_wheel_torque_nm):  # no limit: the plausibility bound still holds
         assert tuple(p.torques[0]) == (PLAUSIBLE_TORQUE_NM, -3.0, 1.0, 0.0)
-        assert p.refused == {"implausible torque (clamped)": 1}
+        assert p.node.refused == {"implausible torque (clamped)": 1}
         assert tuple(p.v_cmd[0]) == (1e300, 0.0, -1e300)
     else:
         assert tuple(p.torques[0]) == (2.0, -2.0, 1.0, 0.0)
@@ -200,11 +200,11 @@ def test_a_command_for_a_step_not_yet_sent_is_refused_and_costs_only_itself(cloc
         else:
             p._apply_newest_commands(time.monotonic())
         assert tuple(p.torques[0]) == (0.5, 0.5, 0.5, 0.5)
-    assert p.refused == {"future step": 3 * 1000}
+    assert p.node.refused == {"future step": 3 * 1000}
     assert len(p.commands) <= 3 and all(k <= 2 for _r, k in p.commands)
     p.published_k = 500  # a command far older than the plant keeps: refused too
     p.node.deliver(key, reply(2, 0, (0.1, 0.1, 0.1, 0.1)))
-    assert p.refused["stale step"] == 1
+    assert p.node.refused["stale step"] == 1
 
 
 def reply(k: int, seq: int, torques: tuple[float, ...]) -> bytes:

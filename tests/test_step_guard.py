@@ -79,4 +79,4 @@ def test_an_agent_never_takes_a_forged_sample_as_its_newest():
             a.node.deliver(key, _sample(k * 7, 1))
         assert a.inputs.newest_state.k == 5
         assert max(a.inputs.states) == 5 and len(a.inputs.states) <= 6  # bounded
-        assert a.refused["sample step"] == 501
+        assert a.node.refused["sample step"] == 501
