@@ -102,6 +102,11 @@ def realtime_ages(state: Sample, leader: LeaderPoint | None,
                                      for j, m in shares.items()})
 
 
+def _no_clock() -> float:
+    """Lockstep streams are judged by step alone (StepGuard without a period)."""
+    return 0.0
+
+
 def _stale(ages: InputAges | None) -> int:
     """Inputs older than in a fault-free run."""
     if ages is None:
@@ -126,8 +131,8 @@ def _finite_row(r: TelemetryRow) -> TelemetryRow:
         return v
     bad = any(fix(getattr(r, f)) != getattr(r, f) for f in r.__struct_fields__
               if isinstance(getattr(r, f), float | tuple))
-    return msgspec.structs.replace(
-        r, **{f: fix(getattr(r, f)) for f in r.__struct_fields__}, nonfinite=r.nonfinite or bad)
+    fixed = {f: fix(getattr(r, f)) for f in r.__struct_fields__ if f != "nonfinite"}
+    return msgspec.structs.replace(r, **fixed, nonfinite=r.nonfinite or bad)
 
 
 @dataclass
@@ -177,8 +182,10 @@ class AgentNode:
         self.timing = Timing()
         # the newest step of each input stream (lockstep starts before step 0; a
         # realtime agent may join a running fleet: it takes the first step it hears)
+        period = sc.dt if realtime else None  # realtime streams may skip steps (step_guard.py)
         self.guards: dict[str, StepGuard] = {
-            "sample": StepGuard(newest=None if realtime else -1), "leader": StepGuard()}
+            "sample": StepGuard(newest=None if realtime else -1, period_s=period),
+            "leader": StepGuard(period_s=period)}
         self.law_resets = 0  # realtime: the law restarted from the robot after a long gap
         self.steps_done = 0
         self.telemetry_every = 1  # realtime decimates (see run_realtime)
@@ -199,7 +206,14 @@ class AgentNode:
         keys, inp, rid = self.node.keys, self.inputs, self.rid
 
         dt, guards, refuse = self.sc.dt, self.guards, self.node.refuse
-        share_guards = {j: StepGuard() for j in self.neighbours}  # one stream per neighbour
+        period = self.guards["sample"].period_s
+        share_guards = {j: StepGuard(period_s=period) for j in self.neighbours}  # one per neighbour
+        clock = time.monotonic if period is not None else _no_clock
+        # lockstep stores inputs by step until they are used: those far ahead of our own
+        # sample stream are refused so the tables stay bounded. Realtime keeps only the
+        # newest of each stream (its own guard) and clears the tables every step, and a
+        # CAN bridge's or a late agent's steps are not ours: no cross-stream check there
+        lockstep = period is None
 
         # What becomes the newest, and what is stored, is judged by the step a message
         # carries against the stream so far (deploy/step_guard.py): a forged step far
@@ -208,7 +222,7 @@ class AgentNode:
         # newest (bounded tables), and a step already stored is not overwritten.
         def on_sample(m: Sample) -> None:
             g = guards["sample"]
-            if g.admit(m.k):
+            if g.admit(m.k, clock()):
                 inp.states[m.k] = m
                 inp.newest_state = m
             elif g.newest is not None and g.newest - self.keep_steps < m.k <= g.newest:
@@ -217,21 +231,22 @@ class AgentNode:
                 refuse("sample step")
 
         def on_leader(m: LeaderState) -> None:
-            g, ahead = guards["leader"], guards["sample"]
+            g, ahead, now = guards["leader"], guards["sample"], clock()
             for p in leader_points(m, dt):
-                if not ahead.within(p.k, LEADER_AHEAD_STEPS):
+                if lockstep and not ahead.within(p.k, LEADER_AHEAD_STEPS):
                     refuse("leader step")
                     continue
                 inp.leaders.setdefault(p.k, p)
-                if g.admit(p.k):
+                if g.admit(p.k, now):
                     inp.newest_leader = p
 
         def on_share(m: Reply) -> None:
-            if not guards["sample"].within(m.k, SHARE_AHEAD_STEPS):
+            now = clock()
+            if lockstep and not guards["sample"].within(m.k, SHARE_AHEAD_STEPS):
                 refuse("share step")
                 return
             inp.shares.setdefault((m.robot, m.k), m)
-            if share_guards[m.robot].admit(m.k):
+            if share_guards[m.robot].admit(m.k, now):
                 inp.newest_share[m.robot] = m
 
         me, gate = agent_role(rid), self._gated

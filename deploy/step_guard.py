@@ -9,10 +9,23 @@ candidate), as the real stream does after a pause, a cut link or a restart. A si
 forged step (2^62, or a huge seq) therefore never becomes the newest, and the real
 messages after it keep flowing; a forged step within ``jump_ok`` costs at most
 ``jump_ok`` steps. Pure logic: the nodes call it, the tests drive it directly.
+
+On the realtime clock (``period_s`` set) steps are stamps of the sender's clock, and
+a sender cannot run ahead of the wall clock: the guard keeps the stream's *lead*,
+k * period - now on the receiver's clock, at its largest over the accepted steps
+(the sample that came fastest), and believes at once any step whose lead is at
+most ``jump_ok`` periods beyond it, however many steps it skips. A realtime plant or
+bridge that runs late steps several periods per sample (the paper at 1 kHz on 2
+cores: ~8), and a receiver that was itself late sees its next samples close
+together; with a fixed step allowance every such sample was held as a far jump,
+and the agents went silent (found by the quick bench and the CAN fleet test).
+A forged far step is still held; one within the allowance costs at most
+``jump_ok`` steps, as before.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 JUMP_OK = 3  # steps the newest may move at once without a confirmation
@@ -26,18 +39,39 @@ class StepGuard:
     jump_ok: int = JUMP_OK
     candidate: int | None = None
     held: int = 0  # steps held back as unconfirmed jumps (counted as refused)
+    period_s: float | None = None  # realtime: the stream's step period (None: lockstep)
+    lead_s: float = -math.inf  # realtime: the largest k * period - now accepted
+    candidate_lead_s: float = -math.inf
 
-    def admit(self, k: int) -> bool:
-        """True when step ``k`` becomes the newest (an older or equal step: False)."""
-        if self.newest is None or self.newest < k <= self.newest + self.jump_ok:
-            self.newest, self.candidate = k, None
-            return True
+    def _follows(self, k: int, now: float, last: int, lead_s: float) -> bool:
+        """Whether ``k`` (newer than ``last``) continues the stream whose newest step
+        is ``last`` (lockstep) or whose lead is ``lead_s`` (realtime)."""
+        if self.period_s is None:
+            return k <= last + self.jump_ok
+        return k * self.period_s - now <= lead_s + self.jump_ok * self.period_s
+
+    def _take(self, k: int, now: float, new_clock: bool = False) -> bool:
+        self.newest, self.candidate = k, None
+        if self.period_s is not None:
+            lead = k * self.period_s - now
+            self.lead_s = lead if new_clock else max(self.lead_s, lead)
+        return True
+
+    def admit(self, k: int, now: float = 0.0) -> bool:
+        """True when step ``k`` becomes the newest (an older or equal step: False).
+        ``now``: the receiver's monotonic clock (used on the realtime clock only)."""
+        if self.newest is None:
+            return self._take(k, now, new_clock=True)
         if k <= self.newest:
             return False
-        if self.candidate is not None and self.candidate < k <= self.candidate + self.jump_ok:
-            self.newest, self.candidate = k, None  # a second step confirms the jump
-            return True
+        if self._follows(k, now, self.newest, self.lead_s):
+            return self._take(k, now)
+        if self.candidate is not None and self.candidate < k and self._follows(
+                k, now, self.candidate, self.candidate_lead_s):
+            return self._take(k, now, new_clock=True)  # a second step confirms the jump
         self.candidate = k
+        if self.period_s is not None:
+            self.candidate_lead_s = k * self.period_s - now
         self.held += 1
         return False
 

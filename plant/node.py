@@ -61,6 +61,9 @@ from plant.command import applied_command, command_for_step, held_step, implausi
 from plant.perception import sensor_for
 
 
+SENT_STAMPS_KEPT = 64  # samples per robot whose answers still count for the latency
+
+
 class PlantNode:
     def __init__(self, sc: Scenario, kind: str, node: Node, stop: StopFlag,
                  with_recorder: bool = False, command_timeout_s: float = 0.1,
@@ -80,6 +83,10 @@ class PlantNode:
         self.timing = Timing()
         self.steps_done = 0
         self.last_state_seq: dict[int, int] = {}
+        # our own stamps of the recent samples, by robot and seq: the state-to-command
+        # latency of any command that answers one of them, on our clock (the stamp the
+        # command echoes is not trusted)
+        self.sent_stamps: dict[int, dict[int, int]] = {rid: {} for rid in self.ids}
         self.log_rows: list[StateRow] = []  # robot states for observers, sent in batches
         self.log_every = log_rows_per_batch(sc.n)
         self.peers = [r for r in run_roles(self.ids) if r != PLANT_ROLE]
@@ -126,9 +133,13 @@ class PlantNode:
         if old is None or (m.k, m.seq) > (old.k, old.seq):
             self.newest[m.robot] = m
             self.newest_at[m.robot] = time.monotonic()
-            if m.state_seq == self.last_state_seq.get(m.robot):
-                # answers the latest state: state-to-command latency on our clock
-                self.timing.add_latency(time.monotonic_ns() - m.state_stamp_ns)
+            sent = self.sent_stamps.get(m.robot, {}).pop(m.state_seq, None)
+            if sent is not None:
+                # answers a recent state: state-to-command latency on our clock. (Only the
+                # answer to the latest state counted before: a plant that runs late, the
+                # paper at 1 kHz on 2 cores, publishes its next sample before the answers
+                # to the last arrive, and reported no latency at all.)
+                self.timing.add_latency(time.monotonic_ns() - sent)
         else:
             self.node.counters.dropped += 1  # out of order: never acted on
 
@@ -156,6 +167,10 @@ class PlantNode:
                 q_dot=tuple(qd[i]), robots=sensed_bodies(r), obstacles=sensed_bodies(o)))
             if msg is not None:
                 self.last_state_seq[rid] = msg.seq
+                stamps = self.sent_stamps[rid]
+                stamps[msg.seq] = msg.stamp_ns
+                if len(stamps) > SENT_STAMPS_KEPT:
+                    del stamps[next(iter(stamps))]  # the oldest (dicts keep insertion order)
         self.published_k = k
         self.log_rows.append(StateRow(k, t, [tuple(x) for x in q], [tuple(x) for x in qd],
                                       [False] * len(self.ids)))

@@ -80,3 +80,32 @@ def test_an_agent_never_takes_a_forged_sample_as_its_newest():
         assert a.inputs.newest_state.k == 5
         assert max(a.inputs.states) == 5 and len(a.inputs.states) <= 6  # bounded
         assert a.node.refused["sample step"] == 501
+
+
+
+def test_a_late_realtime_stream_that_skips_steps_is_followed():
+    """Found by the quick bench (paper at 1 kHz, realtime, 2 cores) and the CAN fleet
+    test: the plant ran late and stepped ~8 periods per sample, and an agent that was
+    itself late saw samples close together; every such sample was a jump beyond
+    JUMP_OK, held as an unconfirmed candidate, and the agents went silent."""
+    g = StepGuard(period_s=0.001)
+    sent = [(k * 8, 0.1 + k * 0.0085) for k in range(50)]  # 8 steps per 8.5 ms
+    # the receiver handles them 0.5 ms after they leave, but every fifth after a 30 ms stall
+    arrivals = [(k, at + (0.03 if n % 5 == 0 else 0.0005)) for n, (k, at) in enumerate(sent)]
+    admitted = [g.admit(k, at) for k, at in arrivals]
+    # the first sample, itself late, sets the clock too low: the next one is held once,
+    # confirmed by the one after it; then every sample is followed
+    assert admitted == [True, False] + [True] * 48
+    assert g.held == 1 and g.newest == 49 * 8
+    g = StepGuard(period_s=0.001)
+    assert all(g.admit(k, at + 0.0005) for k, at in sent)  # a timely first: nothing held
+
+
+def test_on_the_realtime_clock_a_forged_far_step_is_still_held():
+    g = StepGuard(period_s=0.001)
+    assert g.admit(100, 0.1005)  # lead -0.5 ms
+    assert not g.admit(2**62, 0.1006)  # far beyond what the clock allows
+    assert g.admit(108, 0.1085)  # the real stream, 8 ms later, goes on
+    assert g.newest == 108 and g.held == 1
+    assert not g.admit(150, 0.109)  # 42 steps in 0.5 ms: held, not adopted
+    assert g.newest == 108 and g.admit(109, 0.1095)
