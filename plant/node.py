@@ -60,7 +60,6 @@ from deploy.wire import (
 from plant.command import applied_command, command_for_step, held_step, implausible
 from plant.perception import sensor_for
 
-
 SENT_STAMPS_KEPT = 64  # samples per robot whose answers still count for the latency
 
 
