@@ -389,6 +389,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_can_check_command(sub)
     add_bench_command(sub)
     add_faults_command(sub)
+    from deploy.safety_sweep import add_safety_command
+
+    add_safety_command(sub)
     from deploy.deploy_cli import add_deploy_commands
     from deploy.scenario_cli import add_scenario_commands
 

@@ -87,6 +87,28 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_perturb(args: argparse.Namespace) -> int:
+    from deploy.scenario_variants import perturbed, scenario_toml
+
+    out = Path(args.out)
+    if out.exists() and not args.force:
+        print(f"omnifleet scenario perturb: {out} exists (--force to replace it)", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        sc = perturbed(load_scenario(args.name), args.seed, args.obstacle_jitter, args.start_jitter)
+    except ValueError as exc:  # a bad jitter, or no clear start (ScenarioError: cli.main)
+        if isinstance(exc, ScenarioError):
+            raise
+        print(f"omnifleet scenario perturb: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    text = f"# omnifleet scenario perturb {args.name} --seed {args.seed}\n" + scenario_toml(sc)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    print(f"wrote {out}: {sc.name}, {len(sc.spec.obstacles)} obstacles and {sc.n} starts jittered "
+          f"(run it: omnifleet run {out})")
+    return 0
+
+
 def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("scenario", help="list, show, check or generate scenarios",
                        description="Start from a scenario: list and show the bundled ones, "
@@ -115,3 +137,17 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
     gen.add_argument("--out", required=True, metavar="FILE", help="where to write the TOML")
     gen.add_argument("--force", action="store_true", help="replace --out if it exists")
     gen.set_defaults(func=_cmd_generate)
+    per = cmds.add_parser(
+        "perturb", help="write a seeded perturbation of a scenario (obstacles and starts jittered)",
+        description="Every obstacle moved uniformly within --obstacle-jitter of where it is, "
+        "every start within --start-jitter, drawn again where it would overlap an obstacle or "
+        "another robot; the same seed gives the same file. `omnifleet safety sweep` runs many.")
+    per.add_argument("name", help="bundled scenario name or TOML file")
+    per.add_argument("--seed", type=int, required=True, metavar="K", help="the perturbation's seed")
+    per.add_argument("--obstacle-jitter", type=float, metavar="M",
+                     help="how far an obstacle may move (default: two robot radii)")
+    per.add_argument("--start-jitter", type=float, metavar="M",
+                     help="how far a start may move (default: one robot radius)")
+    per.add_argument("--out", required=True, metavar="FILE", help="where to write the TOML")
+    per.add_argument("--force", action="store_true", help="replace --out if it exists")
+    per.set_defaults(func=_cmd_perturb)
