@@ -292,7 +292,12 @@ class Bench:
             rss.error = "no agent process reported its memory"
 
     def costs(self) -> None:
-        from deploy.bench_micro import agent_step_us, codec_us, plant_step_us_per_robot
+        from deploy.bench_micro import (
+            agent_step_us,
+            codec_us,
+            plant_step_us_per_robot,
+            safety_filter_us,
+        )
         from deploy.bench_transport import udp_hop_us, zenoh_hop_us
         from deploy.scenario import load_scenario
 
@@ -300,6 +305,19 @@ class Bench:
         self.log("costs underneath (agent math, plant step, codec, transport floor)")
         self.figure("cost.agent_step_us", "µs", "AgentCore.step, paper, per robot per step"
                     ).samples += agent_step_us(paper, self.s.agent_math_s, self.s.repeats)
+        # the safety filter inside that step (issue 17): checking every perceived body on
+        # paper (it never acts there), and solving its QP where it acts (gap at 1.05x)
+        every, _ = safety_filter_us(paper, self.s.agent_math_s, self.s.repeats)
+        self.figure("cost.safety_filter_check_us", "µs", "safety filter per agent step, paper "
+                    "(5 obstacles and 2 robots guarded; it never acts)").samples += every
+        from deploy.scenario_variants import with_obstacle_pair
+
+        gap = with_obstacle_pair(load_scenario("gap"), 1.05, 0.12)
+        _, acting = safety_filter_us(gap, 4.0, self.s.repeats)
+        self.figure("cost.safety_filter_active_us", "µs", "safety filter on a step where it "
+                    "changes the command (its 2-D QP), gap at 1.05x the robot width"
+                    ).add(statistics.median(acting) if acting else None,
+                          "the filter never acted on the gap scenario")
         for kind in ("pybullet", "model"):
             self.figure(f"cost.{kind}_step_us_per_robot", "µs",
                         f"{kind} plant step (1 ms, 4 sub-steps), paper, per robot"

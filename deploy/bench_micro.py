@@ -55,6 +55,39 @@ def agent_step_us(sc: Scenario, duration_s: float, repeats: int) -> list[float]:
     return samples
 
 
+def safety_filter_us(sc: Scenario, duration_s: float, repeats: int
+                     ) -> tuple[list[float], list[float]]:
+    """Median wall time (µs) of the safety filter per agent step (agents/safety_filter.py,
+    as AgentCore calls it), in closed loop on the model plant: over every step, and over
+    the steps where it changed the command (empty when it never did)."""
+    import agents.core as core
+
+    every, acting = [], []
+    original = core.safety_filter
+    for _ in range(repeats):
+        times: list[int] = []
+        active: list[int] = []
+
+        def timed(*args, times=times, active=active, **kwargs):
+            t0 = time.perf_counter_ns()
+            out = original(*args, **kwargs)
+            ns = time.perf_counter_ns() - t0
+            times.append(ns)
+            if out.active:
+                active.append(ns)
+            return out
+
+        core.safety_filter = timed  # type: ignore[assignment]
+        try:
+            run_in_process(sc, "model", duration_s)
+        finally:
+            core.safety_filter = original  # type: ignore[assignment]
+        every.append(statistics.median(times) / 1e3)
+        if active:
+            acting.append(statistics.median(active) / 1e3)
+    return every, acting
+
+
 def plant_step_us_per_robot(sc: Scenario, kind: str, steps: int, repeats: int) -> list[float]:
     """Median wall time of one plant step divided by the number of robots (µs)."""
     rng = np.random.default_rng(1)

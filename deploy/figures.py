@@ -123,11 +123,25 @@ def fig_distances(sc: Scenario, ts: TimeSeries, path: Path) -> None:
     axes[2].set_title("(c) |u| wheel torque norm (N m)", fontsize=10, loc="left")
     axes[2].set_xlabel("t (s)")
     for ax in axes:
+        mark_safety_filter(ax, ts)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7, loc="upper right")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def mark_safety_filter(ax, ts: TimeSeries) -> None:
+    """Shade the spans where the safety filter changed some robot's command (issue 17);
+    nothing where it never acted, so a run it left alone looks like the paper's."""
+    acting = ts.safety_active.any(axis=1)
+    if not acting.any():
+        return
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], acting.astype(int), [0]])))
+    for n, (a, b) in enumerate(zip(edges[::2], edges[1::2], strict=True)):
+        t1 = ts.t[b] if b < len(ts.t) else ts.t[-1]
+        ax.axvspan(ts.t[a], t1, color="orange", alpha=0.25, lw=0,
+                   label="safety filter acted" if n == 0 else None)
 
 
 def write_figures(sc: Scenario, ts: TimeSeries, out_dir: Path) -> list[Path]:

@@ -49,6 +49,8 @@ class RobotSignals(msgspec.Struct, kw_only=True):
     speed_limited: int  # 1: the velocity command sits at the scenario's max_speed_mps
     torque_limited: int  # 1: a wheel torque sits at max_wheel_torque_nm
     speed_factor: float  # degradation: 1 full speed
+    safety_active: int  # 1: the safety filter changed the command (agents/safety_filter.py)
+    safety_dv: float  # by how much, m/s
     input_age_s: float  # age of the freshest leader information
     obstacle_clearance: float | None  # to the nearest obstacle's surface, m
     robot_clearance: float | None  # to the nearest robot's surface, m
@@ -128,6 +130,7 @@ class FleetPlots:
             "sliding": np.linalg.norm(ts.s[rows], axis=2), "torque_peak": peak,
             "speed": np.hypot(ts.q_dot[rows, :, 0], ts.q_dot[rows, :, 1]), "command_speed": vcmd,
             "speed_factor": ts.speed_factor[rows], "input_age_s": ts.input_age[rows],
+            "safety_dv": ts.safety_dv[rows],
             "obstacle_clearance": obst, "robot_clearance": rob,
         }
         nullable = ("fdb_error", "obstacle_clearance", "robot_clearance")
@@ -135,6 +138,7 @@ class FleetPlots:
         e_l, tau_l = e.tolist(), tau.tolist()
         active = ts.active[rows].astype(int).tolist()
         nonfinite = ts.nonfinite[rows].astype(int).tolist()
+        safety = ts.safety_active[rows].astype(int).tolist()
         order = ts.order[rows].tolist()
         speed_lim = (vcmd >= st.max_speed * (1 - 1e-9)).astype(int).tolist()
         torque_lim = (peak >= st.max_torque * (1 - 1e-9)).astype(int).tolist()
@@ -155,7 +159,8 @@ class FleetPlots:
                     t=t, robot=rid, e=tuple(e_l[j][i]), torque=tuple(tau_l[j][i]), active=a,
                     fdb=int(bool(a & fdb_bit)), focb=int(bool(a & focb_bit)),
                     frcb=int(bool(a & frcb_bit)), order=order[j][i], nonfinite=nonfinite[j][i],
-                    speed_limited=speed_lim[j][i], torque_limited=torque_lim[j][i], **v)
+                    speed_limited=speed_lim[j][i], torque_limited=torque_lim[j][i],
+                    safety_active=safety[j][i], **v)
             out[PLOT_FLEET] = FleetSignals(
                 t=t, leader_speed=leader_speed[j], max_tracking_error=max_err[j],
                 settle_threshold=st.threshold, settled=settled[j], settling_bound_s=st.bound,
