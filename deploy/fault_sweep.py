@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from deploy.fault_plan import uniform_drop_plan
+from deploy.options import add_option, check_duration
 from deploy.scenario import load_scenario
 
 
@@ -220,18 +221,9 @@ def _drops(text: str) -> list[float]:
     return sorted(set(vals))
 
 
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError("must be at least 1")
-    return v
-
-
 def cmd_sweep(args: argparse.Namespace) -> int:
     sc = load_scenario(args.scenario)  # a bad scenario fails here, before any run
+    check_duration(args.duration, sc.spec.control_rate_hz)
     out = Path(args.out or f"runs/{sc.name}-fault-sweep")
     out.mkdir(parents=True, exist_ok=True)
     jobs = args.jobs or os.cpu_count() or 1
@@ -274,14 +266,12 @@ def add_faults_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("scenario", help="scenario file or bundled name")
     p.add_argument("--drop", type=_drops, default=_drops("0,0.1,0.3,0.5"), metavar="P,P,...",
                    help="drop rates (default: 0,0.1,0.3,0.5)")
-    p.add_argument("--seeds", type=_positive_int, default=5, metavar="K",
-                   help="seeds per drop rate (default: 5)")
-    p.add_argument("--jobs", type=_positive_int, default=None, metavar="N",
-                   help="in-process runs at once (default: the number of cores)")
+    add_option(p, "--seeds")
+    add_option(p, "--jobs")
     p.add_argument("--distributed", action="store_true",
                    help="run each through `omnifleet run` (one process per node) instead of "
                    "in-process; same results, slower")
-    p.add_argument("--duration", type=float, metavar="S", help="simulate S seconds per run")
+    add_option(p, "--duration", more_help="per run")
     p.add_argument("--plant", choices=["pybullet", "model", "kinematic"], default=None,
                    help="default: the scenario's")
     p.add_argument("--out", metavar="DIR", help="default: runs/<scenario>-fault-sweep")

@@ -164,6 +164,9 @@ class PlantNode:
                                o=obstacles: Sample(
                 WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t, q=tuple(q[i]),
                 q_dot=tuple(qd[i]), robots=sensed_bodies(r), obstacles=sensed_bodies(o)))
+            if msg is None and not np.isfinite(q[i] + qd[i]).all():
+                node.note_nonfinite(f"state of robot {rid} at t = {t:.3f} s (the plant "
+                                    "diverged; its sample is not sent)")
             if msg is not None:
                 self.last_state_seq[rid] = msg.seq
                 stamps = self.sent_stamps[rid]
