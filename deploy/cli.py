@@ -243,9 +243,10 @@ def _summary(m: dict, out: Path) -> str:
         "  settling time (s)          "
         + ("n/a (kinematic plant: no dynamic level)" if m["plant"] == "kinematic" else
            f"{_fmt_list(m['settling_time_s'])}  bound {m['settling_bound_s']:.3f}"),
-        f"  formation RMS (m)          {_fmt_list(m['formation_rms_m'])}",
-        f"  min obstacle clearance (m) {f(m['min_obstacle_clearance_m'])}",
-        f"  min robot separation (m)   {f(m['min_robot_separation_m'])}",
+        f"  formation RMS, whole run   {_fmt_list(m['formation_rms_whole_run_m'])} m",
+        f"  ... after settling         {_fmt_list(m['formation_rms_after_settling_m'])} m",
+        f"  min gap to an obstacle     {f(m['min_obstacle_gap_m'])} m (surface to surface)",
+        f"  min gap between robots     {f(m['min_robot_gap_m'])} m (surface to surface)",
         f"  contacts                   {m['contacts']}",
         f"  peak / RMS torque (N m)    {m['peak_torque_nm']:.4g} / {m['rms_torque_nm']:.4g}",
         *_transport_lines(m),

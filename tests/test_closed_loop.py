@@ -27,8 +27,8 @@ def test_paper_scenario_settles_before_predefined_time_without_contact():
     assert m["settling_bound_s"] == bound
     assert all(s is not None and s < bound for s in m["settling_time_s"]), m["settling_time_s"]
     assert m["contacts"] == 0
-    assert m["min_obstacle_clearance_m"] > 0.0
-    assert m["min_robot_separation_m"] > 0.0
+    assert m["min_obstacle_gap_m"] > 0.0
+    assert m["min_robot_gap_m"] > 0.0
     assert m["nonfinite_commands"] == 0
 
 
@@ -78,7 +78,7 @@ def test_reference_code_scenario_reaches_formation_and_avoids_obstacles():
     sc = load_scenario("reference-code")
     run = cached_run("reference-code", None)
     m = compute_metrics(sc, run.series, "kinematic", "lockstep", run.wall_time_s)
-    assert m["contacts"] == 0 and m["min_obstacle_clearance_m"] > 0
+    assert m["contacts"] == 0 and m["min_obstacle_gap_m"] > 0
     final = np.linalg.norm(run.series.q[-50:, :, :2] - run.series.target[-50:], axis=2)
     assert final.max() < 1.0
 
@@ -90,7 +90,7 @@ def test_lab_scenario_respects_its_limits_and_converges():
     run = cached_run("lab", 20.0)
     m = compute_metrics(sc, run.series, "model", "lockstep", run.wall_time_s)
     assert m["peak_torque_nm"] <= sc.spec.limits.max_wheel_torque_nm + 1e-12
-    assert m["contacts"] == 0 and m["min_robot_separation_m"] > 0 and m["min_obstacle_clearance_m"] > 0
+    assert m["contacts"] == 0 and m["min_robot_gap_m"] > 0 and m["min_obstacle_gap_m"] > 0
     speed = np.linalg.norm(run.series.v_cmd[:, :, :2], axis=2)
     assert speed.max() <= sc.spec.limits.max_speed_mps + 1e-9
     k = np.searchsorted(run.series.t, 14.0)
