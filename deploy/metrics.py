@@ -67,6 +67,14 @@ def formation_rms(t: np.ndarray, xy: np.ndarray, target: np.ndarray,
     return whole, after
 
 
+def leader_estimate_error(series: TimeSeries) -> np.ndarray:
+    """Fig. 5(b), (k - 1, n): |p0_hat_i - p0| with both at the same instant. The series
+    holds each agent's estimate after its step k, i.e. for t_{k+1}: it is compared with
+    the leader at t_{k+1} (against the leader at t_k it would carry a spurious |v0| dt,
+    up to 5 cm on ``paper`` at 1 kHz)."""
+    return np.linalg.norm(series.q0_hat[:-1, :, :2] - series.leader_q[1:, None, :2], axis=2)
+
+
 def pair_clearances(
     positions: np.ndarray, radii: np.ndarray, obstacles: np.ndarray, obstacle_radii: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
