@@ -52,6 +52,7 @@ class BehaviorOutput:
     velocity: np.ndarray  # v (3,)
     jacobian: np.ndarray  # J (3, 3)
     task_error: float  # |rho_d - rho| of the first task row
+    body: int = 0  # the body an avoidance behavior guards (its ident); 0 for FDB
 
 
 def pinv_task_jacobian(J: np.ndarray) -> np.ndarray:
@@ -124,8 +125,9 @@ def avoidance_behavior(
     phi_d_dot: float,
     gains: tuple[float, float],
     min_gap: float = 1e-3,
+    body: int = 0,
 ) -> BehaviorOutput:
-    """FOCB (23)-(25) / FRCB (20)-(22) against one body at ``other_xy``.
+    """FOCB (23)-(25) / FRCB (20)-(22) against one body at ``other_xy`` (ident ``body``).
 
     Active only inside the safety threshold (d < R). Inside contact the task
     would fold back (sin is symmetric about contact) and push inwards; the
@@ -134,7 +136,7 @@ def avoidance_behavior(
     diff = q[:2] - other_xy
     d = float(np.hypot(diff[0], diff[1]))
     if d >= safe_distance:
-        return BehaviorOutput(name, False, np.zeros(3), np.zeros((3, 3)), 0.0)
+        return BehaviorOutput(name, False, np.zeros(3), np.zeros((3, 3)), 0.0, body)
     direction = diff / d if d > _TINY else np.array([1.0, 0.0])
     d_eff = max(d, contact_distance + min_gap)
     rho, drho_dd = avoidance_task(d_eff, safe_distance, contact_distance)
@@ -147,7 +149,7 @@ def avoidance_behavior(
             0.0,
         ]
     )
-    return BehaviorOutput(name, True, pinv_task_jacobian(J) @ rate, J, safe_distance - rho)
+    return BehaviorOutput(name, True, pinv_task_jacobian(J) @ rate, J, safe_distance - rho, body)
 
 
 # --- hot path: the same behaviors on floats (tests/test_hot_path.py checks them
@@ -168,12 +170,13 @@ class Task:
     inv_g2: float  # 1/|g|^2, 0 for a zero row (see inverse_square_norm)
     velocity: Vec3  # v
     task_error: float
+    body: int = 0  # the body an avoidance task guards (its ident); 0 for FDB
 
     def to_output(self) -> BehaviorOutput:
         """The same behavior as a :class:`BehaviorOutput`."""
         return BehaviorOutput(
             self.name, True, np.array(self.velocity),
-            _task_jacobian((self.gx, self.gy)), self.task_error,
+            _task_jacobian((self.gx, self.gy)), self.task_error, self.body,
         )
 
 
@@ -212,8 +215,10 @@ def avoidance_task_of(
     phi_d_dot: float,
     gains: tuple[float, float],
     min_gap: float = 1e-3,
+    body: int = 0,
 ) -> Task | None:
-    """:func:`avoidance_behavior` on floats: FOCB (23)-(25) / FRCB (20)-(22); None if inactive."""
+    """:func:`avoidance_behavior` on floats: FOCB (23)-(25) / FRCB (20)-(22); None if inactive.
+    ``body``: the ident of the body guarded (kept on the task for the supervisor)."""
     dx, dy = q[0] - other_xy[0], q[1] - other_xy[1]
     d = hypot(dx, dy)
     if d >= safe_distance:
@@ -225,4 +230,4 @@ def avoidance_task_of(
     rate = gains[0] * (safe_distance - rho)  # Lambda (rho_d - rho), rho_d = R
     # v = J^+ [rate, heading rate, 0]
     velocity = (gx * inv * rate, gy * inv * rate, heading_row_rate(q[2], phi_d, phi_d_dot, gains[1]))
-    return Task(name, gx, gy, inv, velocity, safe_distance - rho)
+    return Task(name, gx, gy, inv, velocity, safe_distance - rho, body)

@@ -42,6 +42,7 @@ from agents.eso import EsoGains, eso_advance_vec
 from agents.estimator import EstimatorGains, estimator_step_vec
 from agents.formation import ScaleChange, desired_formation_vec, offsets_vec, scale_at_vec
 from agents.fusion import DEFAULT_PRIORITY, saturate_velocity_vec, supervise_tasks
+from agents.safety_filter import Guarded, SafetyLimits, SafetyResult, safety_filter, stopping_distance
 from agents.signals import Vec2, Vec3
 from plant.mecanum import MecanumModel
 
@@ -101,6 +102,13 @@ class AgentConfig:
     max_yaw_accel_radps2: float = float("inf")
     max_tracking_error: float = float("inf")  # on ||q - q_d|| (anti-windup, see AgentCore._step)
     degradation: DegradationConfig = field(default_factory=DegradationConfig)
+    # issue 17 (docs/safety.md): which bodies the avoidance behaviors guard ("every" body
+    # in range, one task each, nearest first; "nearest": only the nearest, as the
+    # authors' script), and the safety filter, the last layer of the agent
+    guard: str = "every"
+    safety_filter: bool = True
+    safety_margin_m: float = 0.05  # kept on top of contact by the filter and the engagement
+    safety_exit_time_s: float = 0.5  # inside the margin: leave it at gap / exit_time
 
 
 @dataclass
@@ -121,6 +129,8 @@ class AgentOutput:
     input_age_s: float = 0.0  # age of the agent's freshest leader information, or its state
     speed_factor: float = 1.0  # 1: full speed; 0: down to the degraded speed
     left_out: int = 0  # inputs too old for eq. (14) this step
+    # the safety filter (agents/safety_filter.py): None when it had nothing to guard
+    safety: SafetyResult | None = None
 
 
 class AgentCore:
@@ -158,6 +168,8 @@ class AgentCore:
         self._rank = {name: k for k, name in enumerate(cfg.priority)}
         self._law = ControlConstants.from_gains(cfg.controller)
         self._limits_rate = isfinite(cfg.max_accel_mps2) or isfinite(cfg.max_yaw_accel_radps2)
+        self._safety = SafetyLimits(cfg.safety_margin_m, cfg.max_accel_mps2, cfg.max_speed_mps,
+                                    cfg.safety_exit_time_s)
         self._model = ModelTerms.from_model(cfg.model)
         zeta, zeta_dot = self._offsets(0.0)
         self.initial_share = Share(
@@ -192,12 +204,15 @@ class AgentCore:
     def _behaviors(
         self,
         q: Vec3,
+        q_dot: Vec3,
         q_fd: Vec3,
         v_fd: Vec3,
         obstacles: Sequence[Body],
         robots: Sequence[Body],
+        h: float,
     ) -> list[Task]:
-        """The active behaviors, highest priority first."""
+        """The active behaviors, highest priority first; within FOCB and FRCB one task
+        per guarded body, nearest (smallest gap) first."""
         cfg = self.cfg
         out: list[Task] = []
         if "FDB" in cfg.enabled:
@@ -210,17 +225,79 @@ class AgentCore:
         ):
             if name not in cfg.enabled or not bodies:
                 continue
-            nearest, nearest_xy = _nearest(bodies, q[0], q[1])
-            task = avoidance_task_of(
-                name, q, nearest_xy,
-                cfg.robot_radius_m + nearest.radius,
-                safe + (nearest.radius if surface else 0.0),
-                q_fd[2], v_fd[2], gains,
-            )
-            if task is not None:
-                out.append(task)
+            guarded = bodies if cfg.guard == "every" else [_nearest(bodies, q[0], q[1])[0]]
+            tasks = []
+            for body in guarded:
+                bx, by = body.position.tolist()
+                contact = cfg.robot_radius_m + body.radius
+                threshold = max(safe + (body.radius if surface else 0.0),
+                                self._engage_distance(q, q_dot, bx, by, body, contact, h))
+                task = avoidance_task_of(name, q, (bx, by), contact, threshold,
+                                         q_fd[2], v_fd[2], gains, body=body.ident)
+                if task is not None:
+                    tasks.append((hypot(q[0] - bx, q[1] - by) - body.radius, task))
+            out.extend(task for _, task in sorted(tasks, key=lambda gt: gt[0]))
         rank = self._rank
-        return sorted(out, key=lambda b: rank[b.name])
+        return sorted(out, key=lambda b: rank[b.name])  # stable: nearest first within one
+
+    def _engage_distance(self, q: Vec3, q_dot: Vec3, bx: float, by: float, body: Body,
+                         contact: float, h: float) -> float:
+        """Centre distance at which avoiding ``body`` must begin (issue 17): contact, the
+        margin, and the gap that closing at the present speed uses up before braking at
+        the scenario's acceleration limit stops it (agents/safety_filter.stopping_distance).
+        The closing speed is the larger of the command's (the last v_d) and the robot's
+        measured one, relative to the body's perceived velocity. Below the behavior's own
+        threshold (R_a, R_c) this changes nothing: the paper's radius holds for a robot
+        slow enough to stop within it."""
+        dx, dy = q[0] - bx, q[1] - by
+        dist = hypot(dx, dy)
+        if dist < 1e-12:
+            return contact
+        ux, uy = dx / dist, dy / dist
+        bvx, bvy = body.velocity.tolist()
+        closing = -(ux * (q_dot[0] - bvx) + uy * (q_dot[1] - bvy))
+        if self._v_d_prev is not None:
+            v = self._v_d_prev
+            closing = max(closing, -(ux * (v[0] - bvx) + uy * (v[1] - bvy)))
+        return contact + self.cfg.safety_margin_m + stopping_distance(
+            closing, self.cfg.max_accel_mps2, h)
+
+    def _limited(self, v: Vec3, h: float) -> Vec3:
+        """The fused velocity as commanded: the explicit speed limit, the degradation
+        slow-down, and the acceleration limit from the last command."""
+        cfg = self.cfg
+        v_d = saturate_velocity_vec(v, cfg.max_speed_mps, cfg.max_yaw_rate_radps)
+        if self._speed_factor < 1.0:
+            v_d = slow_down(v_d, self._speed_factor, cfg.degradation.degraded_speed_mps)
+        if self._v_d_prev is not None and self._limits_rate:
+            # explicit acceleration limits: v_d moves toward the fused command no
+            # faster than the torque limit can follow, so the reference q_d does not
+            # run ahead of the robot at a behavior switch (ours, not the paper's)
+            prev = self._v_d_prev
+            dv = saturate_velocity_vec(_sub(v_d, prev), cfg.max_accel_mps2 * h,
+                                       cfg.max_yaw_accel_radps2 * h)
+            v_d = (prev[0] + dv[0], prev[1] + dv[1], prev[2] + dv[2])
+        return v_d
+
+    def _filtered(self, v_d: Vec3, q: Vec3, obstacles: Sequence[Body],
+                  robots: Sequence[Body], h: float) -> tuple[Vec3, SafetyResult | None]:
+        """The safety filter, the agent's last layer (agents/safety_filter.py): every
+        perceived body guarded from where the robot is. (Guarding the reference q_d too
+        was tried: in the paper's first 15 ms q_d runs 1.7 m ahead of a robot at 600
+        m/s, and the filter then changed the paper's own run; the tracking error of a
+        limited robot is what ``safety.margin_m`` is for.)"""
+        if not self.cfg.safety_filter or not (obstacles or robots):
+            return v_d, None
+        guarded = [Guarded(*b.position.tolist(), *b.velocity.tolist(), b.radius)
+                   for b in obstacles]
+        guarded += [Guarded(*b.position.tolist(), *b.velocity.tolist(), b.radius, True)
+                    for b in robots]  # robots the plant drives: they run this filter too
+        prev = None if self._v_d_prev is None else (self._v_d_prev[0], self._v_d_prev[1])
+        result = safety_filter((v_d[0], v_d[1]), prev, q[0], q[1], self.cfg.robot_radius_m,
+                               guarded, self._safety, h)
+        if result.active:
+            v_d = (result.v[0], result.v[1], v_d[2])
+        return v_d, result
 
     def step(
         self,
@@ -313,24 +390,16 @@ class AgentCore:
             *nbr_terms,
         )
 
-        # behaviors (15)-(25), supervisor + fusion (26), explicit limits
-        chain, v_fused = supervise_tasks(
-            self._behaviors(qv, q_fd, v_fd, obstacles, robots), cfg.avoidance_engage
-        )
-        v_d = saturate_velocity_vec(v_fused, cfg.max_speed_mps, cfg.max_yaw_rate_radps)
+        # behaviors (15)-(25), supervisor + fusion (26), explicit limits (the
+        # supervisor judges engagement on the command after them), safety filter
         input_age = 0.0 if ages is None else max(info_age, ages.state_s)
         if ages is not None or self._speed_factor < 1.0:  # degraded, or recovering
-            deg = cfg.degradation
-            self._speed_factor = next_speed_factor(self._speed_factor, input_age, deg, h)
-            v_d = slow_down(v_d, self._speed_factor, deg.degraded_speed_mps)
-        if self._v_d_prev is not None and self._limits_rate:
-            # explicit acceleration limits: v_d moves toward the fused command no
-            # faster than the torque limit can follow, so the reference q_d does not
-            # run ahead of the robot at a behavior switch (ours, not the paper's)
-            prev = self._v_d_prev
-            dv = saturate_velocity_vec(_sub(v_d, prev), cfg.max_accel_mps2 * h,
-                                       cfg.max_yaw_accel_radps2 * h)
-            v_d = (prev[0] + dv[0], prev[1] + dv[1], prev[2] + dv[2])
+            self._speed_factor = next_speed_factor(self._speed_factor, input_age,
+                                                   cfg.degradation, h)
+        chain, v_d = supervise_tasks(
+            self._behaviors(qv, q_dot_v, q_fd, v_fd, obstacles, robots, h),
+            cfg.avoidance_engage, lambda v: self._limited(v, h))
+        v_d, safety = self._filtered(v_d, qv, obstacles, robots, h)
 
         # dynamic level, eqs. (36), (40)-(42)
         model = self._model
@@ -423,10 +492,11 @@ class AgentCore:
             torques=np.array(torques), v_cmd=np.array(v_d), share=share,
             tracking_error=np.array(e), sliding=np.array(s),
             q_d=np.array(q_d_now), q_fd=np.array(q_fd),
-            order=tuple([b.name for b in chain]),
-            task_errors={b.name: b.task_error for b in chain},
+            order=tuple(dict.fromkeys(b.name for b in chain)),  # FOCB once, however many
+            task_errors=_first_errors(chain),
             z2_hat=np.array(self._z2_hat), nonfinite=nonfinite,
             input_age_s=input_age, speed_factor=self._speed_factor, left_out=left_out,
+            safety=safety,
         )
 
 
@@ -441,6 +511,14 @@ def _nearest(bodies: Sequence[Body], x: float, y: float) -> tuple[Body, Vec2]:
             best, best_gap = (b, (bx, by)), gap
     assert best is not None, "no bodies"
     return best
+
+
+def _first_errors(chain: Sequence[Task]) -> dict[str, float]:
+    """Each behavior's task error, of its highest-priority (nearest) task."""
+    out: dict[str, float] = {}
+    for b in chain:
+        out.setdefault(b.name, b.task_error)
+    return out
 
 
 def _vec3(x: np.ndarray | Vec3) -> Vec3:

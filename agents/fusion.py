@@ -20,7 +20,7 @@ When an avoidance behavior (FOCB, FRCB) takes part is the scenario's choice:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from math import hypot
 
 import numpy as np
@@ -46,19 +46,25 @@ def fuse(ordered: Sequence[BehaviorOutput]) -> np.ndarray:
 AVOIDANCE = ("FOCB", "FRCB")
 
 
-def supervise(ordered: Sequence[BehaviorOutput], engage: str) -> list[BehaviorOutput]:
-    """The behaviors that take part in (26), highest priority first."""
+def supervise(ordered: Sequence[BehaviorOutput], engage: str,
+              limit: Callable[[np.ndarray], np.ndarray] | None = None) -> list[BehaviorOutput]:
+    """The behaviors that take part in (26), highest priority first. ``limit``: what
+    the agent does to the fused velocity before commanding it; "approaching" judges
+    J v < 0 on the limited velocity (see :func:`supervise_tasks`)."""
+    lim = limit or (lambda v: v)
     active = [b for b in ordered if b.active]
     if engage == "inside":
         return active
     if engage != "approaching":
         raise ValueError(f"unknown avoidance engage mode {engage!r}")
-    engaged: set[str] = set()
-    while True:  # `engaged` only grows, at most once per avoidance behavior
-        chain = [b for b in active if b.name not in AVOIDANCE or b.name in engaged]
-        v = fuse(chain)
+    engaged: set[tuple[str, int]] = set()
+    while True:  # `engaged` only grows, at most once per avoidance behavior and body
+        chain = [b for b in active if b.name not in AVOIDANCE or (b.name, b.body) in engaged]
+        fused = fuse(chain)
+        v = lim(fused)
         now = engaged | {
-            b.name for b in active if b.name in AVOIDANCE and float(b.jacobian[0] @ v) < 0.0
+            (b.name, b.body) for b in active
+            if b.name in AVOIDANCE and min(float(b.jacobian[0] @ fused), float(b.jacobian[0] @ v)) < 0.0
         }
         if now == engaged:
             return chain
@@ -103,18 +109,32 @@ def fuse_tasks(ordered: Sequence[Task]) -> Vec3:
     return v
 
 
-def supervise_tasks(ordered: Sequence[Task], engage: str) -> tuple[list[Task], Vec3]:
-    """:func:`supervise` for active tasks, and the fused velocity of the chain it returns."""
+def supervise_tasks(ordered: Sequence[Task], engage: str,
+                    limit: Callable[[Vec3], Vec3] | None = None) -> tuple[list[Task], Vec3]:
+    """:func:`supervise` for active tasks, and the velocity of the chain it returns.
+
+    ``limit``: what the agent does to the fused velocity before it becomes the command
+    (the explicit speed, slow-down and acceleration limits); the returned velocity has
+    been through it. "approaching" engages a task when the fused velocity OR the
+    commanded one (after the limits) closes on its body, J v < 0 (issue 17): judged on
+    the fused one alone, a robot whose acceleration limit still carried it toward an
+    obstacle at 0.75 m/s was told avoidance was not needed; judged on the commanded one
+    alone, the command's own inertia from the step before (moving away) switched
+    robot-robot avoidance off every other step on `lab`. Each avoidance task guards
+    one body (``Task.body``): every body in range is judged on its own."""
     avoiding = [b for b in ordered if b.name in AVOIDANCE]
     if engage == "inside" or (engage == "approaching" and not avoiding):
-        return list(ordered), fuse_tasks(ordered)
+        v = fuse_tasks(ordered)
+        return list(ordered), v if limit is None else limit(v)
     if engage != "approaching":
         raise ValueError(f"unknown avoidance engage mode {engage!r}")
-    engaged: set[str] = set()
-    while True:  # `engaged` only grows, at most once per avoidance behavior
-        chain = [b for b in ordered if b.name not in AVOIDANCE or b.name in engaged]
-        v = fuse_tasks(chain)
-        now = engaged | {b.name for b in avoiding if b.gx * v[0] + b.gy * v[1] < 0.0}  # J_1 v < 0
+    engaged: set[tuple[str, int]] = set()
+    while True:  # `engaged` only grows, at most once per avoidance task
+        chain = [b for b in ordered if b.name not in AVOIDANCE or (b.name, b.body) in engaged]
+        fused = fuse_tasks(chain)
+        v = fused if limit is None else limit(fused)
+        now = engaged | {(b.name, b.body) for b in avoiding  # J_1 v < 0
+                         if b.gx * fused[0] + b.gy * fused[1] < 0.0 or b.gx * v[0] + b.gy * v[1] < 0.0}
         if now == engaged:
             return chain, v
         engaged = now

@@ -102,6 +102,14 @@ def realtime_ages(state: Sample, leader: LeaderPoint | None,
                                      for j, m in shares.items()})
 
 
+def _safety_fields(out: AgentOutput) -> dict[str, float | bool]:
+    """The safety filter's telemetry (zero where it did not act)."""
+    f = out.safety
+    if f is None or not f.active:
+        return {}
+    return {"safety_dv": f.dv, "safety_infeasible": f.infeasible}
+
+
 def _no_clock() -> float:
     """Lockstep streams are judged by step alone (StepGuard without a period)."""
     return 0.0
@@ -304,7 +312,8 @@ class AgentNode:
             q0_hat=_t3(out.share.q0_hat), q_fd=_t3(out.q_fd),
             fdb_error=None if fdb is None else float(fdb), order=">".join(out.order),
             nonfinite=out.nonfinite, stale_inputs=stale, input_age_s=out.input_age_s,
-            speed_factor=out.speed_factor, left_out=out.left_out))
+            speed_factor=out.speed_factor, left_out=out.left_out,
+            **_safety_fields(out)))
         if len(self._rows) >= self.telemetry_batch:
             self.flush_telemetry()
 

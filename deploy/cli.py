@@ -249,11 +249,25 @@ def _summary(m: dict, out: Path) -> str:
         f"  min gap between robots     {f(m['min_robot_gap_m'])} m (surface to surface)",
         f"  contacts                   {m['contacts']}",
         f"  peak / RMS torque (N m)    {m['peak_torque_nm']:.4g} / {m['rms_torque_nm']:.4g}",
+        *_safety_lines(m),
         *_transport_lines(m),
         f"  written to {out}/ (metrics.json, timeseries.npz, figures"
         + (f", {RECORDING})" if "recording" in m else ")"),
         *([verdict_line(m["verdict"])] if "verdict" in m else []),
     ])
+
+
+def _safety_lines(m: dict) -> list[str]:
+    f = m.get("safety_filter")
+    if not f:
+        return []
+    if not any(f["active_steps"]):
+        return ["  safety filter              never acted (the paper's law as it is)"]
+    line = (f"  safety filter              acted {_fmt_list(f['active_time_s'])} s in "
+            f"{f['episodes']} episode(s), command changed by up to {_fmt_list(f['max_dv_mps'])} m/s")
+    if any(f["infeasible_steps"]):
+        line += f"; no safe command within the limits on {f['infeasible_steps']} step(s)"
+    return [line]
 
 
 def _transport_lines(m: dict) -> list[str]:

@@ -125,3 +125,6 @@ def record_telemetry(ts: TimeSeries, k: int, i: int, m: TelemetryRow) -> None:
     ts.nonfinite[k, i] = int(m.nonfinite)
     ts.input_age[k, i] = m.input_age_s
     ts.speed_factor[k, i] = m.speed_factor
+    ts.safety_active[k, i] = int(m.safety_dv > 0.0 or m.safety_infeasible)
+    ts.safety_dv[k, i] = m.safety_dv
+    ts.safety_infeasible[k, i] = int(m.safety_infeasible)

@@ -4,7 +4,9 @@ Keys (every run, in-process or distributed): scenario, plant, clock, robots,
 sim_time_s, steps, control_rate_hz, wall_time_s, real_time_factor,
 settling_time_s, formation_rms_whole_run_m, formation_rms_after_settling_m,
 min_obstacle_gap_m, min_robot_gap_m, contacts (+ contact_source, contact_log),
-peak_torque_nm, rms_torque_nm, messages.
+peak_torque_nm, rms_torque_nm, nonfinite_commands, safety_filter (per robot: active
+steps, time and episodes, largest and mean change of the command, infeasible steps),
+messages.
 
 Formation RMS is |q_xy - (x_0 + rho_i)| per robot, over the whole run and from the
 robot's own settling time on (None for a robot that never settled: a robot that
@@ -162,6 +164,7 @@ def compute_metrics(
         "peak_torque_nm": _nan_aware(np.nanmax, np.abs(series.torque)),
         "rms_torque_nm": _nan_aware(lambda x: np.sqrt(np.nanmean(x)), series.torque**2),
         "nonfinite_commands": int(series.nonfinite.sum()),
+        "safety_filter": safety_figures(series, sc.dt),
         "limits": {
             "max_speed_mps": _finite_or_none(lim.max_speed_mps),
             "max_yaw_rate_radps": _finite_or_none(lim.max_yaw_rate_radps),
@@ -172,6 +175,25 @@ def compute_metrics(
         },
         "notes": notes,
         "messages": dict(messages or {"sent": 0, "dropped": 0, "late": 0, "invalid": 0}),
+    }
+
+
+def safety_figures(series: TimeSeries, dt: float) -> dict[str, Any]:
+    """Per robot: how often, how long and by how much the safety filter changed the
+    command (agents/safety_filter.py), and the steps where no command met every barrier."""
+    active = series.safety_active.astype(bool)
+    started = active & ~np.vstack([np.zeros((1, active.shape[1]), bool), active[:-1]])
+    dv = np.where(active, series.safety_dv, np.nan)
+    with np.errstate(invalid="ignore"):
+        mean_dv = [float(np.nanmean(dv[:, i])) if active[:, i].any() else 0.0
+                   for i in range(active.shape[1])]
+    return {
+        "active_steps": active.sum(axis=0).astype(int).tolist(),
+        "active_time_s": (active.sum(axis=0) * dt).tolist(),
+        "episodes": started.sum(axis=0).astype(int).tolist(),
+        "max_dv_mps": np.where(active, series.safety_dv, 0.0).max(axis=0, initial=0.0).tolist(),
+        "mean_dv_mps_when_active": mean_dv,
+        "infeasible_steps": series.safety_infeasible.astype(int).sum(axis=0).tolist(),
     }
 
 

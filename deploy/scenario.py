@@ -117,6 +117,17 @@ class Behaviors(_S, kw_only=True):
     obstacle_safe_distance_m: float = 2.0
     robot_safe_distance_m: float = 1.6
     detection_range_m: float = 8.0
+    # which perceived bodies the avoidance behaviors guard: "every" one in range, a task
+    # each, nearest first (docs/safety.md), or only the "nearest" (the authors' script)
+    guard: Literal["every", "nearest"] = "every"
+
+
+class Safety(_S, kw_only=True):
+    """The safety filter, the last layer of every agent (agents/safety_filter.py)."""
+
+    filter: bool = True
+    margin_m: float = 0.05  # kept on top of contact, also by the speed-aware engagement
+    exit_time_s: float = 0.5  # inside the margin: leave it at gap / exit_time
 
 
 class Estimator(_S, kw_only=True):
@@ -205,6 +216,7 @@ class ScenarioFile(_S, kw_only=True):
     formation: Formation = msgspec.field(default_factory=Formation)
     obstacles: list[Obstacle] = msgspec.field(default_factory=list)
     behaviors: Behaviors = msgspec.field(default_factory=Behaviors)
+    safety: Safety = msgspec.field(default_factory=Safety)
     estimator: Estimator = msgspec.field(default_factory=Estimator)
     controller: Controller = msgspec.field(default_factory=Controller)
     eso: Eso = msgspec.field(default_factory=Eso)
@@ -352,6 +364,10 @@ class Scenario:
             max_yaw_accel_radps2=lim.max_yaw_accel_radps2,
             max_tracking_error=lim.max_tracking_error,
             degradation=DegradationConfig(**msgspec.structs.asdict(s.degradation)),
+            guard=b.guard,
+            safety_filter=s.safety.filter,
+            safety_margin_m=s.safety.margin_m,
+            safety_exit_time_s=s.safety.exit_time_s,
         )
 
 
@@ -516,6 +532,10 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
         raise _fail(path, "behaviors.obstacle_safe_distance_m", "must exceed the robot radius")
     if bh.robot_safe_distance_m <= 2 * rr:
         raise _fail(path, "behaviors.robot_safe_distance_m", "must exceed twice the robot radius")
+    if s.safety.margin_m < 0:
+        raise _fail(path, "safety.margin_m", "must be >= 0")
+    if s.safety.exit_time_s <= 0:
+        raise _fail(path, "safety.exit_time_s", "must be positive")
     _check_len(path, "estimator.iota", s.estimator.iota, 4)
     _check_len(path, "estimator.eta", s.estimator.eta, 2)
     c = s.controller

@@ -34,7 +34,12 @@ COLUMNS = {
     "nonfinite": "(k,n) 1 where the law gave NaN/Inf and torques were zeroed",
     "input_age": "(k,n) age of the agent's freshest leader information (or its state), s",
     "speed_factor": "(k,n) degradation speed factor: 1 full speed, 0 degraded speed",
+    "safety_active": "(k,n) 1 where the safety filter changed the command (agents/safety_filter.py)",
+    "safety_dv": "(k,n) |v_d after the filter - v_d before it|, m/s (0 where it did not act)",
+    "safety_infeasible": "(k,n) 1 where no command met every barrier within the limits",
 }
+# columns a series written before them lacks: loaded as "never happened"
+_ADDED_LATER = ("safety_active", "safety_dv", "safety_infeasible")
 
 
 @dataclass
@@ -58,6 +63,9 @@ class TimeSeries:
     nonfinite: np.ndarray
     input_age: np.ndarray
     speed_factor: np.ndarray
+    safety_active: np.ndarray
+    safety_dv: np.ndarray
+    safety_infeasible: np.ndarray
 
     @classmethod
     def allocate(cls, steps: int, n: int) -> TimeSeries:
@@ -70,7 +78,8 @@ class TimeSeries:
             target=z((steps, n, 2)), fdb_error=z((steps, n)),
             active=z((steps, n), dtype=np.int8), order=np.full((steps, n), "", dtype="<U16"),
             nonfinite=z((steps, n), dtype=np.int8), input_age=z((steps, n)),
-            speed_factor=np.ones((steps, n)),
+            speed_factor=np.ones((steps, n)), safety_active=z((steps, n), dtype=np.int8),
+            safety_dv=z((steps, n)), safety_infeasible=z((steps, n), dtype=np.int8),
         )
 
     @property
@@ -91,6 +100,11 @@ class TimeSeries:
         self.nonfinite[k, i] = int(out.nonfinite)
         self.input_age[k, i] = out.input_age_s
         self.speed_factor[k, i] = out.speed_factor
+        f = out.safety
+        if f is not None and f.active:
+            self.safety_active[k, i] = 1
+            self.safety_dv[k, i] = f.dv
+            self.safety_infeasible[k, i] = int(f.infeasible)
 
     def record_world(self, k, t, q0, v0, q, q_dot, target) -> None:
         self.t[k] = t
@@ -104,4 +118,11 @@ class TimeSeries:
     @classmethod
     def load(cls, path: Path) -> TimeSeries:
         with np.load(path) as data:
-            return cls(**{name: data[name] for name in COLUMNS})
+            cols = {name: data[name] for name in COLUMNS if name in data.files}
+        missing = [name for name in COLUMNS if name not in cols]
+        if missing and not set(missing) <= set(_ADDED_LATER):
+            raise KeyError(f"{path}: no column {missing[0]!r}")
+        shape = cols["nonfinite"].shape
+        for name in missing:
+            cols[name] = np.zeros(shape, np.int8 if name != "safety_dv" else float)
+        return cls(**cols)

@@ -34,7 +34,7 @@ import msgspec
 
 from agents.degradation import MAX_COMMAND_HORIZON
 
-WIRE_VERSION = 2  # 2: Sample, Reply, batched LeaderState/Telemetry, StateLog
+WIRE_VERSION = 3  # 2: Sample, Reply, batched LeaderState/Telemetry, StateLog; 3: safety in Telemetry
 MAX_BODIES = 256  # bodies per perception message
 MAX_ORDER_CHARS = 32
 MAX_ROLE_CHARS = 32
@@ -239,6 +239,8 @@ class TelemetryRow(msgspec.Struct, array_like=True, frozen=True):
     input_age_s: float = 0.0  # age of the freshest leader information, or the state (s)
     speed_factor: float = 1.0  # degradation: 1 full speed, 0 down to the degraded speed
     left_out: int = 0  # inputs too old for eq. (14) this step
+    safety_dv: float = 0.0  # how much the safety filter changed the command (m/s); 0: it did not
+    safety_infeasible: bool = False  # no command met every barrier within the limits
 
     def __post_init__(self) -> None:
         if len(self.order) > MAX_ORDER_CHARS:

@@ -23,6 +23,7 @@ import pytest
 
 from deploy.timeseries import TimeSeries
 from tests.procs import finish, pids_with, start
+from tests.realtime_clock import judged
 
 DURATION_S = 10.0
 KILL_AT, RESTART_AFTER = 4.0, 2.0
@@ -41,9 +42,11 @@ def _run(out, fleet, *extra):
 
 @pytest.fixture(scope="module")
 def clean_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("can") / "run"
-    stdout, m = _run(out, f"t-canfleet-{os.getpid()}")
-    return out, stdout, m
+    def run():
+        out = tmp_path_factory.mktemp("can") / "run"
+        stdout, m = _run(out, f"t-canfleet-{os.getpid()}")
+        return out, stdout, m
+    return judged(run, lambda r: r[2], "lab on emulated CAN")
 
 
 @pytest.fixture(scope="module")
@@ -52,8 +55,12 @@ def killed_run(tmp_path_factory):
     plan = d / "kill.toml"
     plan.write_text(f"seed = 1\n[[kill]]\nprocess = 'agent-2'\nat_s = {KILL_AT}\n"
                     f"restart_after_s = {RESTART_AFTER}\n")
-    _, m = _run(d / "run", f"t-cankill-{os.getpid()}", "--faults", str(plan))
-    return d / "run", m
+
+    def run():
+        out = tmp_path_factory.mktemp("cankill") / "run"
+        _, m = _run(out, f"t-cankill-{os.getpid()}", "--faults", str(plan))
+        return out, m
+    return judged(run, lambda r: r[1], "lab on emulated CAN, agent 2 killed")
 
 
 def test_every_robot_settles_within_the_bound_without_contact(clean_run):

@@ -14,6 +14,7 @@ from deploy.runner import run_in_process
 from deploy.scenario import load_scenario
 from deploy.timeseries import TimeSeries
 from tests.procs import assert_same_series, finish, start
+from tests.realtime_clock import judged
 
 RICH_PLAN = """
 seed = 11
@@ -66,12 +67,15 @@ def killed_run(tmp_path_factory):
     plan = d / "kill.toml"
     plan.write_text(f"seed = 1\n[[kill]]\nprocess = 'agent-2'\nat_s = {KILL_AT}\n"
                     f"restart_after_s = {RESTART_AFTER}\n")
-    out = d / "run"
-    code, _, err = finish(start("run", "lab", "--clock", "realtime", "--duration",
-                                repr(DURATION), "--faults", str(plan), "--out", str(out),
-                                "--no-figures"), timeout=300)
-    assert code == 0, err
-    return out, json.loads((out / "metrics.json").read_text())
+
+    def run():
+        out = tmp_path_factory.mktemp("kill") / "run"
+        code, _, err = finish(start("run", "lab", "--clock", "realtime", "--duration",
+                                    repr(DURATION), "--faults", str(plan), "--out", str(out),
+                                    "--no-figures"), timeout=300)
+        assert code == 0, err
+        return out, json.loads((out / "metrics.json").read_text())
+    return judged(run, lambda r: r[1], "lab realtime, agent 2 killed")
 
 
 def test_a_killed_agent_is_killed_and_restarted_on_time(killed_run):

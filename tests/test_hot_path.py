@@ -68,6 +68,7 @@ from agents.fusion import (
     supervise_tasks,
 )
 from agents.leader import Harmonic, LeaderGenerator, LeaderSpec
+from agents.safety_filter import Guarded, SafetyLimits, safety_filter, stopping_distance
 from agents.signals import sig, sig_scalar
 from plant.mecanum import MecanumModel, RobotParams
 
@@ -316,7 +317,7 @@ class ReferenceCore:
         s, sd = scale_at(t, cfg.initial_scale, cfg.scale_changes)
         return offsets(self.r_i, cfg.heading_offset, float(self.q0_hat[2]), float(self.v0_hat[2]), s, sd)
 
-    def behaviors(self, q, q_fd, v_fd, obstacles, robots):
+    def behaviors(self, q, q_dot, q_fd, v_fd, obstacles, robots, h):
         cfg = self.cfg
         out = [formation_behavior(q, q_fd, v_fd, cfg.fdb_gains)] if "FDB" in cfg.enabled else []
         for name, bodies, safe, surface, gains in (
@@ -325,11 +326,44 @@ class ReferenceCore:
         ):
             if name not in cfg.enabled or not bodies:
                 continue
-            b = min(bodies, key=lambda b: float(np.hypot(*(q[:2] - b.position))) - b.radius)
-            out.append(avoidance_behavior(name, q, b.position, cfg.robot_radius_m + b.radius,
-                                          safe + (b.radius if surface else 0.0), float(q_fd[2]),
-                                          float(v_fd[2]), gains))
+            if cfg.guard != "every":
+                bodies = [min(bodies, key=lambda b: float(np.hypot(*(q[:2] - b.position))) - b.radius)]
+            tasks = []
+            for b in bodies:
+                contact = cfg.robot_radius_m + b.radius
+                n = (q[:2] - b.position) / np.linalg.norm(q[:2] - b.position)
+                closing = max(float(-n @ (v[:2] - b.velocity)) for v in
+                              ([q_dot] if self.v_d_prev is None else [q_dot, self.v_d_prev]))
+                engage = contact + cfg.safety_margin_m + stopping_distance(closing, cfg.max_accel_mps2, h)
+                out_b = avoidance_behavior(name, q, b.position, contact,
+                                           max(safe + (b.radius if surface else 0.0), engage),
+                                           float(q_fd[2]), float(v_fd[2]), gains, body=b.ident)
+                if out_b.active:
+                    tasks.append((float(np.linalg.norm(q[:2] - b.position)) - b.radius, out_b))
+            out.extend(b for _, b in sorted(tasks, key=lambda gb: gb[0]))
         return out
+
+    def limited(self, v, h):
+        cfg = self.cfg
+        v = saturate_velocity(v, cfg.max_speed_mps, cfg.max_yaw_rate_radps)
+        if self.v_d_prev is not None and (math.isfinite(cfg.max_accel_mps2)
+                                          or math.isfinite(cfg.max_yaw_accel_radps2)):
+            v = self.v_d_prev + saturate_velocity(v - self.v_d_prev, cfg.max_accel_mps2 * h,
+                                                  cfg.max_yaw_accel_radps2 * h)
+        return v
+
+    def filtered(self, v_d, q, obstacles, robots, h):
+        cfg = self.cfg
+        bodies = [Guarded(*b.position, *b.velocity, b.radius) for b in obstacles]
+        bodies += [Guarded(*b.position, *b.velocity, b.radius, True) for b in robots]
+        if not cfg.safety_filter or not bodies:
+            return v_d
+        prev = None if self.v_d_prev is None else tuple(self.v_d_prev[:2])
+        lim = SafetyLimits(cfg.safety_margin_m, cfg.max_accel_mps2, cfg.max_speed_mps,
+                           cfg.safety_exit_time_s)
+        r = safety_filter(tuple(v_d[:2]), prev, float(q[0]), float(q[1]), cfg.robot_radius_m,
+                          bodies, lim, h)
+        return np.array([*r.v, v_d[2]])
 
     def step(self, t, q, q_dot, shares, leader, obstacles=(), robots=(), dt=None) -> AgentOutput:
         from agents.controller import control_term as ct
@@ -342,9 +376,10 @@ class ReferenceCore:
             cfg.kappa1, cfg.kappa2, self.q0_hat, self.v0_hat, zeta, zeta_dot, self.weights,
             [s.q for s in nbr], [s.q_dot for s in nbr], [s.zeta for s in nbr], [s.zeta_dot for s in nbr],
         )
-        chain = supervise(order_by_priority(self.behaviors(q, q_fd, v_fd, obstacles, robots), cfg.priority),
-                          cfg.avoidance_engage)
-        v_d = saturate_velocity(fuse(chain), cfg.max_speed_mps, cfg.max_yaw_rate_radps)
+        chain = supervise(order_by_priority(self.behaviors(q, q_dot, q_fd, v_fd, obstacles, robots, h),
+                                            cfg.priority), cfg.avoidance_engage,
+                          lambda v: self.limited(v, h))
+        v_d = self.filtered(self.limited(fuse(chain), h), q, obstacles, robots, h)
         phi = float(q[2])
         v_ref = v_d if self.v_d_prev is None else self.v_d_prev
         e = q - self.q_d
@@ -375,8 +410,12 @@ class ReferenceCore:
         share = Share(self.q0_hat.copy(), self.v0_hat.copy(), q.copy(), q_dot.copy(), zeta, zeta_dot)
         if not bool(np.all(np.isfinite(v_d))):
             nonfinite, v_d = True, np.zeros(3)
-        return AgentOutput(torques, v_d, share, e, s, q_d_now, q_fd, tuple(b.name for b in chain),
-                           {b.name: b.task_error for b in chain}, self.z2_hat, nonfinite)
+        errors: dict[str, float] = {}
+        for b in chain:
+            errors.setdefault(b.name, b.task_error)
+        return AgentOutput(torques, v_d, share, e, s, q_d_now, q_fd,
+                           tuple(dict.fromkeys(b.name for b in chain)), errors, self.z2_hat,
+                           nonfinite)
 
 
 DT = 0.01
