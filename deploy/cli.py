@@ -244,7 +244,9 @@ def _summary(m: dict, out: Path) -> str:
         + ("n/a (kinematic plant: no dynamic level)" if m["plant"] == "kinematic" else
            f"{_fmt_list(m['settling_time_s'])}  bound {m['settling_bound_s']:.3f}"),
         f"  formation RMS, whole run   {_fmt_list(m['formation_rms_whole_run_m'])} m",
-        f"  ... after settling         {_fmt_list(m['formation_rms_after_settling_m'])} m",
+        "  ... after settling         " + ("n/a (kinematic plant: no settling)"
+                                             if m["plant"] == "kinematic" else
+                                             f"{_fmt_list(m['formation_rms_after_settling_m'])} m"),
         f"  min gap to an obstacle     {f(m['min_obstacle_gap_m'])} m (surface to surface)",
         f"  min gap between robots     {f(m['min_robot_gap_m'])} m (surface to surface)",
         f"  contacts                   {m['contacts']}",
