@@ -38,6 +38,7 @@ from deploy.node_runtime import (
     Timing,
     publish_report,
 )
+from deploy.options import DEFAULT_COMMAND_TIMEOUT_S
 from deploy.runner import contact_log, make_plant
 from deploy.scenario import Scenario
 from deploy.transport import Node
@@ -65,7 +66,8 @@ SENT_STAMPS_KEPT = 64  # samples per robot whose answers still count for the lat
 
 class PlantNode:
     def __init__(self, sc: Scenario, kind: str, node: Node, stop: StopFlag,
-                 with_recorder: bool = False, command_timeout_s: float = 0.1,
+                 with_recorder: bool = False,
+                 command_timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S,
                  gui: bool = False, faults: FaultPlan | None = None,
                  realtime: bool = False) -> None:
         self.sc, self.node, self.stop, self.kind = sc, node, stop, kind
