@@ -7,11 +7,16 @@ and a CLIK velocity (eqs. 19, 22, 25)
     v = J^+ (rho_bar_d_dot - d rho_bar/dt + Lambda (rho_bar_d - rho_bar)).
 
 In FDB the explicit-time term d rho_bar/dt carries the motion of the formation
-point; the authors' code feeds it forward the same way (J v_fd). The avoidance
-behaviors use rho_d_dot = 0 as printed: feeding the other robot's velocity
-forward in FRCB makes two robots that avoid each other compensate each other's
-motion, a loop with no restoring force on their common radial velocity that
-the one-step delay turns unstable (seen at 1 kHz in the paper scenario).
+point, x_fd_dot = v0_hat + zeta_dot (eq. 16 differentiated, kappa2 = 0): the
+leader estimate's velocity and the offset rate of the rotating, rescaling
+formation. The authors' public script feeds forward only the first (its
+formation feed-forward leaves out zeta_dot), so its robots lag their formation
+points while psi(t) turns or S(t) changes (docs/errata.md, differences from the
+script). The avoidance behaviors use rho_d_dot = 0 as printed: feeding the other
+robot's velocity forward in FRCB makes two robots that avoid each other
+compensate each other's motion, a loop with no restoring force on their common
+radial velocity that the one-step delay turns unstable (seen at 1 kHz in the
+paper scenario).
 The heading row of every behavior tracks the formation heading phi_fd, so the
 behaviors never fight over the heading.
 

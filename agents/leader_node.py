@@ -8,6 +8,8 @@ hear one message per batch. realtime: one state per period on its own clock.
 
 from __future__ import annotations
 
+import math
+
 from agents.leader import LeaderGenerator
 from deploy.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
 from deploy.scenario import Scenario
@@ -51,8 +53,10 @@ class LeaderNode:
             qs.append(tuple(q.tolist()))
             vs.append(tuple(v.tolist()))
             self.generator.advance()
-        self.node.publish(self.node.keys.leader_state, lambda seq, stamp: LeaderState(
+        sent = self.node.publish(self.node.keys.leader_state, lambda seq, stamp: LeaderState(
             WIRE_VERSION, 0, seq, stamp, k=k, t=k * self.sc.dt, q=qs, q_dot=vs))
+        if sent is None and not all(map(math.isfinite, (x for row in qs + vs for x in row))):
+            self.node.note_nonfinite(f"leader state at step {k} (not sent)")
         self.k_next += count
 
     def run_lockstep(self, steps: int) -> None:

@@ -300,6 +300,9 @@ class AgentNode:
     def _publish_step(self, k: int, t: float, state: Sample, out: AgentOutput,
                       plan: list[Vec4], stale: int) -> None:
         self._publish_reply(k, t, state, out, out.share, plan)
+        if out.nonfinite:  # the law gave NaN/Inf: zero torques went out instead
+            self.node.note_nonfinite(f"command at t = {t:.3f} s (step {k}): the control law "
+                                     "diverged, zero torques sent instead")
         if k % self.telemetry_every:
             return
         fdb = out.task_errors.get("FDB")
@@ -324,6 +327,8 @@ class AgentNode:
         sent = self.node.publish(self.node.keys.telemetry(rid), lambda seq, stamp: Telemetry(
             WIRE_VERSION, rid, seq, stamp, robot=rid, rows=rows))
         if sent is None:  # a non-finite value: send the rows with it zeroed, flagged
+            self.node.note_nonfinite(f"telemetry row (steps {rows[0].k}-{rows[-1].k}), sent "
+                                     "with its non-finite numbers zeroed and flagged")
             safe = [_finite_row(r) for r in rows]
             self.node.publish(self.node.keys.telemetry(rid), lambda seq, stamp: Telemetry(
                 WIRE_VERSION, rid, seq, stamp, robot=rid, rows=safe))

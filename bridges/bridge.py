@@ -40,6 +40,7 @@ from bridges.protocol import (
 )
 from bridges.safety import CommandGate, Decision
 from deploy.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
+from deploy.options import DEFAULT_COMMAND_TIMEOUT_S
 from deploy.scenario import Scenario
 from deploy.transport import Node
 from deploy.wire import (
@@ -61,7 +62,7 @@ REARM_AFTER_S = 0.25  # an axis still idle this long after arming (heartbeats at
 
 class BridgeNode:
     def __init__(self, sc: Scenario, robot_id: int, node: Node, stop: StopFlag, bus: Any,
-                 protocol: Any, node_ids: list[int], command_timeout_s: float = 0.1,
+                 protocol: Any, node_ids: list[int], command_timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S,
                  heartbeat_timeout_s: float = 0.35) -> None:
         self.sc, self.rid, self.node, self.stop = sc, robot_id, node, stop
         self.index = sc.index_of(robot_id)

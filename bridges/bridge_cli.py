@@ -9,6 +9,7 @@ import time
 
 from bridges.can_options import CanBusError, add_can_options, open_bus
 from deploy.node_cli import _common, _run_node, _steps
+from deploy.options import add_option
 
 EXIT_BAD_INPUT = 2
 
@@ -59,12 +60,11 @@ def add_bridge_commands(sub: argparse._SubParsersAction) -> None:
         "error or a missing heartbeat, and whenever the bridge leaves.")
     _common(p)
     p.set_defaults(clock="realtime")
-    p.add_argument("--robot", type=int, required=True, metavar="ID", help="the robot's id")
+    add_option(p, "--robot", required=True)
     add_can_options(p)
-    p.add_argument("--command-timeout", type=float, default=0.1, metavar="S",
-                   help="zero torque when the newest command is older than this (default: 0.1)")
-    p.add_argument("--heartbeat-timeout", type=float, default=0.35, metavar="S",
-                   help="a driver silent this long faults the robot (default: 0.35)")
+    add_option(p, "--command-timeout", help="zero torque when the newest command is older "
+               "than this")
+    add_option(p, "--heartbeat-timeout")
     p.add_argument("--self-start", action="store_true",
                    help="start the clock now instead of waiting for ctl/start (bring-up)")
     p.set_defaults(func=_cmd_bridge)

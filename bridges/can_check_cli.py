@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import argparse
 
-from bridges.can_options import MAX_SPIN_TORQUE_NM, add_can_options
+from bridges.can_options import add_can_options
+from deploy.options import add_option
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -22,12 +23,9 @@ def add_can_check_command(sub: argparse._SubParsersAction) -> None:
         "encoder). With --spin, turns each wheel briefly at a small torque and reports its "
         "direction and speed. Exit 1 when nobody answers.")
     add_can_options(p)
-    p.add_argument("--listen", type=float, default=1.0, metavar="S",
-                   help="how long to listen for heartbeats and encoders (default: 1)")
+    add_option(p, "--listen")
     p.add_argument("--spin", action="store_true",
                    help="turn each answering wheel briefly (the robot must be on blocks)")
-    p.add_argument("--spin-torque", type=float, default=0.05, metavar="NM",
-                   help=f"torque for --spin, at most {MAX_SPIN_TORQUE_NM} N m (default: 0.05)")
-    p.add_argument("--spin-time", type=float, default=0.5, metavar="S",
-                   help="how long each wheel is driven (default: 0.5)")
+    add_option(p, "--spin-torque")
+    add_option(p, "--spin-time")
     p.set_defaults(func=_run)

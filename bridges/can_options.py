@@ -6,7 +6,11 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-MAX_SPIN_TORQUE_NM = 0.5  # can-check --spin: bring-up is not the place for more
+from deploy.options import (  # noqa: F401 (can_check reads MAX_SPIN_TORQUE_NM here)
+    MAX_CAN_NODE_ID,
+    MAX_SPIN_TORQUE_NM,
+    add_option,
+)
 
 
 class CanBusError(RuntimeError):
@@ -18,8 +22,8 @@ def parse_node_ids(text: str) -> tuple[int, ...]:
         ids = tuple(int(x) for x in text.split(","))
     except ValueError:
         ids = ()
-    if len(ids) != 4 or len(set(ids)) != 4 or not all(0 <= i <= 63 for i in ids):
-        raise argparse.ArgumentTypeError(f"expected 4 distinct node ids in 0..63 (the wheel "
+    if len(ids) != 4 or len(set(ids)) != 4 or not all(0 <= i <= MAX_CAN_NODE_ID for i in ids):
+        raise argparse.ArgumentTypeError(f"expected 4 distinct node ids in 0..{MAX_CAN_NODE_ID} (the wheel "
                                          f"order of eq. 1), got {text!r}")
     return ids
 
@@ -55,7 +59,7 @@ def add_can_options(p: argparse.ArgumentParser, per_robot: bool = False) -> None
                    help="the interface's channel: a name for virtual, a multicast group address "
                    "for udp_multicast (e.g. 239.74.163.2), can0 for socketcan"
                    + ("; once per --robot, in the same order" if per_robot else ""))
-    p.add_argument("--bitrate", type=int, metavar="B", help="bus bitrate, for interfaces that take one")
+    add_option(p, "--bitrate")
     p.add_argument("--can-arg", type=parse_can_arg, action=_Append if per_robot else _Collect,
                    metavar="KEY=VALUE",
                    help="an interface-specific bus option, repeatable (e.g. port=43114 for "

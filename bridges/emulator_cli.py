@@ -15,12 +15,12 @@ that cannot be opened), 130 SIGINT, 143 SIGTERM. Also runnable alone:
 from __future__ import annotations
 
 import argparse
-import math
 import signal
 import sys
 from pathlib import Path
 
 from bridges.can_options import CanBusError, add_can_options, open_buses
+from deploy.options import add_option
 from deploy.priority import add_priority_argument, raise_priority
 
 EXIT_BAD_INPUT = 2
@@ -28,53 +28,25 @@ _SIGNAL_EXIT = {"SIGINT": 130, "SIGTERM": 143}
 PROG = "omnifleet emulate"
 
 
-def _number(ok, what: str):
-    """An argparse type: a finite float for which ``ok`` holds, else a clear error."""
-    def parse(text: str) -> float:
-        try:
-            x = float(text)
-        except ValueError:
-            x = math.nan
-        if not (math.isfinite(x) and ok(x)):
-            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
-        return x
-    return parse
-
-
-_probability = _number(lambda x: 0.0 <= x <= 1.0, "a probability in [0, 1]")
-_positive = _number(lambda x: x > 0, "a positive number")
-_non_negative = _number(lambda x: x >= 0, "a number >= 0")
-
-
 def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", required=True, metavar="S",
                    help="scenario file or bundled scenario name (the robot's physics, initial "
                    "state, torque limit and disturbance come from it)")
-    p.add_argument("--robot", type=int, required=True, action="append", metavar="ID",
-                   help="a robot's id in the scenario; repeat it to emulate several robots in this "
-                   "process (each on its own bus: one --can-channel per robot, in the same order)")
+    add_option(p, "--robot", required=True, action="append",
+               more_help="repeat it to emulate several robots in this process (each on its own "
+               "bus: one --can-channel per robot, in the same order)")
     add_can_options(p, per_robot=True)
-    p.add_argument("--encoder-rate", type=_positive, default=200.0, metavar="HZ",
-                   help="Get_Encoder_Estimates rate per axis (default: 200)")
-    p.add_argument("--heartbeat-rate", type=_positive, default=10.0, metavar="HZ",
-                   help="Heartbeat rate per axis (default: 10)")
-    p.add_argument("--watchdog-timeout", type=_non_negative, default=0.2, metavar="S",
-                   help="an armed axis without Set_Input_Torque for this long disarms with "
-                   "WATCHDOG_TIMER_EXPIRED; 0 turns the watchdog off (default: 0.2)")
-    p.add_argument("--drop-rate", type=_probability, default=0.0, metavar="P",
-                   help="fault: probability that a frame (either direction) is lost (default: 0)")
-    p.add_argument("--corrupt-rate", type=_probability, default=0.0, metavar="P",
-                   help="fault: probability that a sent frame gets 1-3 bits flipped (default: 0)")
-    p.add_argument("--silent-node", type=int, metavar="N",
-                   help="fault: this node id stops sending and ignores commands ...")
-    p.add_argument("--silent-after", type=_non_negative, default=None, metavar="S",
-                   help="... from S seconds after start (default: 0; needs --silent-node)")
-    p.add_argument("--seed", type=int, default=0, metavar="N",
-                   help="fault random seed; the i-th --robot (from 0) uses N + i (default: 0)")
-    p.add_argument("--physics-rate", type=_positive, default=1000.0, metavar="HZ",
-                   help="RK4 physics ticks per second (default: 1000)")
-    p.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds (default: run "
-                   "until SIGINT/SIGTERM)")
+    add_option(p, "--encoder-rate")
+    add_option(p, "--heartbeat-rate")
+    add_option(p, "--watchdog-timeout")
+    add_option(p, "--drop-rate")
+    add_option(p, "--corrupt-rate")
+    add_option(p, "--silent-node")
+    add_option(p, "--silent-after")
+    add_option(p, "--seed", default=0, help="fault random seed; the i-th --robot (from 0) "
+               "uses K + i")
+    add_option(p, "--physics-rate")
+    add_option(p, "--duration", help="stop after S seconds (default: run until SIGINT/SIGTERM)")
     add_priority_argument(p, "the emulator plays the physics, which must not be starved by "
                           "the software under test")
     p.add_argument("--truth-out", metavar="FILE.npz", action="append",

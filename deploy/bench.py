@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from deploy.bench_scenarios import scale_scenario
+from deploy.options import add_option
 
 BENCH_VERSION = 2  # 2: wire v2 codec figures, README command 1, realtime paper, largest N
 SCALE_SIZES = (3, 10, 20, 30)
@@ -451,8 +452,7 @@ def add_bench_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true",
                    help="short runs, one repeat: a smoke run that still writes every figure")
     p.add_argument("--out", default="runs/bench", help="output folder (default: runs/bench)")
-    p.add_argument("--repeats", type=int, default=None, metavar="N",
-                   help="repeats per figure (default: 3, --quick: 1)")
+    add_option(p, "--repeats")
     p.add_argument("--only", metavar="GROUP[,GROUP]",
                    help="run only these groups: costs, lockstep, paper-run, rtf500, realtime, "
                    "realtime-paper, scale (memory is always judged on the fleet runs made)")

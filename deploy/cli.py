@@ -14,9 +14,10 @@ from pathlib import Path
 
 from deploy.fault_model import fault_metrics
 from deploy.fault_plan import FaultPlanError
-from deploy.node_cli import CLOCKS, add_node_commands, fault_plan, gui_problem
+from deploy.node_cli import CLOCKS, add_node_commands, fault_plan, gui_problem, run_scenario
+from deploy.options import OptionError, add_option
 from deploy.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
-from deploy.scenario import PLANT_KINDS, ScenarioError, load_scenario
+from deploy.scenario import PLANT_KINDS, ScenarioError
 from deploy.transport import TransportError
 from deploy.verdict import divergence_banner, judge, verdict_line
 from deploy.wire import FleetNameError
@@ -26,12 +27,7 @@ RECORDING = "recording.mcap"
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    sc = load_scenario(args.scenario)
-    if args.control_rate is not None:
-        if not 0 < args.control_rate <= 100_000:
-            print("omnifleet run: --control-rate must be in (0, 100000]", file=sys.stderr)
-            return EXIT_BAD_INPUT
-        sc = sc.with_control_rate(args.control_rate)
+    sc = run_scenario(args)  # the ranges were checked on parse (deploy/options.py)
     plant = args.plant or sc.spec.plant.kind
     if plant == "can-emulated":  # hardware through emulated drivers runs on the wall clock
         if args.in_process or args.clock == "lockstep":
@@ -43,9 +39,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
     problem = gui_problem(plant, args.gui)
     if problem:
         print(f"omnifleet run: {problem}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    if args.duration is not None and args.duration <= 0:
-        print("omnifleet run: --duration must be positive", file=sys.stderr)
         return EXIT_BAD_INPUT
     if args.in_process and args.clock == "realtime":
         print("omnifleet run: --in-process runs lockstep only", file=sys.stderr)
@@ -250,9 +243,12 @@ def _summary(m: dict, out: Path) -> str:
         "  settling time (s)          "
         + ("n/a (kinematic plant: no dynamic level)" if m["plant"] == "kinematic" else
            f"{_fmt_list(m['settling_time_s'])}  bound {m['settling_bound_s']:.3f}"),
-        f"  formation RMS (m)          {_fmt_list(m['formation_rms_m'])}",
-        f"  min obstacle clearance (m) {f(m['min_obstacle_clearance_m'])}",
-        f"  min robot separation (m)   {f(m['min_robot_separation_m'])}",
+        f"  formation RMS, whole run   {_fmt_list(m['formation_rms_whole_run_m'])} m",
+        "  ... after settling         " + ("n/a (kinematic plant: no settling)"
+                                             if m["plant"] == "kinematic" else
+                                             f"{_fmt_list(m['formation_rms_after_settling_m'])} m"),
+        f"  min gap to an obstacle     {f(m['min_obstacle_gap_m'])} m (surface to surface)",
+        f"  min gap between robots     {f(m['min_robot_gap_m'])} m (surface to surface)",
         f"  contacts                   {m['contacts']}",
         f"  peak / RMS torque (N m)    {m['peak_torque_nm']:.4g} / {m['rms_torque_nm']:.4g}",
         *_safety_lines(m),
@@ -332,11 +328,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--clock", choices=CLOCKS, default=None,
                      help="lockstep: deterministic, equals --in-process; realtime: every "
                      "process on its own clock at the scenario's rates (default: lockstep)")
-    run.add_argument("--step-deadline", type=float, default=2.0, metavar="S",
-                     help="lockstep: how long a node waits for a step's inputs before going "
-                     "on with what it last had, counted as late (default: 2)")
-    run.add_argument("--startup-timeout", type=float, default=60.0, metavar="S",
-                     help="how long to wait for every node to come up (default: 60)")
+    add_option(run, "--step-deadline")
+    add_option(run, "--startup-timeout")
     run.add_argument("--fleet", help="fleet name: keys are omr/<fleet>/... (default: the "
                      "scenario's name; two runs on one machine never link: each has its own "
                      "private endpoints)")
@@ -357,18 +350,14 @@ def build_parser() -> argparse.ArgumentParser:
                      "run goes (default 127.0.0.1:8765; loopback unless HOST is given, e.g. "
                      "0.0.0.0:8765; port 0: any free one)")
     run.add_argument("--out", metavar="DIR", help="output folder (default: runs/<scenario>)")
-    run.add_argument("--duration", type=float, metavar="S",
-                     help="simulate S seconds instead of the scenario's duration_s")
-    run.add_argument("--control-rate", type=float, metavar="HZ",
-                     help="override the scenario's control_rate_hz (see docs/control-rate.md)")
+    add_option(run, "--duration")
+    add_option(run, "--control-rate")
     run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
-    run.add_argument("--priority", type=int, default=REALTIME_PRIORITY, choices=range(0, 21),
-                     metavar="N",
-                     help="realtime: raise every node's CPU priority by N (nice -N and its "
-                     "session's autogroup; needs CAP_SYS_NICE, else each node says so), so "
-                     "other work on the host does not stall the control loops; 0 leaves them "
-                     f"at normal priority; the driver emulator always asks for "
-                     f"{EMULATOR_PRIORITY} (default: {REALTIME_PRIORITY})")
+    add_option(run, "--priority", default=REALTIME_PRIORITY,
+               help="realtime: raise every node's CPU priority by N (nice -N and its "
+               "session's autogroup; needs CAP_SYS_NICE, else each node says so), so "
+               "other work on the host does not stall the control loops; 0 leaves them "
+               f"at normal priority; the driver emulator always asks for {EMULATOR_PRIORITY}")
     run.add_argument("--faults", metavar="PLAN",
                      help="inject the faults of a fault plan (TOML; docs/faults.md): lossy, "
                      "delayed or partitioned links, killed and restarted processes, CAN frame "
@@ -407,6 +396,13 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _prog(args: argparse.Namespace) -> str:
+    """``omnifleet COMMAND [SUBCOMMAND]`` as the user typed it."""
+    words = [args.command] + [v for k, v in vars(args).items()
+                              if k.endswith("_command") and isinstance(v, str)]
+    return " ".join(["omnifleet", *words])
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -419,6 +415,9 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except (TransportError, FleetNameError) as exc:
         print(f"omnifleet: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OptionError as exc:
+        print(f"{_prog(args)}: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:
         print("omnifleet: interrupted; every process of the run was stopped", file=sys.stderr)

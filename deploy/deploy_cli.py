@@ -10,6 +10,7 @@ from pathlib import Path
 
 from deploy.certs import CA_NAME, make_ca, make_role_cert
 from deploy.hosts import Hosts, HostsError, load_hosts
+from deploy.options import OPTIONS, add_option, check_duration
 
 EXIT_BAD_INPUT = 2
 
@@ -47,6 +48,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     except HostsError as exc:
         print(f"omnifleet deploy plan: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    check_duration(args.duration, args.control_rate or sc.spec.control_rate_hz)
     run = RunOptions(args.scenario, clock=args.clock, duration_s=args.duration,
                      control_rate_hz=args.control_rate, lost_peer_grace_s=args.lost_peer_grace,
                      plant_kind=args.plant, step_deadline_s=args.step_deadline,
@@ -63,9 +65,6 @@ def _cmd_certs(args: argparse.Namespace) -> int:
         _sc, hosts = _load(args)
     except HostsError as exc:
         print(f"omnifleet deploy certs: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    if args.days <= 0:
-        print("omnifleet deploy certs: --days must be positive", file=sys.stderr)
         return EXIT_BAD_INPUT
     folders = make_hosts_certs(hosts, args.out, args.days)
     print(f"fleet {hosts.fleet}: CA in {Path(args.out) / CA_NAME} (keep ca.key off the "
@@ -95,15 +94,15 @@ def add_deploy_commands(sub: argparse._SubParsersAction) -> None:
     plan.add_argument("--write", metavar="DIR",
                       help="write every node's zenoh config to DIR/<machine>/<role>.json5")
     plan.add_argument("--clock", choices=CLOCKS, default="lockstep", help="default: lockstep")
-    plan.add_argument("--duration", type=float, metavar="S", help="override duration_s")
-    plan.add_argument("--control-rate", type=float, metavar="HZ",
-                      help="override control_rate_hz")
-    plan.add_argument("--lost-peer-grace", type=float, metavar="S",
-                      help="agents and leader wait this long for a lost plant to come back")
+    add_option(plan, "--duration")
+    add_option(plan, "--control-rate")
+    add_option(plan, "--lost-peer-grace", default=None,
+               more_help="given to the agents and the leader (default: theirs)")
     plan.add_argument("--plant", choices=PLANT_KINDS, default=None,
                       help="the plant's kind (default: the scenario's plant.kind)")
-    plan.add_argument("--step-deadline", type=float, metavar="S",
-                      help="lockstep: how long a node waits for a step's inputs (default: 2)")
+    add_option(plan, "--step-deadline", default=None,
+               more_help="given to every node (default: theirs, "
+               f"{OPTIONS['--step-deadline'].default:g} s)")
     plan.add_argument("--record-out", default="runs/{fleet}", metavar="DIR",
                       help="the recorder's output folder on its machine (default: runs/{fleet})")
     plan.set_defaults(func=_cmd_plan)
@@ -114,5 +113,5 @@ def add_deploy_commands(sub: argparse._SubParsersAction) -> None:
     certs.add_argument("hosts", metavar="HOSTS", help="hosts file (TOML)")
     certs.add_argument("scenario", metavar="SCENARIO", help="scenario file or bundled name")
     certs.add_argument("--out", required=True, metavar="DIR", help="where to write them")
-    certs.add_argument("--days", type=int, default=365, help="validity (default: 365)")
+    add_option(certs, "--days")
     certs.set_defaults(func=_cmd_certs)

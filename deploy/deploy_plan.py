@@ -32,7 +32,7 @@ class RunOptions:
     control_rate_hz: float | None = None
     lost_peer_grace_s: float | None = None
     plant_kind: str | None = None  # default: the scenario's plant.kind
-    step_deadline_s: float | None = None  # lockstep: default 2 s
+    step_deadline_s: float | None = None  # lockstep: None = the nodes' default (deploy/options.py)
     record_out: str = "runs/{fleet}"
 
 

@@ -9,7 +9,7 @@ through ``omnifleet run`` instead, one at a time.
 
 Writes, under --out: ``sweep.csv`` (one row per run), ``sweep.md`` (per drop
 rate: median and range over the seeds), ``sweep.png`` (formation RMS, settling
-time and minimum separation against drop rate) and each run's folder.
+time and minimum gap between robots against drop rate) and each run's folder.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from deploy.fault_plan import uniform_drop_plan
+from deploy.options import add_option, check_duration
 from deploy.scenario import load_scenario
 
 
@@ -36,11 +37,11 @@ from deploy.scenario import load_scenario
 class SweepRow:
     drop: float
     seed: int
-    formation_rms_m: float  # over every robot and the whole run: |q_xy - (x_0 + rho_i)|
+    formation_rms_whole_run_m: float  # over every robot and the whole run: |q_xy - (x_0 + rho_i)|
     settling_s: float | None  # the slowest robot's settling time; None: some robot never
     unsettled_robots: int
-    min_robot_separation_m: float | None
-    min_obstacle_clearance_m: float | None
+    min_robot_gap_m: float | None  # surface to surface
+    min_obstacle_gap_m: float | None
     contacts: int
     messages_judged: int
     messages_lost: int
@@ -63,8 +64,8 @@ def row_from_run(drop: float, seed: int, run_dir: Path) -> SweepRow:
     return SweepRow(
         drop, seed, float(np.sqrt(np.nanmean(err**2))),
         None if any(s is None for s in settling) else max(settling),
-        sum(s is None for s in settling), m["min_robot_separation_m"],
-        m["min_obstacle_clearance_m"], m["contacts"], totals.get("messages", 0), lost,
+        sum(s is None for s in settling), m["min_robot_gap_m"],
+        m["min_obstacle_gap_m"], m["contacts"], totals.get("messages", 0), lost,
         m["wall_time_s"])
 
 
@@ -162,20 +163,20 @@ def markdown(rows: list[SweepRow], scenario: str) -> str:
              "Independent loss on every edge; median (min-max) over the seeds. Formation RMS: "
              "|q_xy - (x_0 + rho_i)| over every robot and the whole run. Settling: the slowest "
              "robot's.", "",
-             "| drop | runs | formation RMS (m) | ratio to 0 % | settling (s) | min separation (m) "
-             "| min clearance (m) | contacts | lost / judged |",
+             "| drop | runs | formation RMS, whole run (m) | ratio to 0 % | settling (s) | min robot gap (m) "
+             "| min obstacle gap (m) | contacts | lost / judged |",
              "|---|---|---|---|---|---|---|---|---|"]
-    base = [r.formation_rms_m for r in rows if r.drop == 0.0]
+    base = [r.formation_rms_whole_run_m for r in rows if r.drop == 0.0]
     base_med = statistics.median(base) if base else None
     for d in drops:
         rs = [r for r in rows if r.drop == d]
-        med = statistics.median(r.formation_rms_m for r in rs)
+        med = statistics.median(r.formation_rms_whole_run_m for r in rs)
         ratio = f"{med / base_med:.2f}" if base_med else "n/a"
         lines.append(
-            f"| {d:g} | {len(rs)} | {_median_range([r.formation_rms_m for r in rs])} | {ratio} | "
+            f"| {d:g} | {len(rs)} | {_median_range([r.formation_rms_whole_run_m for r in rs])} | {ratio} | "
             f"{_median_range([r.settling_s for r in rs])} | "
-            f"{_median_range([r.min_robot_separation_m for r in rs])} | "
-            f"{_median_range([r.min_obstacle_clearance_m for r in rs])} | "
+            f"{_median_range([r.min_robot_gap_m for r in rs])} | "
+            f"{_median_range([r.min_obstacle_gap_m for r in rs])} | "
             f"{sum(r.contacts for r in rs)} | "
             f"{sum(r.messages_lost for r in rs)} / {sum(r.messages_judged for r in rs)} |")
     return "\n".join(lines) + "\n"
@@ -189,9 +190,9 @@ def plot(rows: list[SweepRow], path: Path, scenario: str) -> None:
 
     drops = sorted({r.drop for r in rows})
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    series = [("formation RMS (m)", lambda r: r.formation_rms_m),
+    series = [("formation RMS, whole run (m)", lambda r: r.formation_rms_whole_run_m),
               ("settling time, slowest robot (s)", lambda r: r.settling_s),
-              ("min robot separation (m)", lambda r: r.min_robot_separation_m)]
+              ("min gap between robots (m)", lambda r: r.min_robot_gap_m)]
     for ax, (label, get) in zip(axes, series, strict=True):
         for r in rows:
             v = get(r)
@@ -220,18 +221,9 @@ def _drops(text: str) -> list[float]:
     return sorted(set(vals))
 
 
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError("must be at least 1")
-    return v
-
-
 def cmd_sweep(args: argparse.Namespace) -> int:
     sc = load_scenario(args.scenario)  # a bad scenario fails here, before any run
+    check_duration(args.duration, sc.spec.control_rate_hz)
     out = Path(args.out or f"runs/{sc.name}-fault-sweep")
     out.mkdir(parents=True, exist_ok=True)
     jobs = args.jobs or os.cpu_count() or 1
@@ -243,7 +235,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     def progress(done: int, total: int, r: SweepRow) -> None:
         print(f"  [{done}/{total}] drop {r.drop:g} seed {r.seed}: formation RMS "
-              f"{r.formation_rms_m:.3f} m, contacts {r.contacts} ({r.wall_time_s:.0f} s)",
+              f"{r.formation_rms_whole_run_m:.3f} m, contacts {r.contacts} ({r.wall_time_s:.0f} s)",
               file=sys.stderr, flush=True)
 
     try:
@@ -270,18 +262,16 @@ def add_faults_command(sub: argparse._SubParsersAction) -> None:
         "sweep", help="run a scenario under growing independent loss; table and plot",
         description="Run SCENARIO once per (drop rate, seed) with independent loss on every "
         "edge, and write sweep.csv, sweep.md and sweep.png (formation RMS, settling time, "
-        "minimum separation against drop rate).")
+        "minimum gap between robots against drop rate).")
     p.add_argument("scenario", help="scenario file or bundled name")
     p.add_argument("--drop", type=_drops, default=_drops("0,0.1,0.3,0.5"), metavar="P,P,...",
                    help="drop rates (default: 0,0.1,0.3,0.5)")
-    p.add_argument("--seeds", type=_positive_int, default=5, metavar="K",
-                   help="seeds per drop rate (default: 5)")
-    p.add_argument("--jobs", type=_positive_int, default=None, metavar="N",
-                   help="in-process runs at once (default: the number of cores)")
+    add_option(p, "--seeds")
+    add_option(p, "--jobs")
     p.add_argument("--distributed", action="store_true",
                    help="run each through `omnifleet run` (one process per node) instead of "
                    "in-process; same results, slower")
-    p.add_argument("--duration", type=float, metavar="S", help="simulate S seconds per run")
+    add_option(p, "--duration", more_help="per run")
     p.add_argument("--plant", choices=["pybullet", "model", "kinematic"], default=None,
                    help="default: the scenario's")
     p.add_argument("--out", metavar="DIR", help="default: runs/<scenario>-fault-sweep")

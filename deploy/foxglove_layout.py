@@ -94,9 +94,9 @@ def layout(sc: Scenario) -> dict[str, Any]:
             *_per_robot(sc, "formation_error", " formation"),
             *[_series(f"{plot_topic(r)}.estimator_error", f"robot {r} estimator")
               for r in sc.robot_ids]], "m"),
-        p["distances"]: _plot("Fig. 6: clearances (m; contact at 0)", [
-            _series(f"{PLOT_FLEET}.min_obstacle_clearance", "robot-obstacle", "#4d4d4d"),
-            _series(f"{PLOT_FLEET}.min_robot_separation", "robot-robot", "#d62728"),
+        p["distances"]: _plot("Fig. 6: smallest gaps between surfaces (m; contact at 0)", [
+            _series(f"{PLOT_FLEET}.min_obstacle_gap", "robot-obstacle gap", "#4d4d4d"),
+            _series(f"{PLOT_FLEET}.min_robot_gap", "robot-robot gap", "#d62728"),
             *[_series(f"{plot_topic(r)}.safety_dv", f"robot {r} safety filter: |dv| (m/s)")
               for r in sc.robot_ids]], "m"),
         p["torques"]: _plot("Fig. 6: wheel torques (N m)", [

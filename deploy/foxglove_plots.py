@@ -3,7 +3,7 @@ scenario) in, one JSON message per robot and one for the fleet per row out.
 
 Pure, no I/O. ``/plot/robot/<id>`` (:class:`RobotSignals`: the tracking and
 formation errors of Fig. 5, the estimator error, the wheel torques of Fig. 6,
-the active behaviors, limit and safety activity, clearances) and ``/plot/fleet``
+the active behaviors, limit and safety activity, gaps between surfaces) and ``/plot/fleet``
 (:class:`FleetSignals`). Foxglove's Plot panel reads any numeric field by path
 (``/plot/robot/2.tracking_error``, ``/plot/robot/1.torque[3]``); the JSON Schema
 comes from ``deploy/foxglove_json.py`` (Foxglove has no well-known message for
@@ -52,8 +52,8 @@ class RobotSignals(msgspec.Struct, kw_only=True):
     safety_active: int  # 1: the safety filter changed the command (agents/safety_filter.py)
     safety_dv: float  # by how much, m/s
     input_age_s: float  # age of the freshest leader information
-    obstacle_clearance: float | None  # to the nearest obstacle's surface, m
-    robot_clearance: float | None  # to the nearest robot's surface, m
+    obstacle_gap: float | None  # surface to surface, to the nearest obstacle, m
+    robot_gap: float | None  # surface to surface, to the nearest robot, m
 
 
 class FleetSignals(msgspec.Struct, kw_only=True):
@@ -63,8 +63,8 @@ class FleetSignals(msgspec.Struct, kw_only=True):
     settle_threshold: float  # the band of the settling criterion
     settled: int  # 1: every robot's |e| is inside the band now
     settling_bound_s: float  # sqrt(2) T_p
-    min_obstacle_clearance: float | None
-    min_robot_separation: float | None
+    min_obstacle_gap: float | None  # surface to surface, m (metrics.json's min_obstacle_gap_m)
+    min_robot_gap: float | None  # surface to surface, m (metrics.json's min_robot_gap_m)
     nonfinite: int  # robots whose law gave NaN/Inf at this step
 
 
@@ -131,9 +131,9 @@ class FleetPlots:
             "speed": np.hypot(ts.q_dot[rows, :, 0], ts.q_dot[rows, :, 1]), "command_speed": vcmd,
             "speed_factor": ts.speed_factor[rows], "input_age_s": ts.input_age[rows],
             "safety_dv": ts.safety_dv[rows],
-            "obstacle_clearance": obst, "robot_clearance": rob,
+            "obstacle_gap": obst, "robot_gap": rob,
         }
-        nullable = ("fdb_error", "obstacle_clearance", "robot_clearance")
+        nullable = ("fdb_error", "obstacle_gap", "robot_gap")
         lists = {name: c.tolist() for name, c in cols.items()}
         e_l, tau_l = e.tolist(), tau.tolist()
         active = ts.active[rows].astype(int).tolist()
@@ -164,7 +164,7 @@ class FleetPlots:
             out[PLOT_FLEET] = FleetSignals(
                 t=t, leader_speed=leader_speed[j], max_tracking_error=max_err[j],
                 settle_threshold=st.threshold, settled=settled[j], settling_bound_s=st.bound,
-                min_obstacle_clearance=_finite(min_obst[j]), min_robot_separation=_finite(min_rob[j]),
+                min_obstacle_gap=_finite(min_obst[j]), min_robot_gap=_finite(min_rob[j]),
                 nonfinite=sum(nonfinite[j]))
             yield k, out
 

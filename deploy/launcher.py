@@ -35,6 +35,7 @@ from deploy.fault_model import fault_metrics, merge_reports
 from deploy.fault_plan import FaultPlan
 from deploy.kill_schedule import KillSchedule
 from deploy.node_runtime import START_LEAD_S, StopFlag, peak_rss_kb
+from deploy.options import DEFAULT_STARTUP_TIMEOUT_S, DEFAULT_STEP_DEADLINE_S
 from deploy.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
 from deploy.run_secret import RUN_SECRET_ENV, control_is_genuine, new_secret
 from deploy.scenario import Scenario
@@ -106,8 +107,8 @@ class LaunchOptions:
     out: Path
     duration_s: float | None = None
     control_rate_hz: float | None = None
-    step_deadline_s: float = 2.0
-    startup_timeout_s: float = 60.0
+    step_deadline_s: float = DEFAULT_STEP_DEADLINE_S
+    startup_timeout_s: float = DEFAULT_STARTUP_TIMEOUT_S
     fleet: str | None = None
     endpoint: str | None = None  # where the launcher listens (default: a free loopback port)
     record: bool = True

@@ -2,10 +2,17 @@
 
 Keys (every run, in-process or distributed): scenario, plant, clock, robots,
 sim_time_s, steps, control_rate_hz, wall_time_s, real_time_factor,
-settling_time_s, formation_rms_m, min_obstacle_clearance_m,
-min_robot_separation_m, contacts (+ contact_source, contact_log), peak_torque_nm,
-rms_torque_nm, nonfinite_commands, safety_filter (per robot: active steps, time and
-episodes, largest and mean change of the command, infeasible steps), messages.
+settling_time_s, formation_rms_whole_run_m, formation_rms_after_settling_m,
+min_obstacle_gap_m, min_robot_gap_m, contacts (+ contact_source, contact_log),
+peak_torque_nm, rms_torque_nm, nonfinite_commands, safety_filter (per robot: active
+steps, time and episodes, largest and mean change of the command, infeasible steps),
+messages.
+
+Formation RMS is |q_xy - (x_0 + rho_i)| per robot, over the whole run and from the
+robot's own settling time on (None for a robot that never settled: a robot that
+settles late would otherwise look best). The gaps are surface to surface: centre
+distance minus both radii, so 0 is contact (Fig. 6 of the paper plots centre
+distances; a robot-robot gap g is a centre distance g + 2 r).
 
 ``contacts`` counts physical contact events when the plant simulates bodies
 (pybullet: ``contact_source`` "physics", every event in ``contact_log`` with its
@@ -43,6 +50,31 @@ def settling_time(t: np.ndarray, err_norm: np.ndarray, threshold: float) -> floa
         return float(t[0])
     last = above[-1]
     return None if last + 1 >= len(t) else float(t[last + 1])
+
+
+def formation_rms(t: np.ndarray, xy: np.ndarray, target: np.ndarray,
+                  settling: list[float | None]) -> tuple[list[float | None], list[float | None]]:
+    """Per robot, the RMS of |q_xy - target| over the whole run and from its settling
+    time on (None: it never settled, or no step is left). Rows without a state (a
+    realtime run before a robot's first sample: NaN) are left out."""
+    err = np.linalg.norm(xy - target, axis=2)
+
+    def rms(seg: np.ndarray) -> float | None:
+        known = seg[~np.isnan(seg)]
+        return float(np.sqrt(np.mean(known**2))) if len(known) else None
+
+    whole = [rms(err[:, i]) for i in range(err.shape[1])]
+    after = [None if s is None else rms(err[int(np.searchsorted(t, s)):, i])
+             for i, s in enumerate(settling)]
+    return whole, after
+
+
+def leader_estimate_error(series: TimeSeries) -> np.ndarray:
+    """Fig. 5(b), (k - 1, n): |p0_hat_i - p0| with both at the same instant. The series
+    holds each agent's estimate after its step k, i.e. for t_{k+1}: it is compared with
+    the leader at t_{k+1} (against the leader at t_k it would carry a spurious |v0| dt,
+    up to 5 cm on ``paper`` at 1 kHz)."""
+    return np.linalg.norm(series.q0_hat[:-1, :, :2] - series.leader_q[1:, None, :2], axis=2)
 
 
 def pair_clearances(
@@ -100,12 +132,7 @@ def compute_metrics(
         notes.append("kinematic plant: no dynamic level; settling_time_s does not apply")
     else:
         settling = [settling_time(t, err[:, i], threshold) for i in range(n)]
-    formation_err = np.linalg.norm(series.q[:, :, :2] - series.target, axis=2)
-    rms = []
-    for i in range(n):
-        from_k = 0 if settling[i] is None else int(np.searchsorted(t, settling[i]))
-        seg = formation_err[from_k:, i]
-        rms.append(float(np.sqrt(np.mean(seg**2))) if len(seg) else None)
+    whole, after = formation_rms(t, series.q[:, :, :2], series.target, settling)
     radii = np.full(n, s.robot.body_radius_m)
     obs = np.array([o.position for o in s.obstacles], float).reshape(-1, 2)
     obs_r = np.array([o.radius_m for o in s.obstacles], float)
@@ -125,9 +152,10 @@ def compute_metrics(
         "settle_threshold": threshold,
         "settling_bound_s": math.sqrt(2.0) * s.controller.T_p,
         "settling_time_s": settling,
-        "formation_rms_m": rms,
-        "min_obstacle_clearance_m": float(ro.min()) if ro.size else None,
-        "min_robot_separation_m": float(rr.min()) if rr.size else None,
+        "formation_rms_whole_run_m": whole,
+        "formation_rms_after_settling_m": after,
+        "min_obstacle_gap_m": float(ro.min()) if ro.size else None,
+        "min_robot_gap_m": float(rr.min()) if rr.size else None,
         "contacts": (contact_onsets(rr) + contact_onsets(ro) if contact_log is None
                      else max(len(contact_log), contacts_total or 0)),
         "contact_source": "geometry" if contact_log is None else "physics",

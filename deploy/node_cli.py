@@ -20,6 +20,7 @@ from deploy.node_runtime import (
     die_with_parent,
     install_signal_handlers,
 )
+from deploy.options import add_option, check_duration
 from deploy.priority import REALTIME_PRIORITY, add_priority_argument, raise_priority
 from deploy.scenario import PLANT_KINDS, Scenario, load_scenario
 from deploy.transport import Node, zenoh_config
@@ -29,10 +30,13 @@ EXIT_PEER_LOST = 3
 EXIT_STARTUP = 4
 
 
-def _scenario(args: argparse.Namespace) -> Scenario:
+def run_scenario(args: argparse.Namespace) -> Scenario:
+    """The scenario of ``args.scenario`` at ``--control-rate`` if given, for a run of
+    ``--duration`` (OptionError when that is shorter than one control period)."""
     sc = load_scenario(args.scenario)
     if args.control_rate is not None:
         sc = sc.with_control_rate(args.control_rate)
+    check_duration(args.duration, sc.spec.control_rate_hz)
     return sc
 
 
@@ -78,7 +82,7 @@ def gui_problem(plant_kind: str, gui: bool) -> str | None:
 
 
 def _run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, realtime) -> int:
-    sc = _scenario(args)
+    sc = run_scenario(args)
     stop = StopFlag()
     if args.priority:
         print(f"omnifleet {role}: {raise_priority(args.priority)}", file=sys.stderr, flush=True)
@@ -102,6 +106,7 @@ def _run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep,
     c = node.counters
     print(f"omnifleet {role}: {obj.steps_done} steps; messages sent {c.sent}, dropped "
           f"{c.dropped}, late {c.late}, invalid {c.invalid}"
+          + (f"; NON-FINITE values computed {c.nonfinite}" if c.nonfinite else "")
           + ("" if stop.reason in ("", "end", "stop") else f"; stopped ({stop.reason})"),
           file=sys.stderr)
     return _exit_code(stop)
@@ -134,7 +139,7 @@ def _waits_for_recorder(args: argparse.Namespace) -> bool:
 def _cmd_agent(args: argparse.Namespace) -> int:
     from agents.node import AgentNode
 
-    sc = _scenario(args)
+    sc = run_scenario(args)
     sc.index_of(args.robot)  # fail fast, before opening a session
 
     if args.rejoin and args.clock != "realtime":
@@ -163,12 +168,12 @@ def _cmd_agent(args: argparse.Namespace) -> int:
 def _cmd_plant(args: argparse.Namespace) -> int:
     from plant.node import PlantNode
 
-    problem = gui_problem(args.plant or _scenario(args).spec.plant.kind, args.gui)
+    problem = gui_problem(args.plant or run_scenario(args).spec.plant.kind, args.gui)
     if problem:
         print(f"omnifleet plant: {problem}", file=sys.stderr)
         return 2
 
-    plan = fault_plan(args, _scenario(args))
+    plan = fault_plan(args, run_scenario(args))
 
     def build(sc, node, stop):
         return PlantNode(sc, args.plant or sc.spec.plant.kind, node, stop,
@@ -211,12 +216,10 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lowlatency", action="store_true",
                    help="zenoh's low-latency transport (no transmit task, no QoS); every node "
                    "of a run must use it (`omnifleet run` does; docs/distributed.md)")
-    p.add_argument("--duration", type=float, metavar="S", help="override duration_s")
-    p.add_argument("--control-rate", type=float, metavar="HZ", help="override control_rate_hz")
-    p.add_argument("--step-deadline", type=float, default=2.0, metavar="S",
-                   help="lockstep: wait this long for a step's inputs (default: 2)")
-    p.add_argument("--startup-timeout", type=float, default=60.0, metavar="S",
-                   help="wait this long for the peers to appear (default: 60)")
+    add_option(p, "--duration")
+    add_option(p, "--control-rate")
+    add_option(p, "--step-deadline")
+    add_option(p, "--startup-timeout")
     p.add_argument("--faults", metavar="PLAN",
                    help="a fault plan (TOML, docs/faults.md): this node applies the faults of "
                    "the links it receives on; give every node of a run the same plan")
@@ -226,9 +229,7 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="wait for `omnifleet record` (on any machine) before starting")
     add_priority_argument(p, "for a control loop on the realtime clock on a host that "
                           f"runs other work (the launcher asks for {REALTIME_PRIORITY} there)")
-    p.add_argument("--lost-peer-grace", type=float, default=0.0, metavar="S",
-                   help="agent/leader: when the plant's liveliness token goes (a cut link), "
-                   "wait this long for it to come back before giving up (default: 0, at once)")
+    add_option(p, "--lost-peer-grace")
 
 
 def add_node_commands(sub: argparse._SubParsersAction) -> None:
@@ -236,8 +237,7 @@ def add_node_commands(sub: argparse._SubParsersAction) -> None:
                            description="One robot's agent: estimator, observer, behaviors, "
                            "controller. Hears only its graph neighbours.")
     _common(agent)
-    agent.add_argument("--robot", type=int, required=True, metavar="ID",
-                       help="the robot's id in the scenario")
+    add_option(agent, "--robot", required=True)
     agent.add_argument("--plant-role", default=PLANT_ROLE, metavar="ROLE",
                        help="the node that publishes this robot's state: plant (default), or "
                        "bridge-<ID> when the robot is on CAN; losing it ends the agent")
@@ -256,9 +256,7 @@ def add_node_commands(sub: argparse._SubParsersAction) -> None:
                        "kinematic (default: the scenario's plant.kind)")
     plant.add_argument("--gui", action="store_true",
                        help="pybullet: open the simulator's window (needs a display)")
-    plant.add_argument("--command-timeout", type=float, default=0.1, metavar="S",
-                       help="realtime: zero a robot's torques when its newest command is "
-                       "older than this (default: 0.1)")
+    add_option(plant, "--command-timeout")
     plant.set_defaults(func=_cmd_plant)
 
     leader = sub.add_parser("leader", help="run the virtual leader (reference generator)")

@@ -243,7 +243,7 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
     timing = timing or Timing()
     node.publish(node.keys.report(node.role), lambda seq, stamp: NodeReport(
         WIRE_VERSION, node.sender, seq, stamp, role=node.role, robot=robot, sent=c.sent,
-        dropped=c.dropped, late=c.late, invalid=c.invalid, steps=steps,
+        dropped=c.dropped, late=c.late, invalid=c.invalid, steps=steps, nonfinite=c.nonfinite,
         latency_ns=timing.latency_ns, jitter_ns=timing.jitter_ns,
         deadline_misses=timing.deadline_misses, peak_rss_kb=peak_rss_kb(),
         received=dict(node.received), refused=dict(node.refused), zid=node.zid,

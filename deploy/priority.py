@@ -16,6 +16,8 @@ from __future__ import annotations
 import argparse
 import os
 
+from deploy.options import add_option
+
 EMULATOR_PRIORITY = 10  # nice -10 for the driver emulator (can-emulated): it plays the world
 # nice -5 for every node on the realtime clock (``omnifleet run --priority``): below the
 # emulator, above whatever else the host runs
@@ -44,8 +46,5 @@ def raise_priority(n: int) -> str:
 
 
 def add_priority_argument(p: argparse.ArgumentParser, why: str) -> None:
-    p.add_argument("--priority", type=int, default=0, choices=range(0, 21), metavar="N",
-                   help=f"raise this process's CPU priority by N (nice -N, and its session's "
-                   f"autogroup where Linux groups processes by session): {why}. Needs "
-                   "CAP_SYS_NICE or RLIMIT_NICE; without it the process says so and runs at "
-                   "normal priority (default: 0)")
+    """``--priority N`` (deploy/options.py) with why this command may want it."""
+    add_option(p, "--priority", more_help=why)

@@ -19,7 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from deploy.launcher import Interrupted, Launcher, LaunchOptions
-from deploy.scenario import Scenario, load_scenario
+from deploy.node_cli import run_scenario
+from deploy.options import add_option
+from deploy.scenario import Scenario
 from deploy.transport import Node, zenoh_config
 from deploy.wire import LAUNCHER_ROLE, run_roles
 
@@ -138,9 +140,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
     from deploy.outputs import run_wall_clock, write_run
     from deploy.runner import terminal_progress
 
-    sc: Scenario = load_scenario(args.scenario)
-    if args.control_rate is not None:
-        sc = sc.with_control_rate(args.control_rate)
+    sc: Scenario = run_scenario(args)
     plant = args.plant or sc.spec.plant.kind
     opts = LaunchOptions(scenario_arg=args.scenario, plant=plant, clock=args.clock,
                          out=Path(args.out), duration_s=args.duration,
@@ -200,10 +200,9 @@ def add_record_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config file")
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT")
-    p.add_argument("--duration", type=float, metavar="S", help="override duration_s")
-    p.add_argument("--control-rate", type=float, metavar="HZ", help="override control_rate_hz")
-    p.add_argument("--startup-timeout", type=float, default=120.0, metavar="S",
-                   help="wait this long for every node (default: 120)")
+    add_option(p, "--duration", more_help="give the nodes the same")
+    add_option(p, "--control-rate", more_help="give the nodes the same")
+    add_option(p, "--startup-timeout", default=120.0)
     p.add_argument("--no-record", action="store_true", help="no recording.mcap")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.set_defaults(func=_cmd_record)

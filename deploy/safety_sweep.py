@@ -48,7 +48,7 @@ def run_one(scenario: str, seed: int, plant: str | None, duration: float | None,
                         contact_log=res.contacts)
     f = m["safety_filter"]
     bound = m["settling_bound_s"]
-    return SweepRow(seed, m["contacts"], m["min_obstacle_clearance_m"], m["min_robot_separation_m"],
+    return SweepRow(seed, m["contacts"], m["min_obstacle_gap_m"], m["min_robot_gap_m"],
                     float(sum(f["active_time_s"])), int(sum(f["infeasible_steps"])),
                     sum(1 for s in m["settling_time_s"] if s is None or s >= bound),
                     res.wall_time_s)

@@ -9,10 +9,13 @@ is a :class:`ScenarioError` carrying the file name; the CLI exits with code 2.
 
 from __future__ import annotations
 
+import difflib
 import math
+import re
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Literal, get_args
+from types import UnionType
+from typing import Literal, Union, get_args, get_origin
 
 import msgspec
 import numpy as np
@@ -24,6 +27,7 @@ from agents.eso import EsoGains
 from agents.estimator import EstimatorGains
 from agents.formation import ScaleChange
 from agents.leader import Harmonic, LeaderGenerator, LeaderSpec
+from deploy.options import MAX_RATE_HZ
 from plant.mecanum import MecanumModel, RobotParams
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
@@ -384,6 +388,11 @@ def _check_finite(path: str, key: str, values) -> None:
 
 def has_spanning_tree(adjacency: np.ndarray, leader: np.ndarray) -> bool:
     """True iff every robot is reachable from the leader (a_ij: j -> i, b_i: 0 -> i)."""
+    return not unreached_robots(adjacency, leader)
+
+
+def unreached_robots(adjacency: np.ndarray, leader: np.ndarray) -> list[int]:
+    """Rows (in [[robots]] order) of the robots the leader reaches through no path."""
     n = len(leader)
     reached = {i for i in range(n) if leader[i] != 0.0}
     frontier = list(reached)
@@ -393,7 +402,29 @@ def has_spanning_tree(adjacency: np.ndarray, leader: np.ndarray) -> bool:
             if adjacency[i, j] != 0.0 and i not in reached:
                 reached.add(i)
                 frontier.append(i)
-    return len(reached) == n
+    return [i for i in range(n) if i not in reached]
+
+
+def start_overlaps(positions: np.ndarray, ids: list[int], radius: float,
+                   obstacles: list[tuple[str, np.ndarray, float]]) -> list[str]:
+    """Every pair that touches or overlaps at t = 0 (gap = centre distance minus the
+    radii, <= 0), as a sentence naming both and the gap: robot-robot, then robot-obstacle
+    (``obstacles``: (name, centre, radius) of each disc)."""
+    out = []
+    for a in range(len(ids)):
+        for b in range(a + 1, len(ids)):
+            d = float(np.hypot(*(positions[a] - positions[b])))
+            if d - 2 * radius <= 0:
+                out.append(f"robots {ids[a]} and {ids[b]} overlap at the start: centres "
+                           f"{d:.3f} m apart, gap {d - 2 * radius:.3f} m (robot.body_radius_m "
+                           f"= {radius:g})")
+    for a, rid in enumerate(ids):
+        for name, centre, r in obstacles:
+            d = float(np.hypot(*(positions[a] - centre)))
+            if d - radius - r <= 0:
+                out.append(f"robot {rid} starts on {name}: centres {d:.3f} m apart, gap "
+                           f"{d - radius - r:.3f} m (radii {radius:g} and {r:g})")
+    return out
 
 
 def _check_all_finite(path: str, node, key: str = "") -> None:
@@ -412,10 +443,11 @@ def _check_all_finite(path: str, node, key: str = "") -> None:
 def _validate(path: str, s: ScenarioFile) -> Scenario:
     notes: list[str] = []
     _check_all_finite(path, msgspec.to_builtins(s))
-    if s.duration_s <= 0:
-        raise _fail(path, "duration_s", "must be positive")
-    if not (0 < s.control_rate_hz <= 100_000):
-        raise _fail(path, "control_rate_hz", "must be in (0, 100000]")
+    if not (0 < s.control_rate_hz <= MAX_RATE_HZ):
+        raise _fail(path, "control_rate_hz", f"must be in (0, {MAX_RATE_HZ:g}]")
+    if s.duration_s * s.control_rate_hz < 1.0:
+        raise _fail(path, "duration_s", f"must be at least one control period "
+                    f"({1.0 / s.control_rate_hz:g} s at control_rate_hz = {s.control_rate_hz:g})")
     n = len(s.robots)
     if n == 0:
         raise _fail(path, "robots", "at least one robot is needed")
@@ -451,10 +483,14 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
         )
         A = A.copy()
         np.fill_diagonal(A, 0.0)
-    if not has_spanning_tree(A, b):
+    deaf = unreached_robots(A, b)
+    if deaf:
         raise _fail(
-            path, "graph", "the graph has no directed spanning tree rooted at the leader "
-            "(some robot hears the leader through no path)"
+            path, "graph", "the graph has no directed spanning tree rooted at the leader: "
+            f"{'robots' if len(deaf) > 1 else 'robot'} {', '.join(str(ids[i]) for i in deaf)} "
+            f"{'hear' if len(deaf) > 1 else 'hears'} the leader through no path (graph.leader "
+            "and the rows and columns of "
+            "graph.adjacency follow the order of [[robots]], not their ids)"
         )
     f = s.formation
     if f.kappa1 < 0 or f.kappa2 < 0:
@@ -473,6 +509,12 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
         _check_len(path, f"obstacles[{k}].position", o.position, 2)
         if o.radius_m < 0:
             raise _fail(path, f"obstacles[{k}].radius_m", "must be >= 0")
+    overlaps = start_overlaps(
+        np.array([r.position for r in s.robots], float), ids, s.robot.body_radius_m,
+        [(f"obstacles[{k}] at ({o.position[0]:g}, {o.position[1]:g})",
+          np.array(o.position, float), o.radius_m) for k, o in enumerate(s.obstacles)])
+    if overlaps:
+        raise _fail(path, "robots.position", "; ".join(overlaps))
     bh = s.behaviors
     for key, names in (("behaviors.enabled", bh.enabled), ("behaviors.priority", bh.priority)):
         bad = [x for x in names if x not in BEHAVIOR_NAMES]
@@ -561,5 +603,58 @@ def parse_scenario(raw: bytes | str, path: str = "<scenario>") -> Scenario:
 
 
 def _readable(msg: str) -> str:
-    """msgspec says `Object contains unknown field `x` - at `$.a``; keep it, drop `$.`."""
-    return msg.replace("`$.", "`").replace("`$`", "top level")
+    """msgspec says `Object contains unknown field `x` - at `$.a``; keep it, drop `$.`,
+    and add what the schema allows there (:func:`_hint`)."""
+    return msg.replace("`$.", "`").replace("`$`", "top level") + _hint(msg)
+
+
+_UNKNOWN_FIELD = re.compile(r"unknown field `([^`]*)`(?: - at `\$([^`]*)`)?")
+_BAD_ENUM = re.compile(r"Invalid enum value .* - at `\$([^`]*)`")
+
+
+def _hint(msg: str) -> str:
+    """For an unknown key, the nearest known one at that place ("did you mean"); for a
+    value outside an enum, the allowed values. Empty when there is nothing to add."""
+    if m := _UNKNOWN_FIELD.search(msg):
+        known = _keys_at(m.group(2) or "")
+        near = difflib.get_close_matches(m.group(1), known, n=1, cutoff=0.6)
+        if near:
+            return f"; did you mean `{near[0]}`?"
+        return f"; known keys here: {', '.join(known)}" if known else ""
+    if m := _BAD_ENUM.search(msg):
+        allowed = _enum_at(m.group(1))
+        return f"; expected one of: {', '.join(allowed)}" if allowed else ""
+    return ""
+
+
+def _types_at(path: str) -> list:
+    """The schema types at a msgspec path such as ``.leader.x`` or ``.obstacles[0]``
+    (several where the schema has a union there)."""
+    types: list = [ScenarioFile]
+    for name, index in re.findall(r"\.(\w+)|\[(\d+)\]", path):
+        nxt: list = []
+        for t in types:
+            for u in _members(t):
+                if index and get_origin(u) is list:
+                    nxt += list(get_args(u)[:1])
+                elif name and isinstance(u, type) and issubclass(u, msgspec.Struct):
+                    nxt += [f.type for f in msgspec.structs.fields(u) if f.encode_name == name]
+        types = nxt
+    return types
+
+
+def _members(t) -> tuple:
+    """A union's members (``X | None`` included), or the type itself."""
+    return get_args(t) if get_origin(t) in (Union, UnionType) else (t,)
+
+
+def _keys_at(path: str) -> list[str]:
+    keys = {f.encode_name for t in _types_at(path) for u in _members(t)
+            if isinstance(u, type) and issubclass(u, msgspec.Struct)
+            for f in msgspec.structs.fields(u)}
+    return sorted(keys)
+
+
+def _enum_at(path: str) -> list[str]:
+    return [str(v) for t in _types_at(path) for u in _members(t)
+            if get_origin(u) is Literal for v in get_args(u)]

@@ -3,6 +3,8 @@
 - ``list``: the bundled scenarios, with their description;
 - ``show NAME``: a bundled scenario's TOML, to read or to copy (``> mine.toml``);
 - ``check FILE``: load and validate a scenario file (exit 2 with the key when bad);
+- ``new FILE [--from NAME]``: a commented starting scenario (``deploy/scenario_starter.toml``)
+  or a copy of a bundled one, named after FILE, validated before it is written;
 - ``generate --robots N --control-rate HZ [--duration S] [--seed K] --out FILE``: the
   scale benchmark's scenario (``deploy/bench_scenarios.py``: N lab robots in a
   5-wide grid behind a straight leader, a binary-tree graph from robot 1), written
@@ -13,15 +15,17 @@
 from __future__ import annotations
 
 import argparse
-import math
+import re
+import shlex
 import sys
 from pathlib import Path
 
 from deploy.bench_scenarios import scale_scenario
-from deploy.scenario import SCENARIO_DIR, ScenarioError, load_scenario, parse_scenario
+from deploy.options import add_option, check_duration
+from deploy.scenario import SCENARIO_DIR, Scenario, ScenarioError, load_scenario, parse_scenario
 
 EXIT_BAD_INPUT = 2
-MAX_GENERATED_ROBOTS = 256  # a perception message carries at most 256 bodies (wire.MAX_BODIES)
+STARTER = Path(__file__).resolve().parent / "scenario_starter.toml"
 
 
 def _cmd_list(_args: argparse.Namespace) -> int:
@@ -35,12 +39,20 @@ def _cmd_list(_args: argparse.Namespace) -> int:
     return 0
 
 
+def _bundled(name: str, command: str) -> Path | None:
+    """The bundled scenario ``name``'s file, or None after saying which exist."""
+    path = SCENARIO_DIR / f"{name.removesuffix('.toml')}.toml"
+    if path.exists():
+        return path
+    known = ", ".join(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
+    print(f"omnifleet scenario {command}: no bundled scenario {name!r} (bundled: {known})",
+          file=sys.stderr)
+    return None
+
+
 def _cmd_show(args: argparse.Namespace) -> int:
-    path = SCENARIO_DIR / f"{args.name.removesuffix('.toml')}.toml"
-    if not path.exists():
-        known = ", ".join(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
-        print(f"omnifleet scenario show: no bundled scenario {args.name!r} ({known})",
-              file=sys.stderr)
+    path = _bundled(args.name, "show")
+    if path is None:
         return EXIT_BAD_INPUT
     sys.stdout.write(path.read_text())
     return 0
@@ -55,35 +67,43 @@ def _cmd_check(args: argparse.Namespace) -> int:
     return 0
 
 
-def _positive(name: str, value: float) -> str | None:
-    if not math.isfinite(value) or value <= 0:
-        return f"{name} must be a positive number, not {value!r}"
-    return None
-
-
 def _cmd_generate(args: argparse.Namespace) -> int:
-    problems = [p for p in (
-        None if 1 <= args.robots <= MAX_GENERATED_ROBOTS
-        else f"--robots must be within 1..{MAX_GENERATED_ROBOTS}, not {args.robots}",
-        _positive("--control-rate", args.control_rate),
-        _positive("--duration", args.duration),
-    ) if p]
-    if not problems and args.control_rate > 100_000:
-        problems.append("--control-rate must be at most 100000 Hz")
-    if problems:
-        for p in problems:
-            print(f"omnifleet scenario generate: {p}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    out = Path(args.out)
-    if out.exists() and not args.force:
-        print(f"omnifleet scenario generate: {out} exists (--force to replace it)", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    check_duration(args.duration, args.control_rate)  # the ranges: checked on parse
     text = scale_scenario(args.robots, args.control_rate, args.duration, args.seed)
-    sc = parse_scenario(text, str(out))  # validated before anything is written
+    return _write(Path(args.out), text, args.force, "generate")
+
+
+def scenario_name(path: Path) -> str:
+    """A scenario (and fleet) name from a file name: its stem, without the characters a
+    key expression cannot hold."""
+    return re.sub(r"[/*$?#\s]+", "-", path.stem).strip("-") or "scenario"
+
+
+def _cmd_new(args: argparse.Namespace) -> int:
+    src = STARTER if args.source is None else _bundled(args.source, "new")
+    if src is None:
+        return EXIT_BAD_INPUT
+    out = Path(args.file)
+    text = re.sub(r'^name = ".*"$', f'name = "{scenario_name(out)}"', src.read_text(),
+                  count=1, flags=re.M)
+    if args.source is not None:
+        text = f"# Copied from the bundled scenario `{args.source}` by `omnifleet scenario new`.\n{text}"
+    return _write(out, text, args.force, "new")
+
+
+def _write(out: Path, text: str, force: bool, command: str) -> int:
+    """Write scenario ``text`` to ``out`` once it validates (ScenarioError: exit 2,
+    nothing written); never over an existing file unless ``force``."""
+    if out.exists() and not force:
+        print(f"omnifleet scenario {command}: {out} exists (--force to replace it)",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    sc: Scenario = parse_scenario(text, str(out))  # validated before anything is written
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
     print(f"wrote {out}: {sc.n} robots at {1.0 / sc.dt:g} Hz for {sc.spec.duration_s:g} s "
-          f"(run it: omnifleet run {out})")
+          f"(check it: omnifleet scenario check {shlex.quote(str(out))}; run it: omnifleet run "
+          f"{shlex.quote(str(out))})")
     return 0
 
 
@@ -110,9 +130,10 @@ def _cmd_perturb(args: argparse.Namespace) -> int:
 
 
 def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("scenario", help="list, show, check or generate scenarios",
+    p = sub.add_parser("scenario", help="list, show, check, start or generate scenarios",
                        description="Start from a scenario: list and show the bundled ones, "
-                       "check a file, or generate an N-robot fleet (the scale benchmark's).")
+                       "check a file, write a new one from the commented starter or a bundled "
+                       "one, or generate an N-robot fleet (the scale benchmark's).")
     cmds = p.add_subparsers(dest="scenario_command", required=True, metavar="ACTION")
     cmds.add_parser("list", help="the bundled scenarios").set_defaults(func=_cmd_list)
     show = cmds.add_parser("show", help="print a bundled scenario's TOML (to copy it)")
@@ -121,19 +142,27 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
     check = cmds.add_parser("check", help="validate a scenario file")
     check.add_argument("file", help="scenario file (or bundled name)")
     check.set_defaults(func=_cmd_check)
+    new = cmds.add_parser(
+        "new", help="write a commented starting scenario (or a copy of a bundled one)",
+        description="Write FILE: a commented three-robot starting scenario, or with --from a "
+        "copy of a bundled scenario; its name is FILE's. Validated before it is written.")
+    new.add_argument("file", metavar="FILE", help="where to write the TOML")
+    new.add_argument("--from", dest="source", metavar="NAME",
+                     help="copy this bundled scenario (see `omnifleet scenario list`) instead "
+                     "of the starter")
+    new.add_argument("--force", action="store_true", help="replace FILE if it exists")
+    new.set_defaults(func=_cmd_new)
     gen = cmds.add_parser(
         "generate", help="write an N-robot scenario (the scale benchmark's)",
         description="N lab robots in a 5-wide grid formation behind a leader driving "
         "straight at 0.5 m/s, a binary-tree graph from robot 1 (which hears the leader), "
         "obstacles beside the lanes. Validated before it is written.")
-    gen.add_argument("--robots", type=int, required=True, metavar="N", help="how many robots")
-    gen.add_argument("--control-rate", type=float, required=True, metavar="HZ",
-                     help="control rate of every node (the bench uses 100)")
-    gen.add_argument("--duration", type=float, default=20.0, metavar="S",
-                     help="simulated duration (default: 20)")
-    gen.add_argument("--seed", type=int, default=None, metavar="K",
-                     help="jitter every start by up to 5 cm per axis, reproducibly "
-                     "(default: the bench's fixed layout)")
+    add_option(gen, "--robots", required=True)
+    add_option(gen, "--control-rate", required=True,
+               help="control rate of every node (the bench uses 100)")
+    add_option(gen, "--duration", default=20.0, help="simulated duration")
+    add_option(gen, "--seed", help="jitter every start by up to 5 cm per axis, reproducibly "
+               "(default: the bench's fixed layout)")
     gen.add_argument("--out", required=True, metavar="FILE", help="where to write the TOML")
     gen.add_argument("--force", action="store_true", help="replace --out if it exists")
     gen.set_defaults(func=_cmd_generate)

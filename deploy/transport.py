@@ -87,6 +87,7 @@ class Counters:
     dropped: int = 0  # could not be sent (transport error) or discarded on arrival
     late: int = 0  # arrived after its step's deadline, or a step ran without it
     invalid: int = 0  # failed validation at decode
+    nonfinite: int = 0  # values this node computed that were NaN or Inf (note_nonfinite)
 
 
 class Mailbox:
@@ -308,6 +309,15 @@ class Node:
         self.refused[why] = self.refused.get(why, 0) + 1
         if dropped:
             self.counters.dropped += 1
+
+    def note_nonfinite(self, what: str) -> None:
+        """Count a value this node computed that is not finite (a diverged law or
+        plant); say so on stderr the first time, with ``what`` it was. Reported in
+        ``NodeReport.nonfinite``."""
+        self.counters.nonfinite += 1
+        if self.counters.nonfinite == 1:
+            print(f"{self.role}: computed a non-finite {what}; every such value is counted "
+                  "(nonfinite in its report) and this is said once", file=sys.stderr, flush=True)
 
     def _warn_version(self) -> None:
         c = self.codec

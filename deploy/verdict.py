@@ -1,7 +1,7 @@
 """The run's verdict against the paper's criteria (DESIGN §6, §10).
 
 PASS when every robot settles (|e| stays below ``settle_threshold``) before
-sqrt(2) T_p, nothing ever touches (no contact, every clearance > 0) and
+sqrt(2) T_p, nothing ever touches (no contact, every surface-to-surface gap > 0) and
 nothing is non-finite (no NaN/Inf in the states, and the control law never
 gave one). A run whose states become non-finite or absurd (a robot
 ``DIVERGED_DISTANCE_M`` from its formation target, or faster than
@@ -60,11 +60,11 @@ def judge(metrics: dict[str, Any], diverged: dict[str, Any] | None = None) -> di
         for i, s in late:
             reasons.append(f"robot #{i + 1} " + ("never settled" if s is None
                                                    else f"settled at {s:.3f} s >= {bound:.3f} s"))
-    clear = [metrics["min_obstacle_clearance_m"], metrics["min_robot_separation_m"]]
+    clear = [metrics["min_obstacle_gap_m"], metrics["min_robot_gap_m"]]
     no_contact = metrics["contacts"] == 0 and all(c is None or c > 0 for c in clear)
     if not no_contact:
         reasons.append(f"{metrics['contacts']} contact(s)" if metrics["contacts"]
-                       else "a clearance reached 0")
+                       else "a gap between surfaces reached 0")
     nonfinite = metrics.get("nonfinite_commands", 0)
     finite = nonfinite == 0 and diverged is None
     if nonfinite:

@@ -8,6 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from deploy.options import add_option
 from deploy.ws_address import DEFAULT_PORT, LiveAddressError, parse_address, url
 
 RECORDING = "recording.mcap"
@@ -51,7 +52,7 @@ def add_view_command(sub) -> None:
     p.add_argument("--listen", metavar="[HOST:]PORT", default=str(DEFAULT_PORT),
                    help=f"where to serve (default 127.0.0.1:{DEFAULT_PORT}; loopback unless HOST "
                    "is given; port 0: any free one)")
-    p.add_argument("--speed", type=float, default=1.0, help="playback speed (default 1)")
+    add_option(p, "--speed")
     p.add_argument("--play", action="store_true",
                    help="start playing at once (default: when the first client subscribes)")
     p.add_argument("--loop", action="store_true", help="start again at the end")

@@ -361,6 +361,7 @@ class NodeReport(Message, frozen=True):
     command_stops: list[tuple[int, float, float]] = []
     refused: dict[str, int] = {}  # messages refused on arrival, by reason (forged, implausible)
     law_resets: int = 0  # agent: its law restarted from the robot after a long gap (realtime)
+    nonfinite: int = 0  # values the node computed that were NaN or Inf (Node.note_nonfinite)
     zid: str = ""  # this node's zenoh id
     peers: list[str] = []  # the zenoh ids it had a link with as it ended (zenoh's own info)
 

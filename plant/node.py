@@ -38,6 +38,7 @@ from deploy.node_runtime import (
     Timing,
     publish_report,
 )
+from deploy.options import DEFAULT_COMMAND_TIMEOUT_S
 from deploy.runner import contact_log, make_plant
 from deploy.scenario import Scenario
 from deploy.transport import Node
@@ -65,7 +66,8 @@ SENT_STAMPS_KEPT = 64  # samples per robot whose answers still count for the lat
 
 class PlantNode:
     def __init__(self, sc: Scenario, kind: str, node: Node, stop: StopFlag,
-                 with_recorder: bool = False, command_timeout_s: float = 0.1,
+                 with_recorder: bool = False,
+                 command_timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S,
                  gui: bool = False, faults: FaultPlan | None = None,
                  realtime: bool = False) -> None:
         self.sc, self.node, self.stop, self.kind = sc, node, stop, kind
@@ -164,6 +166,9 @@ class PlantNode:
                                o=obstacles: Sample(
                 WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t, q=tuple(q[i]),
                 q_dot=tuple(qd[i]), robots=sensed_bodies(r), obstacles=sensed_bodies(o)))
+            if msg is None and not np.isfinite(q[i] + qd[i]).all():
+                node.note_nonfinite(f"state of robot {rid} at t = {t:.3f} s (the plant "
+                                    "diverged; its sample is not sent)")
             if msg is not None:
                 self.last_state_seq[rid] = msg.seq
                 stamps = self.sent_stamps[rid]

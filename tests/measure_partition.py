@@ -74,9 +74,9 @@ def main() -> None:
         print(line)
     m = compute_metrics(sc, cut.series, cut.plant, "lockstep", cut.wall_time_s,
                         contact_log=cut.contacts)
-    print(f"  cut run: contacts {m['contacts']}, min robot separation "
-          f"{m['min_robot_separation_m']:.3f} m, min obstacle clearance "
-          f"{m['min_obstacle_clearance_m']:.3f} m")
+    print(f"  cut run: contacts {m['contacts']}, min robot gap "
+          f"{m['min_robot_gap_m']:.3f} m, min obstacle gap "
+          f"{m['min_obstacle_gap_m']:.3f} m")
 
 
 def _since(x: float | None, heal: float) -> str:

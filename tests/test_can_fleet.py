@@ -65,13 +65,13 @@ def killed_run(tmp_path_factory):
 
 def test_every_robot_settles_within_the_bound_without_contact(clean_run):
     _, stdout, m = clean_run
-    print(f"\nsettling {m['settling_time_s']} s (bound {m['settling_bound_s']:.3f}), clearance "
-          f"{m['min_obstacle_clearance_m']:.3f} m, separation {m['min_robot_separation_m']:.3f} m")
+    print(f"\nsettling {m['settling_time_s']} s (bound {m['settling_bound_s']:.3f}), obstacle gap "
+          f"{m['min_obstacle_gap_m']:.3f} m, robot gap {m['min_robot_gap_m']:.3f} m")
     assert m["plant"] == "can-emulated" and m["clock"] == "realtime"
     # measured on a quiet 2-core machine: 0.27-0.38 s (tracking error after 1 s at most 3.4 cm)
     assert all(s is not None and s < m["settling_bound_s"] for s in m["settling_time_s"])
     assert m["contacts"] == 0
-    assert m["min_obstacle_clearance_m"] > 0 and m["min_robot_separation_m"] > 0
+    assert m["min_obstacle_gap_m"] > 0 and m["min_robot_gap_m"] > 0
     assert m["peak_torque_nm"] <= m["limits"]["max_wheel_torque_nm"]
     assert "odometry drift" in stdout and "bridge cmd->torque frame" in stdout
 
@@ -110,7 +110,7 @@ def test_a_killed_agents_robot_gets_zero_torque_on_the_bus_within_the_timeout(ki
     # the bridge looks once per period: timeout plus one period (measured 100.8 ms),
     # plus its loop's own lateness on a loaded 2-core machine, as the plant's test allows
     assert COMMAND_TIMEOUT_S <= age <= COMMAND_TIMEOUT_S + dt + 0.025
-    assert m["contacts"] == 0 and m["min_robot_separation_m"] > 0
+    assert m["contacts"] == 0 and m["min_robot_gap_m"] > 0
 
 
 def test_the_restarted_agent_takes_its_robot_back_into_the_band(killed_run):

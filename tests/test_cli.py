@@ -12,8 +12,9 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 REQUIRED_KEYS = {
     "scenario", "plant", "clock", "robots", "sim_time_s", "steps", "control_rate_hz",
-    "wall_time_s", "real_time_factor", "settling_time_s", "formation_rms_m",
-    "min_obstacle_clearance_m", "min_robot_separation_m", "contacts", "peak_torque_nm",
+    "wall_time_s", "real_time_factor", "settling_time_s", "formation_rms_whole_run_m",
+    "formation_rms_after_settling_m",
+    "min_obstacle_gap_m", "min_robot_gap_m", "contacts", "peak_torque_nm",
     "rms_torque_nm", "messages",
 }
 

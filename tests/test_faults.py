@@ -335,7 +335,7 @@ def test_sweep_writes_table_csv_and_plot(tmp_path, capsys):
     for r in rows[1:]:
         judged, lost = int(r["messages_judged"]), int(r["messages_lost"])
         assert abs(lost / judged - 0.5) < 0.05
-    assert rows[1]["formation_rms_m"] != rows[2]["formation_rms_m"]  # the seeds differ
+    assert rows[1]["formation_rms_whole_run_m"] != rows[2]["formation_rms_whole_run_m"]  # the seeds differ
     table = (out / "sweep.md").read_text()
     assert "| 0.5 | 2 |" in table and "| 0 | 1 |" in table
     assert (out / "sweep.png").stat().st_size > 10_000

@@ -239,7 +239,7 @@ def test_view_serves_a_finished_recording(in_process_run):
 # -- the verdict ------------------------------------------------------------------------------
 def _metrics(**kw):
     m = {"plant": "model", "settling_bound_s": 5.657, "settling_time_s": [0.4, 0.5],
-         "min_obstacle_clearance_m": 1.0, "min_robot_separation_m": 0.5, "contacts": 0,
+         "min_obstacle_gap_m": 1.0, "min_robot_gap_m": 0.5, "contacts": 0,
          "nonfinite_commands": 0}
     return m | kw
 

@@ -39,10 +39,10 @@ def _formation_error_at_end(ts, seconds: float, dt: float) -> np.ndarray:
 
 def _judge(name: str, sc, ts, m, reachable) -> None:
     print(f"\n{name}: contacts {m['contacts']}, least gaps obstacle "
-          f"{m['min_obstacle_clearance_m']} m, robot {m['min_robot_separation_m']} m, filter "
+          f"{m['min_obstacle_gap_m']} m, robot {m['min_robot_gap_m']} m, filter "
           f"{m['safety_filter']['active_time_s']} s, settling {m['settling_time_s']}")
     assert m["contacts"] == 0
-    for gap in (m["min_obstacle_clearance_m"], m["min_robot_separation_m"]):
+    for gap in (m["min_obstacle_gap_m"], m["min_robot_gap_m"]):
         assert gap is None or gap > 0.0
     band = sc.spec.metrics.settle_threshold
     end = _formation_error_at_end(ts, 0.5, sc.dt)
@@ -82,10 +82,10 @@ def test_the_filter_is_what_keeps_the_margin_at_a_gap_too_narrow_to_enter():
     _, m_off = _run(off, "model")
     _, m_on = _run(sc, "model")
     margin = sc.spec.safety.margin_m
-    print(f"\nleast obstacle gap: {m_off['min_obstacle_clearance_m']:.4f} m without the filter, "
-          f"{m_on['min_obstacle_clearance_m']:.4f} m with it (margin {margin} m)")
-    assert m_off["min_obstacle_clearance_m"] < 0.1 * margin
-    assert m_on["min_obstacle_clearance_m"] > 0.8 * margin
+    print(f"\nleast obstacle gap: {m_off['min_obstacle_gap_m']:.4f} m without the filter, "
+          f"{m_on['min_obstacle_gap_m']:.4f} m with it (margin {margin} m)")
+    assert m_off["min_obstacle_gap_m"] < 0.1 * margin
+    assert m_on["min_obstacle_gap_m"] > 0.8 * margin
     assert m_on["safety_filter"]["active_steps"][0] > 0
     assert not any(m_off["safety_filter"]["active_steps"])
 
@@ -103,7 +103,7 @@ def test_obstacle_pairs_from_1_05_to_1_5_robot_widths(ratio, offset):
     fits = ratio * width >= width + 2 * sc.spec.safety.margin_m
     _judge(sc.name, sc, ts, m, REACHABLE["gap"] if fits else [])
     if not fits:  # waited in front of the gap, clear of both obstacles
-        assert m["min_obstacle_clearance_m"] > 0.5 * sc.spec.safety.margin_m
+        assert m["min_obstacle_gap_m"] > 0.5 * sc.spec.safety.margin_m
 
 
 @pytest.mark.parametrize("base, seeds, duration", [("lab", [0, 1], 15.0), ("paper", [0], 6.0)])
@@ -113,10 +113,10 @@ def test_seeded_perturbations_never_touch(base, seeds, duration):
     for seed in seeds:
         sc = perturbed(load_scenario(base), seed)
         ts, m = _run(sc, "model", duration)
-        print(f"\n{base} seed {seed}: least gaps {m['min_obstacle_clearance_m']:.3f} / "
-              f"{m['min_robot_separation_m']:.3f} m, filter {m['safety_filter']['active_time_s']} s")
+        print(f"\n{base} seed {seed}: least gaps {m['min_obstacle_gap_m']:.3f} / "
+              f"{m['min_robot_gap_m']:.3f} m, filter {m['safety_filter']['active_time_s']} s")
         assert m["contacts"] == 0
-        assert m["min_obstacle_clearance_m"] > 0 and m["min_robot_separation_m"] > 0
+        assert m["min_obstacle_gap_m"] > 0 and m["min_robot_gap_m"] > 0
 
 
 def test_a_perturbation_is_reproducible_and_starts_clear():
@@ -146,5 +146,5 @@ def test_no_contact_head_on_on_the_realtime_clock(tmp_path):
         return json.loads((out / "metrics.json").read_text())
     m = judged(run, lambda m: m, "head-on realtime")
     print(f"\nhead-on realtime: contacts {m['contacts']}, least robot gap "
-          f"{m['min_robot_separation_m']} m, filter {m['safety_filter']['active_time_s']} s")
-    assert m["contacts"] == 0 and m["min_robot_separation_m"] > 0
+          f"{m['min_robot_gap_m']} m, filter {m['safety_filter']['active_time_s']} s")
+    assert m["contacts"] == 0 and m["min_robot_gap_m"] > 0

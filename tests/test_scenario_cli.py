@@ -92,3 +92,51 @@ def test_generate_does_not_overwrite_without_force(capsys, tmp_path):
     rc, _, err = run(capsys, *args)
     assert rc == 2 and "--force" in err and out.read_text() == "mine"
     assert run(capsys, *args, "--force")[0] == 0 and load_scenario(out).n == 2
+
+
+def test_new_writes_the_commented_starter_named_after_the_file(capsys, tmp_path):
+    out = tmp_path / "my fleet.toml"
+    rc, stdout, err = run(capsys, "scenario", "new", str(out))
+    assert rc == 0, err
+    text = out.read_text()
+    sc = load_scenario(out)
+    assert sc.name == "my-fleet" and sc.n == 3  # a usable fleet name from the file's
+    assert text.count("\n#") >= 5 and "docs/scenarios.md" in text  # commented for a reader
+    assert "scenario check" in stdout
+
+
+def test_new_from_a_bundled_scenario_copies_it(capsys, tmp_path):
+    out = tmp_path / "mine.toml"
+    assert run(capsys, "scenario", "new", str(out), "--from", "paper")[0] == 0
+    mine, paper = load_scenario(out).spec, load_scenario("paper").spec
+    assert mine.name == "mine"
+    import msgspec
+
+    assert msgspec.structs.replace(mine, name="paper") == paper
+    rc, _, err = run(capsys, "scenario", "new", str(tmp_path / "x.toml"), "--from", "lemniscate")
+    assert rc == 2 and "lemniscate" in err and "paper" in err
+    assert not (tmp_path / "x.toml").exists()
+
+
+def test_new_does_not_overwrite_without_force(capsys, tmp_path):
+    out = tmp_path / "mine.toml"
+    out.write_text("mine")
+    rc, _, err = run(capsys, "scenario", "new", str(out))
+    assert rc == 2 and "--force" in err and out.read_text() == "mine"
+    assert run(capsys, "scenario", "new", str(out), "--force")[0] == 0 and load_scenario(out).n == 3
+
+
+def test_the_starter_runs_clean(tmp_path):
+    """What `scenario new` writes is a fleet that works: on the model plant every robot
+    settles before sqrt(2) T_p, nothing touches, nothing is non-finite."""
+    from deploy.metrics import compute_metrics
+    from deploy.runner import run_in_process
+    from deploy.scenario_cli import STARTER
+    from deploy.verdict import judge
+
+    sc = load_scenario(STARTER)
+    result = run_in_process(sc, "model", None)
+    m = compute_metrics(sc, result.series, "model", "lockstep", result.wall_time_s)
+    v = judge(m)
+    assert v["pass"], v["reasons"]
+    assert m["contacts"] == 0 and m["min_robot_gap_m"] > 0
