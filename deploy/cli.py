@@ -87,6 +87,7 @@ def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, l
     result = run_in_process(sc, plant, args.duration, progress, gui=args.gui, faults=plan,
                             on_series=None if live is None else live.follow)
     extra = {} if plan is None else {"faults": fault_metrics(plan, result.faults or {})}
+    extra["law_resets"] = result.law_resets
     recorder = None
     if not args.no_record:
         out.mkdir(parents=True, exist_ok=True)
@@ -180,6 +181,10 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
             float(f) / g if g else None for f, g in zip(c.faulted.sum(axis=0), got, strict=True)]
         if "faults" in extra:
             extra["faults"]["can"] = can_fault_counts(launcher.truth_files)
+    # an agent counts every non-finite command it computed; the series only the rows its
+    # telemetry carried (realtime decimates them): the larger of the two
+    reported = [x for x in extra.get("nonfinite_commands_reported", []) if x is not None]
+    extra["nonfinite_commands"] = max(int(series.nonfinite.sum()), sum(reported))
     wall = extra.pop("wall_time_s")
     messages = extra.pop("messages")
     contact_log, contacts_total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
@@ -252,11 +257,28 @@ def _summary(m: dict, out: Path) -> str:
         f"  contacts                   {m['contacts']}",
         f"  peak / RMS torque (N m)    {m['peak_torque_nm']:.4g} / {m['rms_torque_nm']:.4g}",
         *_safety_lines(m),
+        *_law_lines(m),
         *_transport_lines(m),
-        f"  written to {out}/ (metrics.json, timeseries.npz, figures"
-        + (f", {RECORDING})" if "recording" in m else ")"),
+        f"  written to {out}/ ({', '.join(m.get('files') or ['metrics.json'])})",
         *([verdict_line(m["verdict"])] if "verdict" in m else []),
     ])
+
+
+def _law_lines(m: dict) -> list[str]:
+    """How often each robot's law restarted from the robot, what it computed non-finite,
+    and (realtime) the longest stretch each robot ran on zero torque."""
+    resets = m.get("law_resets") or [0] * m["robots"]
+    lines = [f"  law restarts               {_fmt_ints(resets)} (from the robot's state: a gap "
+             f"or a non-finite state); non-finite commands {m.get('nonfinite_commands', 0)}"]
+    longest = m.get("zero_torque_longest_s")
+    if longest is not None:
+        lines.append(f"  longest on zero torque     {_fmt_list(longest)} s (command timeout "
+                     f"{m['command_timeout_s']:.3f} s)")
+    return lines
+
+
+def _fmt_ints(xs: list) -> str:
+    return "[" + ", ".join("n/a" if x is None else str(x) for x in xs) + "]"
 
 
 def _safety_lines(m: dict) -> list[str]:

@@ -45,6 +45,9 @@ def write_run(
             recorder.close({"scenario": sc.name, "plant": plant, "clock": clock})
         metrics["recording"] = recorder.summary()
     metrics["verdict"] = judge(metrics, divergence(series, sc.robot_ids))
+    # what this run writes, and nothing else (the summary names exactly these)
+    metrics["files"] = ["metrics.json", "timeseries.npz", *(
+        [recorder.path.name] if recorder is not None else []), *(["figures"] if figures else [])]
     write_metrics(metrics, out_dir / "metrics.json")
     series.save(out_dir / "timeseries.npz")
     if figures:

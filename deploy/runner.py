@@ -41,6 +41,7 @@ class RunResult:
     contacts: list[dict] | None = None  # physical contact events (pybullet); None: not simulated
     faults: dict[str, dict[str, int]] | None = None  # injected faults per edge (with a plan)
     step_unix_ns: np.ndarray | None = None  # wall clock as each step began (the recording)
+    law_resets: list[int] | None = None  # per robot: the law restarted from a non-finite state
 
 
 def make_plant(sc: Scenario, kind: str, gui: bool = False):
@@ -158,6 +159,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     # commands can only be lost with a fault plan: only then is the look-ahead worth its cost
     horizon = sc.spec.degradation.command_horizon if model.plan is not None else 0
     look_ahead = [LookAhead(a, horizon) for a in agents] if horizon else None
+    law_resets = [0] * sc.n
 
     start = time.perf_counter()
     for k in range(steps):
@@ -178,6 +180,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
             commands[(rid, k)] = (*applied_command(out.torques, out.v_cmd, sc.spec.limits),
                                   clamped_plan(plan, sc.spec.limits))
             shares[(rid, k)] = out.share
+            law_resets[i] += bool(out.reset)
             series.record_agent(k, i, out, agent)
         series.record_world(
             k, t, q0, v0, plant.q, plant.q_dot, targets.at(t, q0, v0)
@@ -199,7 +202,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
             progress(k + 1, steps)
     wall = time.perf_counter() - start
     return RunResult(sc, plant_kind, series, wall, contact_log(plant), model.report()
-                     if model.plan is not None else None, step_unix_ns)
+                     if model.plan is not None else None, step_unix_ns, law_resets)
 
 
 def _forget(before: int, by_step: dict, leaders: dict, *by_robot_step: dict) -> None:
