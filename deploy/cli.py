@@ -71,6 +71,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if banner:
         print(banner, file=sys.stderr)
     print(_summary(metrics, out))
+    broken = (metrics.get("recording") or {}).get("error")
+    if broken:  # never a run that looks complete with a recording that is not
+        print(f"omnifleet run: FAILED: the recording failed ({broken}); "
+              f"{metrics['recording']['lost']} message(s) not recorded", file=sys.stderr)
+        return 1
     if args.check and not metrics["verdict"]["pass"]:
         print("omnifleet run: the run does NOT meet the criteria (settling, no contact, "
               "nothing non-finite)", file=sys.stderr)

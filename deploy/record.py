@@ -174,11 +174,18 @@ def _cmd_record(args: argparse.Namespace) -> int:
     series = rec.collector.series(realtime=args.clock == "realtime")
     wall, messages = extra.pop("wall_time_s"), extra.pop("messages")
     contact_log, total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
-    write_run(sc, series, Path(args.out), plant, args.clock, wall, messages, extra,
-              figures=not args.no_figures, contact_log=contact_log, contacts_total=total,
-              recorder=recording, **run_wall_clock(end_unix_ns, wall, rec.run_t0, series.steps,
-                                                   args.clock == "lockstep"))
-    print(f"omnifleet record: {series.steps} steps written to {args.out}", file=sys.stderr)
+    metrics = write_run(sc, series, Path(args.out), plant, args.clock, wall, messages, extra,
+                        figures=not args.no_figures, contact_log=contact_log,
+                        contacts_total=total, recorder=recording,
+                        **run_wall_clock(end_unix_ns, wall, rec.run_t0, series.steps,
+                                         args.clock == "lockstep"))
+    print(f"omnifleet record: {series.steps} steps written to {args.out} "
+          f"({', '.join(metrics['files'])})", file=sys.stderr)
+    broken = (metrics.get("recording") or {}).get("error")
+    if broken:
+        print(f"omnifleet record: FAILED: the recording failed ({broken}); "
+              f"{metrics['recording']['lost']} message(s) not recorded", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -83,9 +83,9 @@ def judge(metrics: dict[str, Any], diverged: dict[str, Any] | None = None) -> di
         reasons.append(f"interrupted ({metrics['interrupted_by']})" if metrics.get(
             "interrupted_by") else "interrupted")
     recording = metrics.get("recording") or {}
-    if recording.get("failed"):
-        reasons.append(f"the recording failed: {recording['failed']}")
-    complete = not metrics.get("interrupted") and not recording.get("failed")
+    if recording.get("error"):
+        reasons.append(f"the recording failed: {recording['error']}")
+    complete = not metrics.get("interrupted") and not recording.get("error")
     return {"pass": bool(settled) and no_contact and finite and not unpowered and complete,
             "settled": settled, "no_contact": no_contact, "finite": finite,
             "powered": not unpowered, "complete": complete, "diverged": diverged,
