@@ -142,6 +142,16 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
     sc: Scenario = run_scenario(args)
     plant = args.plant or sc.spec.plant.kind
+    from deploy.run_folder import RunFolderError, prepare
+
+    try:
+        removed = prepare(Path(args.out), args.overwrite)
+    except RunFolderError as exc:
+        print(f"omnifleet record: {exc}", file=sys.stderr)
+        return 2
+    if removed:
+        print(f"omnifleet record: --overwrite: removed the previous run's {', '.join(removed)}",
+              file=sys.stderr)
     opts = LaunchOptions(scenario_arg=args.scenario, plant=plant, clock=args.clock,
                          out=Path(args.out), duration_s=args.duration,
                          control_rate_hz=args.control_rate,
@@ -212,5 +222,7 @@ def add_record_command(sub: argparse._SubParsersAction) -> None:
     add_option(p, "--startup-timeout", default=120.0)
     p.add_argument("--no-record", action="store_true", help="no recording.mcap")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--overwrite", action="store_true",
+                   help="--out already holds a run: remove its outputs first (else refused)")
     p.set_defaults(func=_cmd_record)
 
