@@ -12,10 +12,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Circle  # noqa: E402
+from matplotlib.patches import Polygon as PolygonPatch  # noqa: E402
 
 from deploy.palette import COLORS  # noqa: E402
 from deploy.scenario import Scenario  # noqa: E402
 from deploy.timeseries import TimeSeries  # noqa: E402
+from plant.shapes import offset_outline  # noqa: E402
 
 SNAPSHOT_TIMES_S = (0.0, 0.96, 8.4, 10.8, 15.0, 24.0)  # the paper's Fig. 4 snapshots
 
@@ -43,6 +45,10 @@ def fig_trajectories(sc: Scenario, ts: TimeSeries, path: Path) -> None:
             Circle(o.position, o.radius_m + s.behaviors.obstacle_safe_distance_m,
                    fill=False, ls=":", color="0.3")
         )
+    for poly in sc.obstacle_shapes():  # walls and polygons, with their R_a band
+        ax.add_patch(PolygonPatch(poly.array, closed=True, color="0.3"))
+        ax.add_patch(PolygonPatch(offset_outline(poly, s.behaviors.obstacle_safe_distance_m),
+                                  closed=True, fill=False, ls=":", color="0.3"))
     for k in _snapshot_indices(ts.t):
         for i in range(sc.n):
             x, y, phi = ts.q[k, i]
@@ -94,9 +100,9 @@ def fig_distances(sc: Scenario, ts: TimeSeries, path: Path) -> None:
     pos = ts.q[:, :, :2]
     fig, axes = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
     det = s.behaviors.detection_range_m
-    if s.obstacles:
-        obs = np.array([o.position for o in s.obstacles], float)
-        d = np.linalg.norm(pos[:, :, None, :] - obs[None, None], axis=3).min(axis=2)
+    gaps = sc.obstacle_gaps(pos)  # (k, n, m) surface to surface, discs, walls, polygons
+    if gaps.shape[2]:
+        d = gaps.min(axis=2) + r  # robot centre to the nearest obstacle surface
         for i, rid in enumerate(sc.robot_ids):
             axes[0].plot(ts.t, np.where(d[:, i] <= det, d[:, i], np.nan), color=_color(i),
                          label=f"robot {rid}")
