@@ -534,14 +534,14 @@ def _check_leader_path(path: str, ld: Leader, notes: list[str]) -> None:
     needs at least two distinct consecutive points and a positive speed and acceleration."""
     wp_keys = {"waypoints": ld.waypoints, "speed_mps": ld.speed_mps, "accel_mps2": ld.accel_mps2}
     if ld.path == "harmonic":
-        for key, value in (("x", ld.x), ("y", ld.y)):
-            if value is None:
-                raise _fail(path, f"leader.{key}", 'required with path = "harmonic" (the default); '
-                            'or set path = "waypoints" with waypoints, speed_mps, accel_mps2')
         extra = [k for k, v in wp_keys.items() if v is not None]
         if extra:
             raise _fail(path, f"leader.{extra[0]}", 'only with path = "waypoints" (path is '
                         '"harmonic", the default)')
+        for key, value in (("x", ld.x), ("y", ld.y)):
+            if value is None:
+                raise _fail(path, f"leader.{key}", 'required with path = "harmonic" (the default); '
+                            'or set path = "waypoints" with waypoints, speed_mps, accel_mps2')
         return
     for key, value in (("x", ld.x), ("y", ld.y)):
         if value is not None:
