@@ -250,3 +250,15 @@ def test_perturbed_moves_walls_and_polygons_rigidly_and_reproducibly():
         shift = after.array - before.array
         assert np.allclose(shift, shift[0], atol=1e-12)  # every vertex moved the same way
         assert 0.0 < np.hypot(*shift[0]) <= 0.3 + 1e-12
+
+
+def test_the_starters_commented_wall_polygon_and_waypoints_load_when_uncommented():
+    import re
+
+    from deploy.scenario_cli import STARTER
+
+    text = re.sub(r"^#   (?=\[\[|\w+ = )", "", STARTER.read_text(), flags=re.M)
+    text = re.sub(r"^[xy] = \{.*\n", "", text, flags=re.M)  # the waypoints replace x and y
+    sc = parse_scenario(text, "starter-uncommented.toml")
+    assert sc.spec.leader.path == "waypoints"
+    assert [p.name for p in sc.obstacle_shapes()] == ["walls[0]", "polygons[0]"]
