@@ -77,6 +77,11 @@ def draw_robot(ax, x: float, y: float, phi: float, radius: float, color: str,
                             color=color, lw=0, zorder=4))
 
 
+def _save(fig, path: Path) -> None:
+    fig.savefig(path, dpi=110, bbox_inches="tight", pad_inches=0.15)
+    plt.close(fig)
+
+
 def _layout(fig, caption: str) -> None:
     """Room on the right for the legends and at the bottom for the caption, wrapped."""
     import textwrap
@@ -90,6 +95,10 @@ def _layout(fig, caption: str) -> None:
 
 
 def fig_trajectories(sc: Scenario, ts: TimeSeries, path: Path, caption: str = "") -> None:
+    _save(trajectories_figure(sc, ts, caption), path)
+
+
+def trajectories_figure(sc: Scenario, ts: TimeSeries, caption: str = ""):
     """Fig. 4: leader path, robot paths and their desired formation paths, obstacles with
     their R_a band, the robots' bodies and headings at the snapshot times."""
     s = sc.spec
@@ -128,11 +137,14 @@ def fig_trajectories(sc: Scenario, ts: TimeSeries, path: Path, caption: str = ""
     note = "" if scale <= 1.0 else f", robots drawn {scale:.2g}x their size"
     ax.set_title(f"{s.name}: trajectories and desired formation paths{note}", fontsize=10)
     _layout(fig, caption)
-    fig.savefig(path, dpi=110, bbox_inches="tight", pad_inches=0.15)
-    plt.close(fig)
+    return fig
 
 
 def fig_errors(sc: Scenario, ts: TimeSeries, path: Path, caption: str = "") -> None:
+    _save(errors_figure(sc, ts, caption), path)
+
+
+def errors_figure(sc: Scenario, ts: TimeSeries, caption: str = ""):
     """Fig. 5: (a) FDB task error, (b) leader estimate error at the same instant
     (metrics.leader_estimate_error), (c) tracking error with the settling band and bound."""
     bound = math.sqrt(2.0) * sc.spec.controller.T_p
@@ -157,11 +169,14 @@ def fig_errors(sc: Scenario, ts: TimeSeries, path: Path, caption: str = "") -> N
         ax.legend(**LEGEND)
     axes[2].set_xlabel("t (s)")
     _layout(fig, caption)
-    fig.savefig(path, dpi=110, bbox_inches="tight", pad_inches=0.15)
-    plt.close(fig)
+    return fig
 
 
 def fig_distances(sc: Scenario, ts: TimeSeries, path: Path, caption: str = "") -> None:
+    _save(distances_figure(sc, ts, caption), path)
+
+
+def distances_figure(sc: Scenario, ts: TimeSeries, caption: str = ""):
     """Fig. 6: (a) centre to the nearest obstacle surface, (b) centre distance to the
     nearest robot (as the paper plots them; the metrics' gaps are these minus r, 2r),
     (c) the largest wheel torque."""
@@ -210,8 +225,7 @@ def fig_distances(sc: Scenario, ts: TimeSeries, path: Path, caption: str = "") -
         ax.grid(True, alpha=0.3)
         ax.legend(**LEGEND)
     _layout(fig, caption)
-    fig.savefig(path, dpi=110, bbox_inches="tight", pad_inches=0.15)
-    plt.close(fig)
+    return fig
 
 
 def mark_safety_filter(ax, ts: TimeSeries) -> None:
