@@ -555,15 +555,31 @@ def _check_leader_path(path: str, ld: Leader, notes: list[str]) -> None:
         raise _fail(path, "leader.waypoints", f"at least 2 points are needed, got {len(pts)}")
     for j, p in enumerate(pts):
         _check_len(path, f"leader.waypoints[{j}]", p, 2)
+        _check_coordinates(path, f"leader.waypoints[{j}]", p)
     for j in range(1, len(pts)):
         if math.hypot(pts[j][0] - pts[j - 1][0], pts[j][1] - pts[j - 1][1]) <= 1e-9:
             raise _fail(path, f"leader.waypoints[{j}]", f"repeats the point before it {pts[j]}")
     for key in ("speed_mps", "accel_mps2"):
         if wp_keys[key] <= 0:
             raise _fail(path, f"leader.{key}", f"must be > 0, got {wp_keys[key]:g}")
-    wp = waypoint_path(pts, ld.speed_mps, ld.accel_mps2)
-    notes.append(f"leader: {wp.length:.2f} m of waypoint path, at rest at the last waypoint "
-                 f"from t = {wp.profile.duration:.2f} s")
+    try:
+        wp = waypoint_path(pts, ld.speed_mps, ld.accel_mps2)
+    except (ValueError, ArithmeticError) as exc:  # scipy on coordinates near overflow
+        raise _fail(path, "leader.waypoints", f"no spline through these points: {exc}") from exc
+    if not (math.isfinite(wp.length) and math.isfinite(wp.profile.duration)):
+        raise _fail(path, "leader.waypoints", "the path's length is not a finite number "
+                    "(coordinates too large)")
+    notes.append(f"leader: {wp.length:.4g} m of waypoint path, at rest at the last waypoint "
+                 f"from t = {wp.profile.duration:.4g} s")
+
+
+MAX_COORDINATE_M = 1e6  # walls, polygons, waypoints: a world of +-1000 km (no overflow)
+MIN_FEATURE_M = 1e-3  # a wall's length and thickness, a polygon's edge: at least 1 mm
+
+
+def _check_coordinates(path: str, key: str, values: list[float]) -> None:
+    if any(abs(v) > MAX_COORDINATE_M for v in values):
+        raise _fail(path, key, f"must be within +-{MAX_COORDINATE_M:g} m, got {values}")
 
 
 def _check_shapes(path: str, s: ScenarioFile) -> None:
@@ -572,17 +588,27 @@ def _check_shapes(path: str, s: ScenarioFile) -> None:
     for k, w in enumerate(s.walls):
         _check_len(path, f"walls[{k}].start", w.start, 2)
         _check_len(path, f"walls[{k}].end", w.end, 2)
-        if math.hypot(w.end[0] - w.start[0], w.end[1] - w.start[1]) <= 1e-9:
+        _check_coordinates(path, f"walls[{k}].start", w.start)
+        _check_coordinates(path, f"walls[{k}].end", w.end)
+        _check_coordinates(path, f"walls[{k}].thickness_m", [w.thickness_m])
+        if math.hypot(w.end[0] - w.start[0], w.end[1] - w.start[1]) < MIN_FEATURE_M:
             raise _fail(path, f"walls[{k}]", f"start and end are the same point {w.start}: "
-                        "a wall needs a length (for a post, use [[obstacles]])")
-        if w.thickness_m <= 0:
-            raise _fail(path, f"walls[{k}].thickness_m", f"must be > 0, got {w.thickness_m:g}")
+                        f"a wall needs a length of at least {MIN_FEATURE_M:g} m (for a post, "
+                        "use [[obstacles]])")
+        if w.thickness_m < MIN_FEATURE_M:
+            raise _fail(path, f"walls[{k}].thickness_m", f"must be at least {MIN_FEATURE_M:g} m "
+                        f"(> 0), got {w.thickness_m:g}")
     for k, pg in enumerate(s.polygons):
         key = f"polygons[{k}].vertices"
         if len(pg.vertices) < 3:
             raise _fail(path, key, f"a polygon needs at least 3 vertices, got {len(pg.vertices)}")
         for j, v in enumerate(pg.vertices):
             _check_len(path, f"{key}[{j}]", v, 2)
+            _check_coordinates(path, f"{key}[{j}]", v)
+        for j, (a, b) in enumerate(zip(pg.vertices, pg.vertices[1:] + pg.vertices[:1], strict=True)):
+            if math.hypot(b[0] - a[0], b[1] - a[1]) < MIN_FEATURE_M:
+                raise _fail(path, key, f"vertices {j} and {(j + 1) % len(pg.vertices)} are closer "
+                            f"than {MIN_FEATURE_M:g} m: {a}, {b}")
         if convex_ccw(pg.vertices) is None:
             raise _fail(path, key, "must be a convex polygon of positive area, vertices in "
                         "order around it (either way), no three on a line; split a concave "

@@ -86,8 +86,9 @@ def refused(old: str, new: str) -> str:
 
 @pytest.mark.parametrize("old, new, key, words", [
     ("end = [2.5, 2.5]", "end = [2.5, 0.5]", "walls[0]", "same point"),
-    ("thickness_m = 0.1", "thickness_m = 0.0", "walls[0].thickness_m", "must be > 0"),
-    ("thickness_m = 0.1", "thickness_m = -1", "walls[0].thickness_m", "must be > 0"),
+    ("thickness_m = 0.1", "thickness_m = 0.0", "walls[0].thickness_m", "(> 0)"),
+    ("thickness_m = 0.1", "thickness_m = 1e-300", "walls[0].thickness_m", "at least 0.001 m"),
+    ("thickness_m = 0.1", "thickness_m = -1", "walls[0].thickness_m", "(> 0)"),
     ("end = [2.5, 2.5]", "end = [2.5, 2.5, 0]", "walls[0].end", "expected 2 numbers"),
     ("end = [2.5, 2.5]", "end = [2.5, nan]", "walls[0].end[1]", "finite"),
     ("thickness_m = 0.1", "thicknes_m = 0.1", "walls[0]", "did you mean `thickness_m`"),
@@ -100,6 +101,8 @@ def refused(old: str, new: str) -> str:
      "vertices = [[2.3, -0.4], [2.7], [2.9, -1.6]]", "polygons[0].vertices[1]",
      "expected 2 numbers"),
     ("vertices = [[2.3", "verts = [[2.3", "polygons[0]", "did you mean `vertices`"),
+    ("[2.7, -0.4], [2.9", "[2.3, -0.4000001], [2.9", "polygons[0].vertices",
+     "vertices 0 and 1 are closer than 0.001 m"),
 ])
 def test_a_bad_wall_or_polygon_is_refused_naming_the_key(old, new, key, words):
     msg = refused(old, new)
