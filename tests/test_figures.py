@@ -138,6 +138,9 @@ def test_write_figures_writes_the_captions_beside_them(tmp_path):
     paths = write_figures(sc, ts, tmp_path)
     assert [p.name for p in paths] == ["fig4_trajectories.png", "fig5_errors.png",
                                        "fig6_distances_torques.png", "CAPTIONS.md"]
+    from deploy.run_folder import RUN_OUTPUTS
+
+    assert {p.name for p in paths} <= set(RUN_OUTPUTS)  # --overwrite removes them, no mixing
     text = (tmp_path / "CAPTIONS.md").read_text()
     for p in paths[:3]:
         assert p.stat().st_size > 10_000 and f"## {p.name}" in text
