@@ -41,7 +41,11 @@ from deploy.timeseries import TimeSeries
 TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "jitter_ms",
                "deadline_misses", "messages", "recording", "series_cells_filled",
                "odometry_drift", "liveliness", "emulator_lag_ms", "bridge_faulted_fraction",
-               "bridge_latency_ms")
+               "bridge_latency_ms",
+               # what the nodes report of themselves (a distributed run only: in process
+               # there is no command to time out, no sample to arrive stale)
+               "command_timeout_s", "nonfinite_commands_reported", "stale_samples",
+               "zero_torque_longest_s")
 
 
 def settling_time(t: np.ndarray, err_norm: np.ndarray, threshold: float) -> float | None:
