@@ -82,7 +82,7 @@ from bridges.protocol import (
     SetControllerMode,
     SetInputTorque,
 )
-from deploy.scenario import Scenario
+from deploy.contract.scenario import Scenario
 from plant.disturbance import make_disturbance
 from plant.model_plant import ModelPlant
 

@@ -12,24 +12,24 @@ import argparse
 import sys
 from pathlib import Path
 
-from deploy.fault_model import fault_metrics
-from deploy.fault_plan import FaultPlanError
-from deploy.node_cli import CLOCKS, add_node_commands, fault_plan, gui_problem, run_scenario
-from deploy.options import OptionError, add_option
-from deploy.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
-from deploy.run_folder import RunFolderError
-from deploy.run_folder import prepare as prepare_run_folder
-from deploy.scenario import PLANT_KINDS, ScenarioError
-from deploy.transport import TransportError
-from deploy.verdict import divergence_banner, judge, verdict_line
-from deploy.wire import FleetNameError
+from deploy.contract.fault_plan import FaultPlanError
+from deploy.contract.options import OptionError, add_option
+from deploy.contract.scenario import PLANT_KINDS, ScenarioError
+from deploy.contract.wire import FleetNameError
+from deploy.nodes.cli import CLOCKS, add_node_commands, fault_plan, gui_problem, run_scenario
+from deploy.report.run_folder import RunFolderError
+from deploy.report.run_folder import prepare as prepare_run_folder
+from deploy.report.verdict import divergence_banner, judge, verdict_line
+from deploy.runtime.fault_model import fault_metrics
+from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
+from deploy.runtime.transport import TransportError
 
 EXIT_BAD_INPUT = 2
 RECORDING = "recording.mcap"
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    sc = run_scenario(args)  # the ranges were checked on parse (deploy/options.py)
+    sc = run_scenario(args)  # the ranges were checked on parse (deploy/contract/options.py)
     plant = args.plant or sc.spec.plant.kind
     if plant == "can-emulated":  # hardware through emulated drivers runs on the wall clock
         if args.in_process or args.clock == "lockstep":
@@ -94,9 +94,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, label: str, live):
-    from deploy.outputs import write_run
-    from deploy.recorder import McapRecorder
-    from deploy.runner import run_in_process, run_progress
+    from deploy.report.outputs import write_run
+    from deploy.report.recorder import McapRecorder
+    from deploy.run.runner import run_in_process, run_progress
 
     progress = _with_live(run_progress(label), live)
     result = run_in_process(sc, plant, args.duration, progress, gui=args.gui, faults=plan,
@@ -108,7 +108,7 @@ def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, l
         out.mkdir(parents=True, exist_ok=True)
         recorder = McapRecorder(out / RECORDING, sim_dt=sc.dt)
     if result.interrupted:
-        from deploy.outputs import write_interrupted
+        from deploy.report.outputs import write_interrupted
 
         metrics = write_interrupted(sc, result.series, out, plant, "lockstep",
                                     result.wall_time_s, result.interrupted, extra, recorder,
@@ -133,8 +133,8 @@ def _start_live(args: argparse.Namespace, sc):
     """The --live view (None without it; False: a bad address, already said)."""
     if args.live is None:
         return None
-    from deploy.live_view import LiveView
-    from deploy.ws_address import LiveAddressError, parse_address, url
+    from deploy.report.live_view import LiveView
+    from deploy.report.ws_address import LiveAddressError, parse_address, url
 
     try:
         host, port = parse_address(args.live)
@@ -163,10 +163,10 @@ def _with_live(progress, live):
 def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label: str, live=None):
     import time
 
-    from deploy.launcher import Interrupted, Launcher, LaunchOptions, RunFailed
-    from deploy.outputs import run_wall_clock, write_run
-    from deploy.recorder import McapRecorder
-    from deploy.runner import run_progress
+    from deploy.report.outputs import run_wall_clock, write_run
+    from deploy.report.recorder import McapRecorder
+    from deploy.run.launcher import Interrupted, Launcher, LaunchOptions, RunFailed
+    from deploy.run.runner import run_progress
 
     recorder = None
     if not args.no_record:  # ours, so that the scene joins it at the end (LaunchOptions.recorder)
@@ -183,7 +183,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     )
     launcher = Launcher(sc, opts)
     if live is not None:
-        from deploy.live_view import collector_rows
+        from deploy.report.live_view import collector_rows
 
         live.follow(launcher.collector.ts, collector_rows(launcher.collector, args.clock == "realtime"))
     started = time.perf_counter()
@@ -195,7 +195,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
             recorder.close()
         return None
     except Interrupted as exc:  # every child stopped: write what was measured, marked
-        from deploy.outputs import write_interrupted
+        from deploy.report.outputs import write_interrupted
 
         series = launcher.collector.series(realtime=args.clock == "realtime")
         metrics = write_interrupted(
@@ -212,7 +212,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     if args.clock == "realtime":
         extra["series_cells_filled"] = launcher.collector.filled
     if launcher.truth_files and launcher.t0_mono is not None:
-        from deploy.odometry_drift import odometry_drift
+        from deploy.report.odometry_drift import odometry_drift
 
         extra["odometry_drift"] = odometry_drift(series, sc.robot_ids, launcher.truth_files,
                                                  launcher.t0_mono, launcher.collector.have_state)
@@ -450,27 +450,27 @@ def build_parser() -> argparse.ArgumentParser:
                      "sqrt(2) T_p, no contact, nothing non-finite")
     run.set_defaults(func=_cmd_run)
     add_node_commands(sub)
-    from bridges.bridge_cli import add_bridge_commands
-    from bridges.can_check_cli import add_can_check_command
-    from bridges.emulator_cli import add_emulate_command
-    from deploy.bench import add_bench_command
-    from deploy.fault_sweep import add_faults_command
+    from deploy.bench.suite import add_bench_command
+    from deploy.nodes.bridge_cli import add_bridge_commands
+    from deploy.nodes.can_check_cli import add_can_check_command
+    from deploy.nodes.emulator_cli import add_emulate_command
+    from deploy.run.fault_sweep import add_faults_command
 
     add_bridge_commands(sub)
     add_emulate_command(sub)
     add_can_check_command(sub)
     add_bench_command(sub)
     add_faults_command(sub)
-    from deploy.safety_sweep import add_safety_command
+    from deploy.run.safety_sweep import add_safety_command
 
     add_safety_command(sub)
-    from deploy.deploy_cli import add_deploy_commands
+    from deploy.fleet.cli import add_deploy_commands
     from deploy.scenario_cli import add_scenario_commands
 
     add_scenario_commands(sub)
-    from deploy.record import add_record_command
-    from deploy.router import add_router_command
-    from deploy.view import add_view_command
+    from deploy.fleet.router import add_router_command
+    from deploy.report.view import add_view_command
+    from deploy.run.record import add_record_command
 
     add_record_command(sub)
     add_view_command(sub)

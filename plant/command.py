@@ -80,7 +80,7 @@ class ZeroTorqueSpans:
     """Realtime: each stretch a robot ran on zero torque for want of a fresh command
     (its agent silent past the command timeout), as (robot, begin, seconds) on the run
     clock. The verdict fails a run in which one lasted longer than the command timeout
-    (deploy/verdict.py): that robot was not under control."""
+    (deploy/report/verdict.py): that robot was not under control."""
 
     MAX = 1000  # spans kept (the report's bound)
 

@@ -20,7 +20,7 @@ from agents.core import Body
 from plant.shapes import Polygon
 
 if TYPE_CHECKING:
-    from deploy.scenario import Scenario
+    from deploy.contract.scenario import Scenario
 
 Sensor = Callable[[int], tuple[list[Body], list[Body]]]
 

@@ -6,8 +6,8 @@ import functools
 
 import pytest
 
-from deploy.runner import run_in_process
-from deploy.scenario import load_scenario
+from deploy.contract.scenario import load_scenario
+from deploy.run.runner import run_in_process
 
 
 @functools.cache

@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from netns import machines, netns_problem, stop  # noqa: E402
 from test_netns import MACHINES, _logs, _run_fleet, _wait_all  # noqa: E402
 
-from deploy.deploy_plan import RunOptions  # noqa: E402
+from deploy.fleet.deploy_plan import RunOptions  # noqa: E402
 
 
 def one_run(ms, tmp: Path, tls: bool, seconds: float, i: int) -> dict:

@@ -22,8 +22,8 @@ import pytest
 
 from agents.core import AgentCore
 from agents.leader import LeaderGenerator
-from deploy.runner import run_in_process
-from deploy.scenario import Scenario, load_scenario
+from deploy.contract.scenario import Scenario, load_scenario
+from deploy.run.runner import run_in_process
 from plant.disturbance import make_disturbance
 from plant.model_plant import ModelPlant
 from plant.perception import sense
@@ -106,7 +106,7 @@ def test_the_cap_never_acts_on_a_healthy_run():
 
 
 def test_the_cap_must_be_positive(tmp_path):
-    from deploy.scenario import ScenarioError
+    from deploy.contract.scenario import ScenarioError
 
     text = Path(load_scenario("lab").path).read_text().replace(
         "max_tracking_error = 0.2", "max_tracking_error = 0.0")

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from procs import finish, start
 
-from deploy.bench import SCALE_SIZES, Figure, markdown
-from deploy.bench_scenarios import scale_scenario, tree_adjacency
-from deploy.scenario import has_spanning_tree, load_scenario
+from deploy.bench.suite import SCALE_SIZES, Figure, markdown
+from deploy.contract.scaled_scenarios import scale_scenario, tree_adjacency
+from deploy.contract.scenario import has_spanning_tree, load_scenario
 
 EXPECTED = {
     "lockstep.in_process_wall_s", "lockstep.distributed_wall_s", "lockstep.overhead_ratio",

@@ -10,7 +10,7 @@ import pytest
 
 from bridges.odometry import Odometry
 from bridges.safety import ZERO, CommandGate
-from deploy.scenario import load_scenario
+from deploy.contract.scenario import load_scenario
 
 
 @pytest.fixture(scope="module")

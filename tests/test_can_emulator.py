@@ -23,7 +23,6 @@ import numpy as np
 import pytest
 
 from bridges.emulator import DriverEmulator, EmulatorFaults, FleetEmulator, flip_bits
-from bridges.emulator_cli import main as emulate_main
 from bridges.protocol import (
     AXIS_ERROR_ESTOP_REQUESTED,
     AXIS_ERROR_INVALID_STATE,
@@ -43,7 +42,8 @@ from bridges.protocol import (
     Request,
     SetAxisState,
 )
-from deploy.scenario import load_scenario
+from deploy.contract.scenario import load_scenario
+from deploy.nodes.emulator_cli import main as emulate_main
 from plant.disturbance import make_disturbance
 from plant.model_plant import ModelPlant
 
@@ -515,7 +515,7 @@ def test_cli_several_robots_in_one_process(tmp_path, capsys):
 def test_cli_sigterm_exits_cleanly_and_saves_truth(tmp_path):
     out = tmp_path / "truth.npz"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "bridges.emulator_cli", "--scenario", "lab", "--robot", "1",
+        [sys.executable, "-m", "deploy.nodes.emulator_cli", "--scenario", "lab", "--robot", "1",
          "--can-interface", "virtual", "--can-channel", "x", "--truth-out", str(out)],
         cwd=ROOT, stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:

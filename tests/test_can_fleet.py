@@ -21,7 +21,7 @@ import os
 import numpy as np
 import pytest
 
-from deploy.timeseries import TimeSeries
+from deploy.report.timeseries import TimeSeries
 from tests.procs import finish, pids_with, start
 from tests.realtime_clock import judged
 

@@ -8,10 +8,10 @@ import math
 import numpy as np
 
 from agents.controller import ControllerGains, allocate, control_term
-from deploy.metrics import compute_metrics, control_figures
-from deploy.runner import run_in_process
-from deploy.scenario import load_scenario
-from deploy.timeseries import BEHAVIOR_BITS
+from deploy.contract.scenario import load_scenario
+from deploy.report.metrics import compute_metrics, control_figures
+from deploy.report.timeseries import BEHAVIOR_BITS
+from deploy.run.runner import run_in_process
 from plant.mecanum import MecanumModel, RobotParams
 from tests.conftest import cached_run
 

@@ -9,13 +9,13 @@ from pathlib import Path
 import pytest
 from procs import finish, start
 
-from deploy.acl import access_control, fleet_roles, receives
-from deploy.certs import common_name
-from deploy.deploy_cli import make_hosts_certs
-from deploy.deploy_plan import RunOptions, plan_text, write_configs
-from deploy.hosts import HostsError, load_hosts
-from deploy.scenario import load_scenario
-from deploy.wire import Keys
+from deploy.contract.hosts import HostsError, load_hosts
+from deploy.contract.scenario import load_scenario
+from deploy.contract.wire import Keys
+from deploy.fleet.acl import access_control, fleet_roles, receives
+from deploy.fleet.certs import common_name
+from deploy.fleet.cli import make_hosts_certs
+from deploy.fleet.deploy_plan import RunOptions, plan_text, write_configs
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "deploy" / "hosts" / "example.toml"

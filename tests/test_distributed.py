@@ -18,9 +18,9 @@ import pytest
 from procs import assert_same_series, finish, pids_with, start
 from realtime_clock import judged
 
-from deploy.launcher import free_tcp_port
-from deploy.metrics import control_figures
-from deploy.timeseries import TimeSeries
+from deploy.report.metrics import control_figures
+from deploy.report.timeseries import TimeSeries
+from deploy.run.launcher import free_tcp_port
 
 zenoh = pytest.importorskip("zenoh")
 
@@ -63,7 +63,7 @@ def test_run_reports_processes_messages_and_a_recording(distributed_run):
     assert msg["sent"] > 0 and msg["invalid"] == 0 and msg["late"] == 0 and msg["dropped"] == 0
     from foxglove_decode import decode
 
-    from deploy.foxglove_topics import SCENE_ROBOTS
+    from deploy.report.foxglove_topics import SCENE_ROBOTS
 
     robots = set()
     with open(distributed_run / "recording.mcap", "rb") as f:
@@ -124,7 +124,7 @@ def running_fleet(name: str, *args: str):
     yields (launcher process, fleet, a zenoh session linked to every node of the run,
     from the run's logs/endpoints.json) once every node is ready. Everything is ended
     by pid on the way out, whatever happened."""
-    from deploy.transport import zenoh_config
+    from deploy.runtime.transport import zenoh_config
 
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     fleet = f"t-{name}-{os.getpid()}"
@@ -159,7 +159,7 @@ def assert_no_process_left(fleet: str) -> None:
 
 
 def test_garbage_on_every_key_is_counted_invalid_and_changes_no_torque(tmp_path):
-    from deploy.wire import Keys
+    from deploy.contract.wire import Keys
 
     out = tmp_path / "garbage"
     with running_fleet("garbage", "--duration", "1.0", "--out", str(out)) as (
@@ -256,8 +256,8 @@ def test_plant_exiting_cleanly_ends_the_run_even_before_end_is_read(tmp_path):
     """The plant exits 0 only after publishing ``end``; a launcher behind on a large
     fleet's traffic (30 robots in realtime) may see the exit first: that is the end
     of the run, not a crash. Any other exit code is a failure naming the node."""
-    from deploy.launcher import Child, Launcher, LaunchOptions, RunFailed
-    from deploy.scenario import load_scenario
+    from deploy.contract.scenario import load_scenario
+    from deploy.run.launcher import Child, Launcher, LaunchOptions, RunFailed
 
     launcher = Launcher(load_scenario("lab"), LaunchOptions("lab", "model", "lockstep", tmp_path))
     done = types.SimpleNamespace(pid=4242)  # an exited process: only its pid is read
@@ -275,8 +275,8 @@ def test_each_node_links_only_to_the_nodes_it_talks_to(tmp_path, robots):
     agent has a link with its plant, the leader iff b_i != 0, its graph neighbours
     in either direction, and the launcher; no other pair of nodes is linked (3:
     paper, whose agents all talk; 7: a binary tree, where most pairs do not)."""
-    from deploy.bench_scenarios import scale_scenario
-    from deploy.scenario import load_scenario
+    from deploy.contract.scaled_scenarios import scale_scenario
+    from deploy.contract.scenario import load_scenario
 
     if robots == 3:
         scenario = "paper"
@@ -313,7 +313,7 @@ def test_a_forged_stop_from_a_peer_on_the_fleet_neither_stops_nor_steers_the_run
     passed it. Control messages are now signed with the run's secret (given to the
     nodes in their environment, never on the wire): the forged ones are refused and
     counted, the run goes to its end, equal to the reference."""
-    from deploy.wire import WIRE_VERSION, Control, Keys, encode
+    from deploy.contract.wire import WIRE_VERSION, Control, Keys, encode
 
     out = tmp_path / "forged-stop"
     with running_fleet("forged", "--duration", "1.0", "--out", str(out)) as (

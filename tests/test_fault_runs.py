@@ -9,10 +9,10 @@ import json
 import numpy as np
 import pytest
 
-from deploy.fault_plan import load_plan
-from deploy.runner import run_in_process
-from deploy.scenario import load_scenario
-from deploy.timeseries import TimeSeries
+from deploy.contract.fault_plan import load_plan
+from deploy.contract.scenario import load_scenario
+from deploy.report.timeseries import TimeSeries
+from deploy.run.runner import run_in_process
 from tests.procs import assert_same_series, finish, start
 from tests.realtime_clock import judged
 
@@ -143,7 +143,7 @@ def test_the_restarted_agent_rejoins_and_settles(killed_run):
 def test_can_faults_reach_every_emulator(tmp_path):
     """--plant can-emulated: the plan's [can] section becomes the driver
     emulator's frame loss and corruption, seeded apart per robot."""
-    from deploy.launcher import Launcher, LaunchOptions
+    from deploy.run.launcher import Launcher, LaunchOptions
 
     sc = load_scenario("lab")
     plan_file = tmp_path / "can.toml"

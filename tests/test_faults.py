@@ -19,8 +19,7 @@ from agents.degradation import (
     slow_down,
 )
 from deploy.cli import main
-from deploy.fault_model import DELIVERED, PARTITIONED, EdgeFaults, FaultModel, merge_reports
-from deploy.fault_plan import (
+from deploy.contract.fault_plan import (
     Burst,
     FaultPlanError,
     LinkFaults,
@@ -28,9 +27,10 @@ from deploy.fault_plan import (
     run_edges,
     uniform_drop_plan,
 )
-from deploy.lockstep_inputs import HeldInput
-from deploy.runner import run_in_process
-from deploy.scenario import load_scenario
+from deploy.contract.scenario import load_scenario
+from deploy.run.runner import run_in_process
+from deploy.runtime.fault_model import DELIVERED, PARTITIONED, EdgeFaults, FaultModel, merge_reports
+from deploy.runtime.lockstep_inputs import HeldInput
 
 
 @pytest.fixture(scope="module")

@@ -13,16 +13,16 @@ import pytest
 from matplotlib.patches import Circle, FancyArrow
 
 from agents.leader import LeaderGenerator
-from deploy.figure_captions import fig5_caption, fig6_caption
-from deploy.figures import (
+from deploy.contract.scenario import load_scenario
+from deploy.report.figure_captions import fig5_caption, fig6_caption
+from deploy.report.figures import (
     MIN_BODY_FRACTION,
     distances_figure,
     errors_figure,
     trajectories_figure,
     write_figures,
 )
-from deploy.scenario import load_scenario
-from deploy.timeseries import BEHAVIOR_BITS, TimeSeries
+from deploy.report.timeseries import BEHAVIOR_BITS, TimeSeries
 
 matplotlib.use("Agg")
 
@@ -138,7 +138,7 @@ def test_write_figures_writes_the_captions_beside_them(tmp_path):
     paths = write_figures(sc, ts, tmp_path)
     assert [p.name for p in paths] == ["fig4_trajectories.png", "fig5_errors.png",
                                        "fig6_distances_torques.png", "CAPTIONS.md"]
-    from deploy.run_folder import RUN_OUTPUTS
+    from deploy.report.run_folder import RUN_OUTPUTS
 
     assert {p.name for p in paths} <= set(RUN_OUTPUTS)  # --overwrite removes them, no mixing
     text = (tmp_path / "CAPTIONS.md").read_text()

@@ -21,20 +21,20 @@ from foxglove_ws import watch
 from mcap.reader import make_reader
 from procs import finish, pids_with, start
 
-from deploy import wire
 from deploy.cli import main
-from deploy.foxglove_json import StructJson
-from deploy.foxglove_topics import (
+from deploy.contract import wire
+from deploy.contract.scenario import load_scenario
+from deploy.report.foxglove_json import StructJson
+from deploy.report.foxglove_topics import (
     PLOT_FLEET,
     SCENE_OBSTACLES,
     SCENE_ROBOTS,
     SCENE_TOPICS,
     plot_topic,
 )
-from deploy.recorder import McapRecorder, wire_topic
-from deploy.scenario import load_scenario
-from deploy.timeseries import TimeSeries
-from deploy.verdict import divergence, judge, verdict_line
+from deploy.report.recorder import McapRecorder, wire_topic
+from deploy.report.timeseries import TimeSeries
+from deploy.report.verdict import divergence, judge, verdict_line
 
 REPO = Path(__file__).resolve().parents[1]
 DURATION = 0.5
@@ -163,7 +163,7 @@ def test_a_fresh_recording_decodes_channel_by_channel_as_foxglove_decodes_it(in_
 
 
 def test_the_layout_is_generated_and_names_only_topics_a_recording_has(in_process_run):
-    from deploy.foxglove_layout import layout
+    from deploy.report.foxglove_layout import layout
 
     committed = json.loads((REPO / "docs" / "foxglove-layout.json").read_text())
     assert committed == layout(load_scenario("paper"))
@@ -213,7 +213,7 @@ def test_live_serves_the_scene_while_the_run_goes_and_ends_cleanly(tmp_path):
 
 
 def test_view_serves_a_finished_recording(in_process_run):
-    from deploy.recording_player import serve_recording
+    from deploy.report.recording_player import serve_recording
 
     sc = load_scenario("paper")
     stop, ready = threading.Event(), []

@@ -26,7 +26,6 @@ from fuzzing import fuzz_decoder, fuzz_settings, non_finite_floats
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bridges.bridge import BridgeNode
 from bridges.emulator import DriverEmulator
 from bridges.protocol import (
     AXIS_STATE_CLOSED_LOOP_CONTROL,
@@ -50,8 +49,9 @@ from bridges.protocol import (
     SetInputTorque,
     arbitration_id,
 )
-from deploy.node_runtime import StopFlag
-from deploy.scenario import load_scenario
+from deploy.contract.scenario import load_scenario
+from deploy.nodes.bridge import BridgeNode
+from deploy.runtime.node_runtime import StopFlag
 
 NODE_IDS = [0, 1, 2, 3]
 SCENARIOS = ["lab", "paper"]  # a 2 N m torque limit, and none (inf)

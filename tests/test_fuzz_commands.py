@@ -1,6 +1,6 @@
 """Fuzzing what the receivers of ``robot/i/cmd`` do with arbitrary command bytes.
 
-The real plant node (plant/node.py) and CAN bridge (bridges/bridge.py) are fed
+The real plant node (deploy/nodes/plant.py) and CAN bridge (deploy/nodes/bridge.py) are fed
 bytes through the real decoder (tests/fuzz_fakes.py stands in for zenoh and the
 bus). Properties, whatever the bytes: nothing raises; the torques the plant is
 stepped with, and the torque frames the bridge puts on the bus, are finite and
@@ -26,13 +26,13 @@ from fuzzing import any_float, fuzz_decoder, fuzz_settings, mutated_bytes
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bridges.bridge import BridgeNode
 from bridges.protocol import OdriveCanSimple, SetInputTorque
-from deploy.node_runtime import StopFlag
-from deploy.scenario import Scenario, load_scenario
-from deploy.wire import WIRE_VERSION, Reply, ShareData, encode
+from deploy.contract.scenario import Scenario, load_scenario
+from deploy.contract.wire import WIRE_VERSION, Reply, ShareData, encode
+from deploy.nodes.bridge import BridgeNode
+from deploy.nodes.plant import PlantNode
+from deploy.runtime.node_runtime import StopFlag
 from plant.command import PLAUSIBLE_TORQUE_NM
-from plant.node import PlantNode
 
 NODE_IDS = [0, 1, 2, 3]
 SCENARIOS = ["lab", "paper"]  # a 2 N m torque limit, and none (inf)

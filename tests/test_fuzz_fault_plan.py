@@ -1,4 +1,4 @@
-"""Fuzz the fault-plan decoder (deploy/fault_plan.py): edited valid plans,
+"""Fuzz the fault-plan decoder (deploy/contract/fault_plan.py): edited valid plans,
 mutated bytes and random text give a FaultPlanError or a plan whose every
 probability is in [0, 1], every window ordered and finite, every edge one of
 the run's; never another exception."""
@@ -12,9 +12,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 from test_fuzz_scenario import edited_document
 
-from deploy.fault_model import FaultModel
-from deploy.fault_plan import FaultPlan, FaultPlanError, decode_plan, run_edges
-from deploy.scenario import load_scenario
+from deploy.contract.fault_plan import FaultPlan, FaultPlanError, decode_plan, run_edges
+from deploy.contract.scenario import load_scenario
+from deploy.runtime.fault_model import FaultModel
 
 SCENARIO = load_scenario("paper")
 EDGES = set(run_edges(SCENARIO))

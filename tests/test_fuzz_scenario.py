@@ -24,7 +24,7 @@ from fuzzing import any_float, fuzz_decoder, fuzz_settings, mutated_bytes, non_f
 from hypothesis import given
 from hypothesis import strategies as st
 
-from deploy.scenario import SCENARIO_DIR, Scenario, ScenarioError, parse_scenario
+from deploy.contract.scenario import SCENARIO_DIR, Scenario, ScenarioError, parse_scenario
 
 BUNDLED = {p.stem: p.read_bytes() for p in sorted(SCENARIO_DIR.glob("*.toml"))}
 PARSED = {name: tomllib.loads(raw.decode()) for name, raw in BUNDLED.items()}

@@ -1,4 +1,4 @@
-"""Fuzzing the wire decoder (``Codec.decode``, deploy/wire.py) for every message type.
+"""Fuzzing the wire decoder (``Codec.decode``, deploy/contract/wire.py) for every message type.
 
 Properties: decode returns a valid message or ``None`` and never raises; what it
 returns has the wire version, a robot id of the scenario, and no NaN/Inf anywhere;
@@ -19,7 +19,7 @@ from fuzzing import fuzz_decoder, fuzz_settings, mutated_bytes, non_finite_float
 from hypothesis import given
 from hypothesis import strategies as st
 
-from deploy.wire import (
+from deploy.contract.wire import (
     MAX_BODIES,
     MESSAGE_TYPES,
     WIRE_VERSION,

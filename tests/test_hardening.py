@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from deploy.launcher import Launcher, LaunchOptions
-from deploy.scenario import load_scenario
-from deploy.wire import WIRE_VERSION, Codec, ContactRecord, NodeReport, encode
+from deploy.contract.scenario import load_scenario
+from deploy.contract.wire import WIRE_VERSION, Codec, ContactRecord, NodeReport, encode
+from deploy.run.launcher import Launcher, LaunchOptions
 
 
 def report(role: str, **extra) -> NodeReport:

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from agents.leader import Harmonic, LeaderGenerator, LeaderSpec
-from deploy.scenario import load_scenario
+from deploy.contract.scenario import load_scenario
 
 
 def _run(spec: LeaderSpec, dt: float, steps: int):

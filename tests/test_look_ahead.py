@@ -8,9 +8,9 @@ import pytest
 
 from agents.leader import LeaderGenerator
 from agents.look_ahead import LookAhead
-from deploy.fault_plan import uniform_drop_plan
-from deploy.runner import make_agents, make_plant, run_in_process
-from deploy.scenario import ScenarioError, load_scenario, parse_scenario, resolve_path
+from deploy.contract.fault_plan import uniform_drop_plan
+from deploy.contract.scenario import ScenarioError, load_scenario, parse_scenario, resolve_path
+from deploy.run.runner import make_agents, make_plant, run_in_process
 from plant.command import command_for_step
 from plant.perception import sensor_for
 
@@ -124,9 +124,9 @@ def test_plant_node_plays_the_newest_plan_for_missing_steps(clock: str) -> None:
 
     from fuzz_fakes import FakeNode
 
-    from deploy.node_runtime import StopFlag
-    from deploy.wire import WIRE_VERSION, Reply, ShareData, encode
-    from plant.node import PlantNode
+    from deploy.contract.wire import WIRE_VERSION, Reply, ShareData, encode
+    from deploy.nodes.plant import PlantNode
+    from deploy.runtime.node_runtime import StopFlag
 
     sc = load_scenario("lab")
     p = PlantNode(sc, "model", FakeNode(sc.robot_ids, "plant"), StopFlag())
@@ -154,7 +154,7 @@ def test_a_command_delay_longer_than_the_plan_still_drives_the_robots(horizon: i
     """agent -> plant delayed by 10 periods (50 ms), more than the look-ahead: the
     plant applies each command as it arrives (held past its plan), so the lab fleet
     still reaches its formation; stuck on the first command it would not."""
-    from deploy.fault_plan import decode_plan
+    from deploy.contract.fault_plan import decode_plan
 
     sc = parse_scenario(resolve_path("lab").read_text()
                         + f"\n[degradation]\ncommand_horizon = {horizon}\n")

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from deploy.metrics import compute_metrics, formation_rms
-from deploy.scenario import load_scenario
+from deploy.contract.scenario import load_scenario
+from deploy.report.metrics import compute_metrics, formation_rms
 from tests.conftest import cached_run
 
 

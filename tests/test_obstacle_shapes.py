@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from deploy.cli import main
-from deploy.scenario import SCENARIO_DIR, ScenarioError, load_scenario, parse_scenario
-from deploy.scenario_variants import perturbed
+from deploy.contract.scenario import SCENARIO_DIR, ScenarioError, load_scenario, parse_scenario
+from deploy.contract.scenario_variants import perturbed
 from plant.perception import sense
 from plant.shapes import Polygon, convex_ccw, offset_outline, signed_distances, wall_vertices
 
@@ -158,7 +158,7 @@ def test_a_wall_is_perceived_as_its_nearest_point_within_range_only():
 
 
 def test_pybullet_perceives_walls_and_polygons_as_sense_does():
-    from deploy.runner import make_plant
+    from deploy.run.runner import make_plant
 
     sc = load_scenario("wall-gap")
     plant = make_plant(sc, "pybullet")
@@ -220,9 +220,9 @@ def test_obstacle_gaps_are_surface_to_surface_for_every_kind():
 def test_the_foxglove_scene_draws_each_wall_and_polygon():
     from foxglove_decode import decode
 
-    from deploy.foxglove_scene import FleetScene
-    from deploy.foxglove_topics import SCENE_OBSTACLES
-    from deploy.timeseries import TimeSeries
+    from deploy.report.foxglove_scene import FleetScene
+    from deploy.report.foxglove_topics import SCENE_OBSTACLES
+    from deploy.report.timeseries import TimeSeries
 
     sc = load_scenario("wall-gap")
     ts = TimeSeries.allocate(1, sc.n)

@@ -1,4 +1,4 @@
-"""Every numeric option is checked once (deploy/options.py): a value outside its range
+"""Every numeric option is checked once (deploy/contract/options.py): a value outside its range
 is refused on every command with exit code 2 and a message naming the option, never a
 traceback; a run shorter than one control period is refused."""
 
@@ -13,8 +13,8 @@ from types import SimpleNamespace
 import pytest
 
 from deploy.cli import build_parser, main
-from deploy.options import OPTIONS, Bound, OptionError, check_duration
-from deploy.transport import Counters, Node
+from deploy.contract.options import OPTIONS, Bound, OptionError, check_duration
+from deploy.runtime.transport import Counters, Node
 
 REPO = Path(__file__).resolve().parents[1]
 CAN = ("--can-interface", "virtual", "--can-channel", "test-options")
@@ -113,7 +113,7 @@ def _actions(parser: argparse.ArgumentParser, path: str = "omnifleet"):
 
 def test_every_numeric_option_comes_from_the_one_table():
     """No command declares a number with a bare float/int: each is an entry of
-    deploy/options.py, with its range (one place per fact)."""
+    deploy/contract/options.py, with its range (one place per fact)."""
     seen = set()
     for path, action in _actions(build_parser()):
         if action.type in (float, int):

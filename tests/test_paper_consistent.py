@@ -13,8 +13,8 @@ import numpy as np
 
 from agents.estimator import EstimatorGains, estimator_step_vec
 from agents.leader import LeaderGenerator
-from deploy.metrics import compute_metrics, leader_estimate_error
-from deploy.scenario import load_scenario
+from deploy.contract.scenario import load_scenario
+from deploy.report.metrics import compute_metrics, leader_estimate_error
 from tests.conftest import cached_run
 
 SECONDS = 7.0  # the paper run of tests/test_closed_loop.py (cached): past the 5 s mark

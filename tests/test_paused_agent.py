@@ -22,11 +22,11 @@ import os
 import numpy as np
 import pytest
 
-from deploy.fault_plan import FaultPlanError, decode_plan
-from deploy.runner import make_agents
-from deploy.scenario import load_scenario
-from deploy.timeseries import TimeSeries
-from deploy.verdict import judge
+from deploy.contract.fault_plan import FaultPlanError, decode_plan
+from deploy.contract.scenario import load_scenario
+from deploy.report.timeseries import TimeSeries
+from deploy.report.verdict import judge
+from deploy.run.runner import make_agents
 from tests.procs import finish, pids_with, start
 from tests.realtime_clock import judged
 

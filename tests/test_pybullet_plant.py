@@ -20,7 +20,7 @@ import pybullet as pb
 import pytest
 
 from agents.core import Body
-from deploy.scenario import load_scenario
+from deploy.contract.scenario import load_scenario
 from plant.disturbance import make_disturbance
 from plant.mecanum import MecanumModel, generalised_inertia, rotation
 from plant.model_plant import ModelPlant

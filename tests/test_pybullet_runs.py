@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 from procs import assert_same_series, finish, pids_with, start
 
-from deploy.metrics import control_figures
-from deploy.timeseries import TimeSeries
+from deploy.report.metrics import control_figures
+from deploy.report.timeseries import TimeSeries
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -14,9 +14,9 @@ import json
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from deploy import wire
 from deploy.cli import main
-from deploy.recorder import McapRecorder, messages_in
+from deploy.contract import wire
+from deploy.report.recorder import McapRecorder, messages_in
 
 KEY = "omr/f/ctl/tick"
 

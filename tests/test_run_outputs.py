@@ -14,8 +14,8 @@ import time
 import pytest
 
 from deploy.cli import main, package_version
-from deploy.recorder import messages_in
-from deploy.runner import log_progress
+from deploy.report.recorder import messages_in
+from deploy.run.runner import log_progress
 from tests.procs import finish, pids_with, start
 
 

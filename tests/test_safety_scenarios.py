@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from deploy.metrics import compute_metrics
-from deploy.runner import run_in_process
-from deploy.scenario import load_scenario
-from deploy.scenario_variants import perturbed, with_obstacle_pair
+from deploy.contract.scenario import load_scenario
+from deploy.contract.scenario_variants import perturbed, with_obstacle_pair
+from deploy.report.metrics import compute_metrics
+from deploy.run.runner import run_in_process
 
 # robots whose formation point can be reached (narrowing sends robots 2 and 3 to one
 # spot; clutter's gap cannot hold the robot with lab's obstacle distance and margin)
@@ -73,8 +73,8 @@ def test_the_filter_is_what_keeps_the_margin_at_a_gap_too_narrow_to_enter():
     at the entrance); with it, the margin holds and the filter says it acted."""
     import msgspec
 
-    from deploy.scenario import parse_scenario
-    from deploy.scenario_variants import scenario_toml_of
+    from deploy.contract.scenario import parse_scenario
+    from deploy.contract.scenario_variants import scenario_toml_of
 
     sc = with_obstacle_pair(load_scenario("gap"), 1.05, 0.12)
     off = parse_scenario(scenario_toml_of(msgspec.structs.replace(

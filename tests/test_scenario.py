@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from deploy.scenario import SCENARIO_DIR, ScenarioError, load_scenario
+from deploy.contract.scenario import SCENARIO_DIR, ScenarioError, load_scenario
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER_TEXT = (SCENARIO_DIR / "paper.toml").read_text()

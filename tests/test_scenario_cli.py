@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from deploy.cli import main
-from deploy.scenario import has_spanning_tree, load_scenario
+from deploy.contract.scenario import has_spanning_tree, load_scenario
 
 
 def run(capsys, *argv: str) -> tuple[int, str, str]:
@@ -39,7 +39,7 @@ def test_show_prints_a_scenario_that_loads(capsys, tmp_path):
 def test_check_says_valid_or_names_the_key(capsys, tmp_path):
     assert run(capsys, "scenario", "check", "paper")[0] == 0
     bad = tmp_path / "bad.toml"
-    from deploy.scenario import resolve_path
+    from deploy.contract.scenario import resolve_path
 
     bad.write_text(resolve_path("lab").read_text().replace("duration_s", "duraton_s", 1))
     rc, _, err = run(capsys, "scenario", "check", str(bad))
@@ -129,10 +129,10 @@ def test_new_does_not_overwrite_without_force(capsys, tmp_path):
 def test_the_starter_runs_clean(tmp_path):
     """What `scenario new` writes is a fleet that works: on the model plant every robot
     settles before sqrt(2) T_p, nothing touches, nothing is non-finite."""
-    from deploy.metrics import compute_metrics
-    from deploy.runner import run_in_process
+    from deploy.report.metrics import compute_metrics
+    from deploy.report.verdict import judge
+    from deploy.run.runner import run_in_process
     from deploy.scenario_cli import STARTER
-    from deploy.verdict import judge
 
     sc = load_scenario(STARTER)
     result = run_in_process(sc, "model", None)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from deploy.cli import main
-from deploy.scenario import SCENARIO_DIR, ScenarioError, parse_scenario, start_overlaps
+from deploy.contract.scenario import SCENARIO_DIR, ScenarioError, parse_scenario, start_overlaps
 
 PAPER = (SCENARIO_DIR / "paper.toml").read_text()
 LAB = (SCENARIO_DIR / "lab.toml").read_text()

@@ -1,7 +1,7 @@
 """Mutual TLS and the access control generated from the scenario's graph, on
 loopback, with the configurations ``omnifleet deploy`` writes (certificates of
-deploy/certs.py, ACL of deploy/acl.py, configs of deploy/zenoh_configs.py, read
-back through deploy/transport.py as every node does).
+deploy/fleet/certs.py, ACL of deploy/fleet/acl.py, configs of deploy/fleet/zenoh_configs.py, read
+back through deploy/runtime/transport.py as every node does).
 
 Each negative check runs next to a positive control in the same window: the
 allowed message arrives (waited for), the forbidden one did not, after the
@@ -16,13 +16,13 @@ from pathlib import Path
 
 import pytest
 
-from deploy.acl import access_control, fleet_roles
-from deploy.certs import make_fleet_certs, role_files
-from deploy.launcher import free_tcp_port
-from deploy.scenario import load_scenario
-from deploy.transport import zenoh_config
-from deploy.wire import Keys
-from deploy.zenoh_configs import node_config, write_config
+from deploy.contract.scenario import load_scenario
+from deploy.contract.wire import Keys
+from deploy.fleet.acl import access_control, fleet_roles
+from deploy.fleet.certs import make_fleet_certs, role_files
+from deploy.fleet.zenoh_configs import node_config, write_config
+from deploy.run.launcher import free_tcp_port
+from deploy.runtime.transport import zenoh_config
 
 zenoh = pytest.importorskip("zenoh")
 

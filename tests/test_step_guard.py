@@ -3,7 +3,7 @@ itself; the real stream moves on, also across a real jump (pause, cut, restart).
 
 from __future__ import annotations
 
-from deploy.step_guard import JUMP_OK, StepGuard
+from deploy.runtime.step_guard import JUMP_OK, StepGuard
 
 
 def test_the_real_stream_moves_forward_with_small_gaps():
@@ -47,7 +47,7 @@ def test_within_bounds_what_a_node_stores_ahead():
 
 
 def _sample(k: int, seq: int) -> bytes:
-    from deploy.wire import WIRE_VERSION, Sample, encode
+    from deploy.contract.wire import WIRE_VERSION, Sample, encode
 
     return encode(Sample(WIRE_VERSION, 0, seq, 0, robot=2, k=k, t=k * 0.005, q=(0.0, 0.0, 0.0),
                          q_dot=(0.0, 0.0, 0.0), robots=[], obstacles=[]))
@@ -62,9 +62,9 @@ def test_an_agent_never_takes_a_forged_sample_as_its_newest():
     pytest.importorskip("zenoh")
     from fuzz_fakes import FakeNode
 
-    from agents.node import AgentNode
-    from deploy.node_runtime import StopFlag
-    from deploy.scenario import load_scenario
+    from deploy.contract.scenario import load_scenario
+    from deploy.nodes.agent import AgentNode
+    from deploy.runtime.node_runtime import StopFlag
 
     sc = load_scenario("lab")
     for realtime in (False, True):

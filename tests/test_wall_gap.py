@@ -13,10 +13,10 @@ import pytest
 from procs import assert_same_series, finish, pids_with, start
 
 from deploy.cli import main
-from deploy.metrics import compute_metrics, control_figures
-from deploy.runner import run_in_process
-from deploy.scenario import SCENARIO_DIR, load_scenario, parse_scenario
-from deploy.timeseries import TimeSeries
+from deploy.contract.scenario import SCENARIO_DIR, load_scenario, parse_scenario
+from deploy.report.metrics import compute_metrics, control_figures
+from deploy.report.timeseries import TimeSeries
+from deploy.run.runner import run_in_process
 
 zenoh = pytest.importorskip("zenoh")
 
