@@ -51,6 +51,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any, Protocol
 
 import can
 import numpy as np
@@ -82,9 +83,21 @@ from bridges.protocol import (
     SetControllerMode,
     SetInputTorque,
 )
-from deploy.contract.scenario import Scenario
 from plant.disturbance import make_disturbance
+from plant.mecanum import MecanumModel
 from plant.model_plant import ModelPlant
+
+
+class Fleet(Protocol):
+    """What the emulator reads of a scenario (deploy.contract.scenario.Scenario is one):
+    bridges/ stands below deploy/ and takes it by its shape."""
+
+    spec: Any  # .disturbance (kind, scale, constant_nm), .limits.max_wheel_torque_nm
+
+    def index_of(self, robot_id: int) -> int: ...
+    def model(self) -> MecanumModel: ...
+    def initial_state(self) -> tuple[np.ndarray, np.ndarray]: ...
+
 
 BUS_VOLTAGE_V = 24.0
 MAX_FRAMES_PER_STEP = 10_000  # a flooded bus cannot stall the physics forever
@@ -189,7 +202,7 @@ class DriverEmulator:
     ``now_s`` (tests drive it with a virtual clock), :meth:`run` on ``time.monotonic``.
     """
 
-    def __init__(self, sc: Scenario, robot_id: int, bus: can.BusABC,
+    def __init__(self, sc: Fleet, robot_id: int, bus: can.BusABC,
                  node_ids: Sequence[int] = (0, 1, 2, 3), encoder_rate_hz: float = 200.0,
                  heartbeat_rate_hz: float = 10.0, watchdog_timeout_s: float = 0.2,
                  physics_rate_hz: float = 1000.0,
@@ -461,7 +474,7 @@ class FleetEmulator:
     applied as they arrive instead of after a sleep.
     """
 
-    def __init__(self, sc: Scenario, robots: Sequence[tuple[int, can.BusABC]],
+    def __init__(self, sc: Fleet, robots: Sequence[tuple[int, can.BusABC]],
                  node_ids: Sequence[int] = (0, 1, 2, 3), encoder_rate_hz: float = 200.0,
                  heartbeat_rate_hz: float = 10.0, watchdog_timeout_s: float = 0.2,
                  physics_rate_hz: float = 1000.0,

@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from agents.fusion import saturate_velocity_vec
+from plant.limits import saturate_velocity_vec
 
 # No wheel torque beyond this is ever applied, whatever the scenario's limit (none on
 # `paper`): the paper's own unconstrained law peaks at 4.6e5 N m on its scenario, so

@@ -102,7 +102,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from agents.core import Body
+from plant.bodies import Body
 from plant.mecanum import MecanumModel, generalised_inertia
 from plant.perception import shape_bodies
 from plant.shapes import Polygon

@@ -37,7 +37,7 @@ from agents.controller import (
     saturate_torques,
     saturate_torques_vec,
 )
-from agents.core import AgentConfig, AgentCore, AgentOutput, Body, Share
+from agents.core import AgentConfig, AgentCore, AgentOutput, Share
 from agents.eso import EsoGains, eso_step, eso_step_vec
 from agents.estimator import (
     EstimatorGains,
@@ -63,13 +63,14 @@ from agents.fusion import (
     order_by_priority,
     project_null_space,
     saturate_velocity,
-    saturate_velocity_vec,
     supervise,
     supervise_tasks,
 )
 from agents.leader import Harmonic, LeaderGenerator, LeaderSpec
 from agents.safety_filter import Guarded, SafetyLimits, safety_filter, stopping_distance
 from agents.signals import sig, sig_scalar
+from plant.bodies import Body
+from plant.limits import saturate_velocity_vec
 from plant.mecanum import MecanumModel, RobotParams
 
 SETTINGS = settings(max_examples=60, deadline=None)

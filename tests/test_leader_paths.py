@@ -14,7 +14,7 @@ import pytest
 from agents.leader import LeaderGenerator
 from agents.waypoint_path import SpeedProfile, waypoint_path
 from deploy.contract.scenario import SCENARIO_DIR, ScenarioError, load_scenario, parse_scenario
-from deploy.run.runner import FormationTargets
+from deploy.report.targets import FormationTargets
 
 WALL_GAP = (SCENARIO_DIR / "wall-gap.toml").read_text()
 POINTS = [[-3.0, 0.0], [0.0, 0.5], [3.0, 0.0], [6.0, 1.0], [6.5, 3.0]]

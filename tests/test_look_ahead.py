@@ -10,9 +10,9 @@ from agents.leader import LeaderGenerator
 from agents.look_ahead import LookAhead
 from deploy.contract.fault_plan import uniform_drop_plan
 from deploy.contract.scenario import ScenarioError, load_scenario, parse_scenario, resolve_path
-from deploy.run.runner import make_agents, make_plant, run_in_process
+from deploy.run.runner import make_agents, run_in_process
+from deploy.runtime.plants import make_plant, sensor_for
 from plant.command import command_for_step
-from plant.perception import sensor_for
 
 PAPER = resolve_path("paper").read_text()
 

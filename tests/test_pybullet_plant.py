@@ -19,8 +19,8 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from agents.core import Body
 from deploy.contract.scenario import load_scenario
+from plant.bodies import Body
 from plant.disturbance import make_disturbance
 from plant.mecanum import MecanumModel, generalised_inertia, rotation
 from plant.model_plant import ModelPlant

@@ -30,7 +30,8 @@ from deploy.contract.wire import (
     TelemetryRow,
     encode,
 )
-from deploy.run.runner import make_plant, run_in_process
+from deploy.run.runner import run_in_process
+from deploy.runtime.plants import make_plant
 
 
 def agent_step_us(sc: Scenario, duration_s: float, repeats: int) -> list[float]:

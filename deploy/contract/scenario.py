@@ -22,7 +22,7 @@ import msgspec
 import numpy as np
 
 from agents.controller import ControllerGains
-from agents.core import AgentConfig, Body
+from agents.core import AgentConfig
 from agents.degradation import MAX_COMMAND_HORIZON, DegradationConfig
 from agents.eso import EsoGains
 from agents.estimator import EstimatorGains
@@ -30,10 +30,11 @@ from agents.formation import ScaleChange
 from agents.leader import Harmonic, LeaderGenerator, LeaderSpec
 from agents.waypoint_path import waypoint_path
 from deploy.contract.options import MAX_RATE_HZ
+from plant.bodies import Body
 from plant.mecanum import MecanumModel, RobotParams
 from plant.shapes import Polygon, convex_ccw, signed_distances, wall_vertices
 
-SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
+SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios"
 BEHAVIOR_NAMES = ("FDB", "FOCB", "FRCB")
 
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import msgspec
 import numpy as np
 
-from agents.core import AgentCore, AgentOutput, Body, Share
+from agents.core import AgentCore, AgentOutput, Share
 from agents.degradation import InputAges, predict
 from agents.look_ahead import LookAhead
 from deploy.contract.fault_plan import FaultPlan
@@ -50,6 +50,7 @@ from deploy.runtime.lockstep_inputs import AgentLinks
 from deploy.runtime.node_runtime import ControlInbox, FaultGate, StopFlag, Timing, publish_report
 from deploy.runtime.step_guard import JUMP_OK, StepGuard
 from deploy.runtime.transport import Node
+from plant.bodies import Body
 
 KEEP_STEPS = 4  # lockstep inputs kept behind the current step
 FORGET_EVERY = 32  # lockstep: older inputs are dropped every this many steps (a scan)

@@ -9,7 +9,7 @@ import time
 
 from deploy.contract.options import add_option
 from deploy.nodes.can_options import CanBusError, add_can_options, open_bus
-from deploy.nodes.cli import _common, _run_node, _steps
+from deploy.nodes.cli import add_node_options, run_node, steps_of
 
 EXIT_BAD_INPUT = 2
 
@@ -41,10 +41,10 @@ def _cmd_bridge(args: argparse.Namespace) -> int:
     def realtime(obj, sc):
         t0 = time.monotonic() if args.self_start else obj.idle_until_start(args.startup_timeout)
         if t0 is not None:
-            obj.run_realtime(t0, _steps(sc, args))
+            obj.run_realtime(t0, steps_of(sc, args))
 
     try:
-        return _run_node(args, bridge_role(args.robot), args.robot, build, None, realtime)
+        return run_node(args, bridge_role(args.robot), args.robot, build, None, realtime)
     finally:
         for bridge in made:
             bridge.close()
@@ -58,7 +58,7 @@ def add_bridge_commands(sub: argparse._SubParsersAction) -> None:
         "and publishes robot/<id>/state from their encoders (odometry, eq. 1). Zero torque and "
         "idle axes when the command is older than --command-timeout, on e-stop, on a driver "
         "error or a missing heartbeat, and whenever the bridge leaves.")
-    _common(p)
+    add_node_options(p)
     p.set_defaults(clock="realtime")
     add_option(p, "--robot", required=True)
     add_can_options(p)

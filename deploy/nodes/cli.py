@@ -49,7 +49,7 @@ def fault_plan(args: argparse.Namespace, sc: Scenario) -> FaultPlan | None:
     return load_plan(args.faults, sc)
 
 
-def _steps(sc: Scenario, args: argparse.Namespace) -> int:
+def steps_of(sc: Scenario, args: argparse.Namespace) -> int:
     return sc.steps if args.duration is None else int(round(args.duration / sc.dt))
 
 
@@ -81,7 +81,7 @@ def gui_problem(plant_kind: str, gui: bool) -> str | None:
     return None
 
 
-def _run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, realtime) -> int:
+def run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, realtime) -> int:
     sc = run_scenario(args)
     stop = StopFlag()
     if args.priority:
@@ -161,7 +161,7 @@ def _cmd_agent(args: argparse.Namespace) -> int:
         if t0 is not None:
             obj.run_realtime(t0)
 
-    return _run_node(args, agent_role(args.robot), args.robot, build,
+    return run_node(args, agent_role(args.robot), args.robot, build,
                      lambda obj, sc: obj.run_lockstep(args.step_deadline), realtime)
 
 
@@ -180,9 +180,9 @@ def _cmd_plant(args: argparse.Namespace) -> int:
                          _waits_for_recorder(args), args.command_timeout, gui=args.gui,
                          faults=plan, realtime=args.clock == "realtime")
 
-    return _run_node(args, PLANT_ROLE, 0, build,
-                     lambda obj, sc: obj.run_lockstep(_steps(sc, args), args.step_deadline),
-                     lambda obj, sc: obj.run_realtime(_steps(sc, args)))
+    return run_node(args, PLANT_ROLE, 0, build,
+                     lambda obj, sc: obj.run_lockstep(steps_of(sc, args), args.step_deadline),
+                     lambda obj, sc: obj.run_realtime(steps_of(sc, args)))
 
 
 def _cmd_leader(args: argparse.Namespace) -> int:
@@ -195,13 +195,13 @@ def _cmd_leader(args: argparse.Namespace) -> int:
     def realtime(obj, sc):
         t0 = obj.control.wait_for_start(args.startup_timeout)
         if t0 is not None:
-            obj.run_realtime(t0, _steps(sc, args))
+            obj.run_realtime(t0, steps_of(sc, args))
 
-    return _run_node(args, LEADER_ROLE, 0, build,
-                     lambda obj, sc: obj.run_lockstep(_steps(sc, args)), realtime)
+    return run_node(args, LEADER_ROLE, 0, build,
+                     lambda obj, sc: obj.run_lockstep(steps_of(sc, args)), realtime)
 
 
-def _common(p: argparse.ArgumentParser) -> None:
+def add_node_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", required=True, help="scenario file or bundled name")
     p.add_argument("--fleet", help="fleet name: keys are omr/<fleet>/... (default: scenario name)")
     p.add_argument("--clock", choices=CLOCKS, default="lockstep", help="default: lockstep")
@@ -236,7 +236,7 @@ def add_node_commands(sub: argparse._SubParsersAction) -> None:
     agent = sub.add_parser("agent", help="run one robot's agent (a zenoh peer)",
                            description="One robot's agent: estimator, observer, behaviors, "
                            "controller. Hears only its graph neighbours.")
-    _common(agent)
+    add_node_options(agent)
     add_option(agent, "--robot", required=True)
     agent.add_argument("--plant-role", default=PLANT_ROLE, metavar="ROLE",
                        help="the node that publishes this robot's state: plant (default), or "
@@ -250,7 +250,7 @@ def add_node_commands(sub: argparse._SubParsersAction) -> None:
     plant = sub.add_parser("plant", help="run the simulated plant of every robot",
                            description="Simulates every robot and obstacle; the time master "
                            "of a lockstep run.")
-    _common(plant)
+    add_node_options(plant)
     plant.add_argument("--plant", choices=PLANT_KINDS, default=None,
                        help="pybullet (rigid bodies, real contacts), model (eq. 4, RK4) or "
                        "kinematic (default: the scenario's plant.kind)")
@@ -260,7 +260,7 @@ def add_node_commands(sub: argparse._SubParsersAction) -> None:
     plant.set_defaults(func=_cmd_plant)
 
     leader = sub.add_parser("leader", help="run the virtual leader (reference generator)")
-    _common(leader)
+    add_node_options(leader)
     leader.add_argument("--plant-role", default=PLANT_ROLE, metavar="ROLE",
                         help="the node whose loss ends the leader: plant (default), or the "
                         "launcher when every robot is on CAN")

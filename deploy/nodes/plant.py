@@ -45,7 +45,6 @@ from deploy.contract.wire import (
     sensed_bodies,
 )
 from deploy.nodes.leader import TICK_EVERY
-from deploy.run.runner import contact_log, make_plant
 from deploy.runtime.fault_model import FaultModel
 from deploy.runtime.lockstep_inputs import HeldInput
 from deploy.runtime.node_runtime import (
@@ -57,6 +56,7 @@ from deploy.runtime.node_runtime import (
     Timing,
     publish_report,
 )
+from deploy.runtime.plants import contact_log, make_plant, sensor_for
 from deploy.runtime.transport import Node
 from plant.command import (
     ZeroTorqueSpans,
@@ -65,7 +65,6 @@ from plant.command import (
     held_step,
     implausible,
 )
-from plant.perception import sensor_for
 
 SENT_STAMPS_KEPT = 64  # samples per robot whose answers still count for the latency
 

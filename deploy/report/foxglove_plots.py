@@ -20,8 +20,8 @@ import numpy as np
 
 from deploy.contract.scenario import Scenario
 from deploy.report.foxglove_topics import PLOT_FLEET, plot_topic
+from deploy.report.targets import FormationTargets
 from deploy.report.timeseries import BEHAVIOR_BITS, TimeSeries
-from deploy.run.runner import FormationTargets
 
 
 class RobotSignals(msgspec.Struct, kw_only=True):

@@ -16,8 +16,8 @@ import numpy as np
 
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LeaderState, NodeReport, StateLog, Telemetry, TelemetryRow
+from deploy.report.targets import FormationTargets
 from deploy.report.timeseries import BEHAVIOR_BITS, COLUMNS, TimeSeries
-from deploy.run.runner import FormationTargets
 
 
 class Collector:

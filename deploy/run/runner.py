@@ -10,26 +10,24 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
 from agents.core import AgentCore, Share
-from agents.formation import offsets, scale_at
 from agents.leader import LeaderGenerator
 from agents.look_ahead import LookAhead
 from deploy.contract.fault_plan import FaultPlan
 from deploy.contract.scenario import PLANT_KINDS, Scenario
 from deploy.contract.wire import PLANT_ROLE, agent_role
+from deploy.report.targets import FormationTargets
 from deploy.report.timeseries import COLUMNS, TimeSeries
 from deploy.runtime.fault_model import FaultModel
 from deploy.runtime.lockstep_inputs import AgentLinks, HeldInput
+from deploy.runtime.plants import contact_log, make_plant, sensor_for
 from plant.command import applied_command, clamped_plan, command_for_step, held_step
-from plant.disturbance import make_disturbance
-from plant.model_plant import KinematicPlant, ModelPlant
-from plant.perception import sensor_for
 
-__all__ = ["PLANT_KINDS", "RunResult", "make_plant", "run_in_process"]
+__all__ = ["PLANT_KINDS", "RunResult", "contact_log", "make_plant", "run_in_process"]
 
 
 @dataclass
@@ -45,38 +43,6 @@ class RunResult:
     interrupted: str | None = None  # "SIGINT": stopped early, the series holds the steps done
 
 
-def make_plant(sc: Scenario, kind: str, gui: bool = False):
-    """The scenario's robots (and, for pybullet, obstacles) in a plant of ``kind``.
-
-    A pybullet plant holds a physics client: call its ``close()`` when done.
-    """
-    q, qd = sc.initial_state()
-    d = sc.spec.disturbance
-    disturbance = make_disturbance(d.kind, d.scale, tuple(d.constant_nm))
-    if kind == "pybullet":
-        from plant.pybullet_plant import PybulletPlant
-
-        return PybulletPlant(
-            [sc.model()] * sc.n, q, qd, disturbance, [sc.spec.robot.body_radius_m] * sc.n,
-            sc.robot_ids, sc.obstacle_bodies(), sc.spec.plant.substeps, gui=gui,
-            shapes=sc.obstacle_shapes(),
-        )
-    if kind == "model":
-        return ModelPlant([sc.model()] * sc.n, q, qd, disturbance, sc.spec.plant.substeps)
-    if kind == "kinematic":
-        return KinematicPlant(q, qd)
-    raise ValueError(f"unknown plant {kind!r}; choose one of {', '.join(PLANT_KINDS)}")
-
-
-def contact_log(plant) -> list[dict] | None:
-    """The plant's contact events as plain records, or None when the plant has no
-    bodies that can touch (model and kinematic plants: contacts come from geometry)."""
-    events = getattr(plant, "contacts", None)
-    if events is None:
-        return None
-    return [asdict(e) for e in events]
-
-
 def make_agents(sc: Scenario) -> list[AgentCore]:
     q, qd = sc.initial_state()
     model = sc.model()
@@ -85,23 +51,6 @@ def make_agents(sc: Scenario) -> list[AgentCore]:
         q0h, v0h = sc.initial_estimates(i)
         agents.append(AgentCore(sc.agent_config(i, model), q[i], qd[i], q0h, v0h))
     return agents
-
-
-class FormationTargets:
-    """x_0 + rho_i with the true leader heading (for the formation error metric)."""
-
-    def __init__(self, sc: Scenario) -> None:
-        self.initial = [sc.initial_scale(i) for i in range(sc.n)]  # each robot's own S(t)
-        self.changes = [sc.scale_changes(i) for i in range(sc.n)]
-        self.r = [np.array(r.offset, float) for r in sc.spec.robots]
-
-    def at(self, t: float, q0: np.ndarray, v0: np.ndarray) -> np.ndarray:
-        out = np.empty((len(self.r), 2))
-        for i, r_i in enumerate(self.r):
-            s, sd = scale_at(t, self.initial[i], self.changes[i])
-            zeta, _ = offsets(r_i, 0.0, float(q0[2]), float(v0[2]), s, sd)
-            out[i] = q0[:2] + zeta[:2]
-        return out
 
 
 def run_in_process(
