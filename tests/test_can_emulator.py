@@ -22,7 +22,8 @@ import msgspec
 import numpy as np
 import pytest
 
-from bridges.emulator import DriverEmulator, EmulatorFaults, FleetEmulator, flip_bits
+from bridges.drive_emulator import DriverEmulator, EmulatorFaults, flip_bits
+from bridges.fleet_emulator import FleetEmulator
 from bridges.protocol import (
     AXIS_ERROR_ESTOP_REQUESTED,
     AXIS_ERROR_INVALID_STATE,

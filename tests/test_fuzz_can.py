@@ -26,7 +26,7 @@ from fuzzing import fuzz_decoder, fuzz_settings, non_finite_floats
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bridges.emulator import DriverEmulator
+from bridges.drive_emulator import DriverEmulator
 from bridges.protocol import (
     AXIS_STATE_CLOSED_LOOP_CONTROL,
     CMD_GET_BUS_VOLTAGE_CURRENT,

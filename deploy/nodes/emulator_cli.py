@@ -2,7 +2,7 @@
 CAN bus of its own.
 
 One process plays one or several robots (``--robot`` repeated, with one
-``--can-channel`` and ``--truth-out`` per robot): :class:`bridges.emulator.FleetEmulator`
+``--can-channel`` and ``--truth-out`` per robot): :class:`bridges.fleet_emulator.FleetEmulator`
 in real time until --duration, SIGINT or SIGTERM; then shuts the buses down, saves
 the ground truth (--truth-out) and prints a one-line summary of each robot's frame
 counters and of the lag behind the wall clock on stderr.
@@ -70,7 +70,8 @@ def add_emulate_command(sub: argparse._SubParsersAction) -> None:
 def run_emulate(args: argparse.Namespace) -> int:
     """The ``emulate`` command; returns the exit code."""
 
-    from bridges.emulator import EmulatorFaults, FleetEmulator
+    from bridges.drive_emulator import EmulatorFaults
+    from bridges.fleet_emulator import FleetEmulator
     from deploy.contract.scenario import ScenarioError, load_scenario
 
     def bad(msg: str) -> int:
