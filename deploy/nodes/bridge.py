@@ -29,14 +29,6 @@ from bridges.monitor import RECOVERABLE_ERRORS, DriverMonitor
 from bridges.odometry import Odometry
 from bridges.protocol import (
     AXIS_STATE_CLOSED_LOOP_CONTROL,
-    AXIS_STATE_IDLE,
-    CONTROL_MODE_TORQUE_CONTROL,
-    INPUT_MODE_PASSTHROUGH,
-    ClearErrors,
-    Estop,
-    SetAxisState,
-    SetControllerMode,
-    SetInputTorque,
 )
 from bridges.safety import CommandGate, Decision
 from deploy.contract.options import DEFAULT_COMMAND_TIMEOUT_S
@@ -127,7 +119,7 @@ class BridgeNode:
     def _on_ctl(self, m: Control) -> None:  # on the node's thread
         if m.command == "estop":
             self.gate.estop()
-            self._send_all(lambda n: Estop(n))
+            self._send_all(self.protocol.estop_frames)
 
     def _on_cmd(self, m: Reply) -> None:  # on the node's thread, as it waits
         if m.k < 0:
@@ -139,8 +131,11 @@ class BridgeNode:
             self.timing.add_latency(time.monotonic_ns() - int(arrived * 1e9))
 
     # -- outputs ----------------------------------------------------------------------
-    def _send(self, msg: object) -> None:
-        frame = self.protocol.encode(msg)
+    def _send(self, frames: list) -> None:
+        for frame in frames:
+            self._send_frame(frame)
+
+    def _send_frame(self, frame: Any) -> None:
         with self._send_lock:
             try:
                 self.bus.send(frame)
@@ -150,20 +145,19 @@ class BridgeNode:
                 if self.node.counters.dropped <= 5:
                     print(f"{self.node.role}: CAN send failed: {exc}", file=sys.stderr)
 
-    def _send_all(self, make) -> None:
+    def _send_all(self, frames_of) -> None:
         for n in self.node_ids:
-            self._send(make(n))
+            self._send(frames_of(n))
 
     def arm(self) -> None:
-        self._send_all(lambda n: ClearErrors(n))
+        self._send_all(self.protocol.clear_errors_frames)
         for n in self.node_ids:
             self._arm_axis(n)
         self.armed = True
         self.armed_at = time.monotonic()
 
     def _arm_axis(self, n: int) -> None:
-        self._send(SetControllerMode(n, CONTROL_MODE_TORQUE_CONTROL, INPUT_MODE_PASSTHROUGH))
-        self._send(SetAxisState(n, AXIS_STATE_CLOSED_LOOP_CONTROL))
+        self._send(self.protocol.arm_frames(n))
 
     def _rearm_idle_axes(self, now: float) -> None:
         """An axis whose heartbeat still says idle well after arming missed its arming
@@ -176,20 +170,20 @@ class BridgeNode:
                     and a.axis_state != AXIS_STATE_CLOSED_LOOP_CONTROL
                     and not a.axis_error & ~RECOVERABLE_ERRORS):
                 if a.axis_error:
-                    self._send(ClearErrors(a.node))
+                    self._send(self.protocol.clear_errors_frames(a.node))
                 self._arm_axis(a.node)
                 self.rearms += 1
                 self.armed_at = now
 
     def disarm(self) -> None:
-        self._send_all(lambda n: SetInputTorque(n, 0.0))
+        self._send_all(lambda n: [self.protocol.torque_frame(n, 0.0)])
         self.zeroed_at = time.monotonic()  # zero torque on the bus (the axes idle next)
-        self._send_all(lambda n: SetAxisState(n, AXIS_STATE_IDLE))
+        self._send_all(self.protocol.disarm_frames)
         self.armed = False
 
     def _apply(self, d: Decision) -> None:
         for n, tau in zip(self.node_ids, d.torques, strict=True):
-            self._send(SetInputTorque(n, tau))
+            self._send_frame(self.protocol.torque_frame(n, tau))
         self.torque_sent_at = time.monotonic()
         self.last_reason = d.reason
 

@@ -7,6 +7,7 @@ import argparse
 import sys
 import time
 
+from bridges.drivers import DEFAULT_DRIVER, DRIVERS
 from deploy.contract.options import add_option
 from deploy.nodes.can_options import CanBusError, add_can_options, open_bus
 from deploy.nodes.cli import add_node_options, run_node, steps_of
@@ -15,7 +16,7 @@ EXIT_BAD_INPUT = 2
 
 
 def _cmd_bridge(args: argparse.Namespace) -> int:
-    from bridges.protocol import OdriveCanSimple
+    from bridges.drivers import make_driver
     from deploy.contract.scenario import load_scenario
     from deploy.contract.wire import bridge_role
     from deploy.nodes.bridge import BridgeNode
@@ -34,7 +35,7 @@ def _cmd_bridge(args: argparse.Namespace) -> int:
     made = []
 
     def build(sc, node, stop):
-        made.append(BridgeNode(sc, args.robot, node, stop, bus, OdriveCanSimple(args.node_ids),
+        made.append(BridgeNode(sc, args.robot, node, stop, bus, make_driver(args.driver, args.node_ids),
                           list(args.node_ids), args.command_timeout, args.heartbeat_timeout))
         return made[0]
 
@@ -54,14 +55,16 @@ def _cmd_bridge(args: argparse.Namespace) -> int:
 def add_bridge_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "bridge", help="run one robot's CAN bridge (in place of the plant for that robot)",
-        description="Drives a robot's four motor drivers (ODrive CANSimple) from robot/<id>/cmd "
-        "and publishes robot/<id>/state from their encoders (odometry, eq. 1). Zero torque and "
-        "idle axes when the command is older than --command-timeout, on e-stop, on a driver "
+        description="Drives a robot's four motor drivers (--driver, ODrive CANSimple by default) "
+        "from robot/<id>/cmd and publishes robot/<id>/state from their encoders (odometry, "
+        "eq. 1). Zero torque and idle axes when the command is older than --command-timeout, on e-stop, on a driver "
         "error or a missing heartbeat, and whenever the bridge leaves.")
     add_node_options(p)
     p.set_defaults(clock="realtime")
     add_option(p, "--robot", required=True)
     add_can_options(p)
+    p.add_argument("--driver", choices=sorted(DRIVERS), default=DEFAULT_DRIVER,
+                   help=f"the drives' CAN protocol (default {DEFAULT_DRIVER}; bridges/drivers.py)")
     add_option(p, "--command-timeout", help="zero torque when the newest command is older "
                "than this")
     add_option(p, "--heartbeat-timeout")
