@@ -55,10 +55,11 @@ def _cmd_bridge(args: argparse.Namespace) -> int:
 def add_bridge_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "bridge", help="run one robot's CAN bridge (in place of the plant for that robot)",
-        description="Drives a robot's four motor drivers (--driver, ODrive CANSimple by default) "
-        "from robot/<id>/cmd and publishes robot/<id>/state from their encoders (odometry, "
-        "eq. 1). Zero torque and idle axes when the command is older than --command-timeout, on e-stop, on a driver "
-        "error or a missing heartbeat, and whenever the bridge leaves.")
+        description="Drives a robot's four motor drivers (--driver, ODrive CANSimple by "
+        "default) from robot/<id>/cmd and publishes robot/<id>/state from their encoders "
+        "(odometry, eq. 1). Zero torque and idle axes when the command is older than "
+        "--command-timeout, on e-stop, on a driver error or a missing heartbeat, and "
+        "whenever the bridge leaves.")
     add_node_options(p)
     p.set_defaults(clock="realtime")
     add_option(p, "--robot", required=True)
