@@ -12,11 +12,11 @@ from __future__ import annotations
 import difflib
 import math
 import re
-from dataclasses import dataclass, replace
+from dataclasses import MISSING, dataclass, fields, replace
 from functools import cached_property
 from pathlib import Path
 from types import UnionType
-from typing import Literal, Union, get_args, get_origin
+from typing import Literal, Union, get_args, get_origin, get_type_hints
 
 import msgspec
 import numpy as np
@@ -46,17 +46,24 @@ class _S(msgspec.Struct, forbid_unknown_fields=True, kw_only=True):
     pass
 
 
-class RobotPhysics(_S, kw_only=True):
-    wheel_radius_m: float = 0.0375
-    mass_kg: float = 1.2
-    inertia_z_kgm2: float = 0.01
-    inertia_wheel_kgm2: float = 0.02
-    half_wheelbase_m: float = 0.03
-    half_track_m: float = 0.02
-    static_friction: float = 0.125
-    viscous_friction: float = 0.2
-    body_radius_m: float = 0.5
-    coulomb_smoothing_radps: float = 0.5
+def _section(name: str, domain: type, only: tuple[str, ...] | None = None) -> type[_S]:
+    """A scenario table with the fields, types and defaults of the domain dataclass it
+    decodes into (all of them, or ``only`` these): every default is declared once, with
+    the math, and the table cannot drift from it."""
+    hints = get_type_hints(domain)
+    return msgspec.defstruct(name, [(f.name, hints[f.name], f.default) for f in fields(domain)
+                                    if only is None or f.name in only], bases=(_S,), kw_only=True,
+                             module=__name__)
+
+
+def _default(domain: type, name: str):
+    """The default of field ``name`` of a domain dataclass (a table whose keys are named
+    otherwise takes its defaults from there)."""
+    f = next(f for f in fields(domain) if f.name == name)
+    return f.default if f.default_factory is MISSING else f.default_factory()
+
+
+RobotPhysics = _section("RobotPhysics", RobotParams)
 
 
 class ScaleStep(_S, kw_only=True):
@@ -109,10 +116,11 @@ class Leader(_S, kw_only=True):
 
 
 class Formation(_S, kw_only=True):
-    initial_scale: list[float] = msgspec.field(default_factory=lambda: [1.0, 1.0])
+    initial_scale: list[float] = msgspec.field(
+        default_factory=lambda: list(_default(AgentConfig, "initial_scale")))
     scale_changes: list[ScaleStep] = msgspec.field(default_factory=list)
-    kappa1: float = 1.0
-    kappa2: float = 0.0
+    kappa1: float = _default(AgentConfig, "kappa1")
+    kappa2: float = _default(AgentConfig, "kappa2")
 
 
 class Obstacle(_S, kw_only=True):
@@ -136,25 +144,25 @@ class PolygonObstacle(_S, kw_only=True):
 
 class Behaviors(_S, kw_only=True):
     enabled: list[str] = msgspec.field(default_factory=lambda: list(BEHAVIOR_NAMES))
-    priority: list[str] = msgspec.field(default_factory=lambda: ["FOCB", "FRCB", "FDB"])
-    avoidance_engage: Literal["inside", "approaching"] = "approaching"
-    fdb_gains: list[float] = msgspec.field(default_factory=lambda: [12.0, 0.25])
-    focb_gains: list[float] = msgspec.field(default_factory=lambda: [24.0, 0.25])
-    frcb_gains: list[float] = msgspec.field(default_factory=lambda: [32.0, 0.25])
-    obstacle_safe_distance_m: float = 2.0
-    robot_safe_distance_m: float = 1.6
+    priority: list[str] = msgspec.field(default_factory=lambda: list(_default(AgentConfig, "priority")))
+    avoidance_engage: Literal["inside", "approaching"] = _default(AgentConfig, "avoidance_engage")
+    fdb_gains: list[float] = msgspec.field(default_factory=lambda: list(_default(AgentConfig, "fdb_gains")))
+    focb_gains: list[float] = msgspec.field(default_factory=lambda: list(_default(AgentConfig, "focb_gains")))
+    frcb_gains: list[float] = msgspec.field(default_factory=lambda: list(_default(AgentConfig, "frcb_gains")))
+    obstacle_safe_distance_m: float = _default(AgentConfig, "obstacle_safe_m")
+    robot_safe_distance_m: float = _default(AgentConfig, "robot_safe_m")
     detection_range_m: float = 8.0
     # which perceived bodies the avoidance behaviors guard: "every" one in range, a task
     # each, nearest first (docs/safety.md), or only the "nearest" (the authors' script)
-    guard: Literal["every", "nearest"] = "every"
+    guard: Literal["every", "nearest"] = _default(AgentConfig, "guard")
 
 
 class Safety(_S, kw_only=True):
     """The safety filter, the last layer of every agent (agents/safety_filter.py)."""
 
-    filter: bool = True
-    margin_m: float = 0.05  # kept on top of contact, also by the speed-aware engagement
-    exit_time_s: float = 0.5  # inside the margin: leave it at gap / exit_time
+    filter: bool = _default(AgentConfig, "safety_filter")
+    margin_m: float = _default(AgentConfig, "safety_margin_m")  # kept on top of contact
+    exit_time_s: float = _default(AgentConfig, "safety_exit_time_s")  # inside the margin
 
 
 class Estimator(_S, kw_only=True):
@@ -162,32 +170,21 @@ class Estimator(_S, kw_only=True):
     # the paper's q0_hat(0) = p(0)); "robot" = the robot's own pose and velocity.
     # A robot's estimate_position/estimate_velocity override either.
     init: Literal["leader", "robot"] = "leader"
-    iota: list[float] = msgspec.field(default_factory=lambda: [0.1, 0.1, 25.0, 6.0])
-    eta: list[float] = msgspec.field(default_factory=lambda: [1.5, 1.5])
+    iota: list[float] = msgspec.field(default_factory=lambda: list(EstimatorGains().iota))
+    eta: list[float] = msgspec.field(default_factory=lambda: list(EstimatorGains().eta))
 
 
-class Controller(_S, kw_only=True):
-    alpha: float = 0.5
-    mu: float = 30.0
-    T_p: float = 4.0
-    upsilon: float = 1.5
-    psi_epsilon: float = 1e-3
+Controller = _section("Controller", ControllerGains)
 
 
-class Eso(_S, kw_only=True):
-    mu1: float = 0.6
-    mu2: float = 0.2
-    r1: float = 0.7
+Eso = _section("Eso", EsoGains)
 
 
-class Limits(_S, kw_only=True):
-    max_speed_mps: float = math.inf
-    max_yaw_rate_radps: float = math.inf
-    max_wheel_torque_nm: float = math.inf
-    # how fast the fused velocity command may change (a reference the torques can follow)
-    max_accel_mps2: float = math.inf
-    max_yaw_accel_radps2: float = math.inf
-    max_tracking_error: float = math.inf
+# how fast the fused velocity command may change (max_accel_mps2: a reference the torques
+# can follow), how far q_d may run ahead (max_tracking_error): AgentConfig's fields
+Limits = _section("Limits", AgentConfig, only=(
+    "max_speed_mps", "max_yaw_rate_radps", "max_wheel_torque_nm", "max_accel_mps2",
+    "max_yaw_accel_radps2", "max_tracking_error"))
 
 
 class Disturbance(_S, kw_only=True):
@@ -424,14 +421,9 @@ class Scenario:
                 (s.estimator.iota[0], s.estimator.iota[1], s.estimator.iota[2], s.estimator.iota[3]),
                 (s.estimator.eta[0], s.estimator.eta[1]),
             ),
-            eso=EsoGains(s.eso.mu1, s.eso.mu2, s.eso.r1),
-            controller=ControllerGains(ctl.alpha, ctl.mu, ctl.T_p, ctl.upsilon, ctl.psi_epsilon),
-            max_speed_mps=lim.max_speed_mps,
-            max_yaw_rate_radps=lim.max_yaw_rate_radps,
-            max_wheel_torque_nm=lim.max_wheel_torque_nm,
-            max_accel_mps2=lim.max_accel_mps2,
-            max_yaw_accel_radps2=lim.max_yaw_accel_radps2,
-            max_tracking_error=lim.max_tracking_error,
+            eso=EsoGains(**msgspec.structs.asdict(s.eso)),
+            controller=ControllerGains(**msgspec.structs.asdict(ctl)),
+            **msgspec.structs.asdict(lim),
             degradation=DegradationConfig(**msgspec.structs.asdict(s.degradation)),
             guard=b.guard,
             safety_filter=s.safety.filter,
