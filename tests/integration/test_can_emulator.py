@@ -50,7 +50,7 @@ from plant.model_plant import ModelPlant
 
 DB = cantools.database.load_file(str(DBC_PATH))
 SIGNAL_BITS = {m.frame_id: sum(((1 << s.length) - 1) << s.start for s in m.signals) for m in DB.messages}
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 NODES = (0, 1, 2, 3)
 DT = 0.005  # host period
 ROBOT = 1

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PACKAGES = ("plant", "agents", "bridges", "deploy")
 
 # What each top-level folder may import of the project (besides itself).

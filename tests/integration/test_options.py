@@ -16,7 +16,7 @@ from deploy.cli import build_parser, main
 from deploy.contract.options import OPTIONS, Bound, OptionError, check_duration
 from deploy.runtime.transport import Counters, Node
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 CAN = ("--can-interface", "virtual", "--can-channel", "test-options")
 
 

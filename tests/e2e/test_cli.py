@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 REQUIRED_KEYS = {
     "scenario", "plant", "clock", "robots", "sim_time_s", "steps", "control_rate_hz",
     "wall_time_s", "real_time_factor", "settling_time_s", "formation_rms_whole_run_m",

@@ -36,7 +36,7 @@ from deploy.report.recorder import McapRecorder, wire_topic
 from deploy.report.timeseries import TimeSeries
 from deploy.report.verdict import divergence, judge, verdict_line
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DURATION = 0.5
 
 

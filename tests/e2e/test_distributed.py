@@ -24,7 +24,7 @@ from deploy.run.launcher import free_tcp_port
 
 zenoh = pytest.importorskip("zenoh")
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DURATION = "0.3"
 
 

@@ -14,7 +14,7 @@ import pytest
 
 from deploy.contract.scenario import SCENARIO_DIR, ScenarioError, load_scenario
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PAPER_TEXT = (SCENARIO_DIR / "paper.toml").read_text()
 
 

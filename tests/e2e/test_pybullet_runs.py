@@ -21,7 +21,7 @@ from procs import assert_same_series, finish, pids_with, start
 from deploy.report.metrics import control_figures
 from deploy.report.timeseries import TimeSeries
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

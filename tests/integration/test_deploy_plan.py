@@ -17,7 +17,7 @@ from deploy.fleet.certs import common_name
 from deploy.fleet.cli import make_hosts_certs
 from deploy.fleet.deploy_plan import RunOptions, plan_text, write_configs
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "deploy" / "hosts" / "example.toml"
 
 
