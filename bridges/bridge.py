@@ -42,6 +42,7 @@ from bridges.safety import CommandGate, Decision
 from deploy.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
 from deploy.options import DEFAULT_COMMAND_TIMEOUT_S
 from deploy.scenario import Scenario
+from deploy.step_guard import SEQ_SLACK
 from deploy.transport import Node
 from deploy.wire import (
     WIRE_VERSION,
@@ -53,6 +54,7 @@ from deploy.wire import (
     agent_role,
     sensed_bodies,
 )
+from plant.command import exceeds, torque_bound
 from plant.perception import sense
 
 MAX_POSE_LEAD_S = 0.02  # longest the published pose is carried past the newest encoder data
@@ -71,8 +73,13 @@ class BridgeNode:
         self.odometry = Odometry(sc.model(), q0[self.index])
         # the scenario's limit, and never beyond what the protocol can encode (paper.toml
         # has no limit: a 1001 N m command made the frame encoder raise in the callback)
-        self.gate = CommandGate(command_timeout_s, min(sc.spec.limits.max_wheel_torque_nm,
+        self.gate = CommandGate(command_timeout_s, min(torque_bound(sc.spec.limits),
                                                        protocol.max_abs_torque_nm))
+        self.published_k = -1  # the newest step whose sample went out
+        self.command_k = -1  # the step of the newest command taken
+        self.clipped = 0  # commands that asked for more than the gate's bound (clipped)
+        # how far back a command may answer: older ones would be stale anyway
+        self.window_steps = int(command_timeout_s / sc.dt) + 2
         self.monitor = DriverMonitor(self.node_ids, heartbeat_timeout_s, time.monotonic())
         self.timing = Timing()
         self.steps_done = 0
@@ -99,8 +106,9 @@ class BridgeNode:
             if rid != robot_id:
                 node.subscribe(node.keys.sample(rid), Sample,
                                lambda m, j=j: self._on_other(j, m), robot=rid)
-        self.control = ControlInbox(node, stop)
-        node.subscribe(node.keys.ctl_all, Control, self._on_ctl)
+        # only control signed with the run's secret reaches _on_ctl: a forged ctl/estop
+        # from any peer e-stopped the drives (it was subscribed apart, unchecked)
+        self.control = ControlInbox(node, stop, on_genuine=self._on_ctl)
         self._reader = threading.Thread(target=self._read_bus, name="can-rx", daemon=True)
         self._reader.start()
         node.declare_alive()
@@ -129,6 +137,20 @@ class BridgeNode:
     def _on_cmd(self, m: Reply) -> None:  # on the node's thread, as it waits
         if m.k < 0:
             return  # an initial share: no command in it
+        # judged as the plant judges (plant/node.py): a command answers a sample already
+        # sent; the newest step wins and the first command for it stays; one reply per
+        # step, so the seq never runs past our step (a restarted agent counts from 0)
+        why = ("future step" if m.k > self.published_k else
+               "stale step" if m.k < self.published_k - self.window_steps else
+               "seq ahead of our clock" if m.seq > self.published_k + SEQ_SLACK else
+               "not newer than the newest command" if m.k <= self.command_k else None)
+        if why is not None:
+            self.node.refuse(why)
+            return
+        self.command_k = m.k
+        if exceeds(m.torques, m.plan, self.gate.max_torque_nm):
+            self.clipped += 1
+            self.node.refuse("torque beyond the bound (clipped)", dropped=False)
         arrived = time.monotonic()
         self.gate.command(m.torques, arrived, m.k, m.plan)
         if self.armed:  # torque on the bus now, not at the next period
@@ -279,6 +301,7 @@ class BridgeNode:
         pos[i], vel[i] = q[:2], qd[:2]
         robots, obstacles = sense(i, pos, vel, self.radii, self.sc.robot_ids, self.obstacles,
                                   self.sc.spec.behaviors.detection_range_m)
+        self.published_k = max(self.published_k, k)
         node.publish(keys.sample(self.rid), lambda seq, stamp: Sample(
             WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, q=tuple(q.tolist()),
             q_dot=tuple(qd.tolist()), robots=sensed_bodies(robots),
@@ -306,7 +329,8 @@ class BridgeNode:
         """Report, then stay until this robot's agent has left (as the plant does),
         so it does not mistake the end of the run for a lost bridge."""
         publish_report(self.node, self.rid, self.steps_done, self.timing,
-                       command_stops=self.command_stops[:1000])
+                       command_stops=self.command_stops[:1000],
+                       torque_clipped={self.rid: self.clipped} if self.clipped else {})
         c = self.protocol.counters
         print(f"{self.node.role}: CAN frames sent {self.frames_sent}, axes re-armed "
               f"{self.rearms}; received decoded {c.decoded}, rejected {c.rejected}",

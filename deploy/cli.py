@@ -253,10 +253,27 @@ def _summary(m: dict, out: Path) -> str:
         f"  peak / RMS torque (N m)    {m['peak_torque_nm']:.4g} / {m['rms_torque_nm']:.4g}",
         *_safety_lines(m),
         *_transport_lines(m),
+        *_hardening_lines(m),
         f"  written to {out}/ (metrics.json, timeseries.npz, figures"
         + (f", {RECORDING})" if "recording" in m else ")"),
         *([verdict_line(m["verdict"])] if "verdict" in m else []),
     ])
+
+
+def _hardening_lines(m: dict) -> list[str]:
+    """A run stopped early, and commands clipped to the torque bound."""
+    lines = []
+    s = m.get("stopped_by")
+    if s:
+        at = "" if s.get("t_s") is None else f" at t = {s['t_s']:.3f} s"
+        lines.append(f"  STOPPED                    by ctl/{s['command']}{at} (sender {s['sender']}): "
+                     "the run did not go to its end")
+    clipped = m.get("torque_clipped") or {}
+    if any(clipped.values()):
+        lines.append("  torque clipped to bound    "
+                     + ", ".join(f"robot {r}: {n}" for r, n in clipped.items() if n)
+                     + " command(s)")
+    return lines
 
 
 def _safety_lines(m: dict) -> list[str]:

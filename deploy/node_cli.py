@@ -151,7 +151,8 @@ def _cmd_agent(args: argparse.Namespace) -> int:
     def build(sc, node, stop):
         node.required, node.on_lost = {args.plant_role}, _lost(stop, node, args.lost_peer_grace)
         return AgentNode(sc, args.robot, node, stop, _waits_for_recorder(args),
-                         args.plant_role, plan, realtime=args.clock == "realtime")
+                         args.plant_role, plan, realtime=args.clock == "realtime",
+                         step_deadline_s=args.step_deadline)
 
     def realtime(obj, sc):
         if args.rejoin:  # the start was announced long ago: t = 0 comes from the plant

@@ -127,11 +127,15 @@ class ControlInbox:
     (lockstep clock of the leader), end/stop/estop (leave the loop). Subscribe
     before declaring the node alive."""
 
-    def __init__(self, node: Node, stop: StopFlag) -> None:
+    def __init__(self, node: Node, stop: StopFlag,
+                 on_genuine: Callable[[Control], None] | None = None) -> None:
+        """``on_genuine``: called with every control message whose signature checks
+        (a CAN bridge e-stops its drives on ``estop``); nothing else sees ``ctl/*``."""
         self.node, self.stop = node, stop
         self.start: Control | None = None
         self.tick = -1
         self.secret = run_secret()  # set by `omnifleet run`: control must be signed with it
+        self.on_genuine = on_genuine
         node.subscribe(node.keys.ctl_all, Control, self._on)
 
     def _on(self, msg: Control) -> None:  # on the node's thread
@@ -141,6 +145,8 @@ class ControlInbox:
                 print(f"{self.node.role}: refused an unsigned or forged ctl/{msg.command}",
                       file=sys.stderr, flush=True)
             return
+        if self.on_genuine is not None:
+            self.on_genuine(msg)
         if msg.command == "start" and self.start is None:
             self.start = msg
         elif msg.command == "tick":

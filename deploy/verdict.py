@@ -3,8 +3,9 @@
 PASS when every robot settles (|e| stays below ``settle_threshold``) before
 sqrt(2) T_p, nothing ever touches (no contact, every surface-to-surface gap > 0) and
 nothing is non-finite (no NaN/Inf in the states, and the control law never
-gave one). A run whose states become non-finite or absurd (a robot
-``DIVERGED_DISTANCE_M`` from its formation target, or faster than
+gave one), and the run went to its end: a run ended early by a genuine ``ctl/stop``
+or ``ctl/estop`` (``stopped_by`` in metrics.json) is never PASS. A run whose states
+become non-finite or absurd (a robot ``DIVERGED_DISTANCE_M`` from its formation target, or faster than
 ``DIVERGED_SPEED_MPS``) has **diverged**; the verdict says when and which robot.
 
 Written to ``metrics.json`` as ``verdict`` by every run; ``--check`` turns it
@@ -72,8 +73,14 @@ def judge(metrics: dict[str, Any], diverged: dict[str, Any] | None = None) -> di
     if diverged is not None:
         reasons.append(f"DIVERGED: robot {diverged['robot']} {diverged['what']} "
                        f"at t = {diverged['t_s']:.3f} s")
-    return {"pass": bool(settled) and no_contact and finite, "settled": settled,
-            "no_contact": no_contact, "finite": finite, "diverged": diverged,
+    stopped = metrics.get("stopped_by")
+    if stopped:
+        at = stopped.get("t_s")
+        reasons.append(f"STOPPED by ctl/{stopped['command']}"
+                       + ("" if at is None else f" at t = {at:.3f} s"))
+    return {"pass": bool(settled) and no_contact and finite and not stopped,
+            "settled": settled, "no_contact": no_contact, "finite": finite,
+            "stopped": bool(stopped), "diverged": diverged,
             "settling_bound_s": bound, "reasons": reasons}
 
 

@@ -42,6 +42,10 @@ MAX_BATCH = 256  # steps per batched message (leader, telemetry, state log)
 MAX_CONTACTS = 10_000  # contact events carried by a plant's report (the count is exact)
 MAX_REPORT_SAMPLES = 200_000  # timing samples a report carries (node_runtime.MAX_SAMPLES)
 MAX_REPORT_KEYS = 1024  # entries of a report's per-key and per-reason tables
+# a report's encoded size, refused before it is decoded: two full timing tables (200 000
+# samples each, at most 9 bytes a sample in msgpack: 3.6 MB), contacts (10 000 x ~50 B)
+# and the tables (3 x 1024 entries of < 100 B) stay under it
+MAX_REPORT_BYTES = 5 * 1024 * 1024
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -361,6 +365,9 @@ class NodeReport(Message, frozen=True):
     command_stops: list[tuple[int, float, float]] = []
     refused: dict[str, int] = {}  # messages refused on arrival, by reason (forged, implausible)
     law_resets: int = 0  # agent: its law restarted from the robot after a long gap (realtime)
+    # plant or CAN bridge: per robot id, the commands that asked for more wheel torque than
+    # the bound (plant/command.py torque_bound): clipped to it
+    torque_clipped: dict[int, int] = {}
     nonfinite: int = 0  # values the node computed that were NaN or Inf (Node.note_nonfinite)
     zid: str = ""  # this node's zenoh id
     peers: list[str] = []  # the zenoh ids it had a link with as it ended (zenoh's own info)
@@ -368,7 +375,8 @@ class NodeReport(Message, frozen=True):
     def __post_init__(self) -> None:
         if (len(self.latency_ns) > MAX_REPORT_SAMPLES or len(self.jitter_ns) > MAX_REPORT_SAMPLES
                 or len(self.received) > MAX_REPORT_KEYS or len(self.faults) > MAX_REPORT_KEYS
-                or len(self.refused) > MAX_REPORT_KEYS or len(self.command_stops) > 1000):
+                or len(self.refused) > MAX_REPORT_KEYS or len(self.command_stops) > 1000
+                or len(self.torque_clipped) > MAX_BODIES):
             raise ValueError("report too large")
         if len(self.zid) > MAX_ROLE_CHARS or len(self.peers) > MAX_BODIES or any(
                 len(p) > MAX_ROLE_CHARS for p in self.peers):
@@ -415,7 +423,10 @@ class Codec:
             self.wrong_version += 1
 
     def decode(self, kind: type[Message], data: bytes, robot: int | None = None) -> Any:
-        """The message, or None when it is invalid (never raises)."""
+        """The message, or None when it is invalid (never raises). A report larger
+        than ``MAX_REPORT_BYTES`` is refused before it is decoded."""
+        if kind is NodeReport and len(data) > MAX_REPORT_BYTES:
+            return None
         try:
             msg = self._decoders[kind].decode(data)
         except (msgspec.DecodeError, ValueError, TypeError):

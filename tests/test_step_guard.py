@@ -66,6 +66,8 @@ def test_an_agent_never_takes_a_forged_sample_as_its_newest():
     from deploy.node_runtime import StopFlag
     from deploy.scenario import load_scenario
 
+    import time
+
     sc = load_scenario("lab")
     for realtime in (False, True):
         a = AgentNode(sc, 2, FakeNode(sc.robot_ids, "agent-2"), StopFlag(), realtime=realtime)
@@ -73,13 +75,17 @@ def test_an_agent_never_takes_a_forged_sample_as_its_newest():
         a.node.deliver(key, _sample(0, 0))
         a.node.deliver(key, _sample(2**62, 2**62))  # forged: a far step, a huge seq
         for k in range(1, 6):
+            a.clock.answer(k - 1, time.monotonic())  # lockstep: we answered the last step
             a.node.deliver(key, _sample(k, k))
             assert a.inputs.newest_state.k == k
         for k in range(10**6, 10**6 + 500):  # a flood of far steps, each alone
             a.node.deliver(key, _sample(k * 7, 1))
         assert a.inputs.newest_state.k == 5
         assert max(a.inputs.states) == 5 and len(a.inputs.states) <= 6  # bounded
-        assert a.node.refused["sample step"] == 501
+        if realtime:  # t = 0 not known yet (no start): the guard holds them
+            assert a.node.refused == {"sample step": 501}
+        else:  # lockstep: the plant cannot be past our last answer + 1 (step_guard.OwnClock)
+            assert a.node.refused == {"sample: step ahead of our clock": 501}
 
 
 

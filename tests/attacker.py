@@ -1,0 +1,162 @@
+"""An outside peer that forges messages into a running fleet (issue 21).
+
+What a hostile or faulty local process can do: read the run's
+``logs/endpoints.json``, connect a zenoh peer of its own to the nodes' endpoints,
+listen to the fleet's traffic and publish well-formed messages with the project's
+own wire codec. It holds no run secret. The tests of tests/test_forged.py use it
+to probe a run from outside and judge what the run did about each message.
+
+:func:`fleet_under_attack` starts ``omnifleet run`` and yields once every node is
+ready; every process it started is ended by pid on the way out.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from procs import pids_with, start
+
+from deploy.wire import (
+    WIRE_VERSION,
+    Codec,
+    Control,
+    Keys,
+    NodeReport,
+    Reply,
+    Sample,
+    ShareData,
+    encode,
+)
+
+ZERO3 = (0.0, 0.0, 0.0)
+READY_TIMEOUT_S = 60.0
+
+
+@dataclass
+class Attacker:
+    """A zenoh session linked to every node of a run, and the forgeries it can send."""
+
+    fleet: str
+    session: object
+    keys: Keys = field(init=False)
+    codec: Codec = field(init=False)
+    newest_sample: dict[int, Sample] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.keys = Keys(self.fleet)
+        self.codec = Codec(list(range(1, 65)))
+        self._subs: list[object] = []
+
+    # -- listening: what step the fleet is at --------------------------------------
+    def watch_samples(self, robot: int) -> None:
+        """Keep the newest sample of ``robot`` (the fleet's step, as a forger learns it)."""
+        def arrived(s) -> None:  # zenoh's thread
+            m = self.codec.decode(Sample, s.payload.to_bytes(), robot)
+            if m is not None:
+                old = self.newest_sample.get(robot)
+                if old is None or m.k > old.k:
+                    self.newest_sample[robot] = m
+        self._subs.append(self.session.declare_subscriber(self.keys.sample(robot), arrived))
+
+    def step_of(self, robot: int, after: int = 0, timeout_s: float = 30.0) -> int:
+        """The newest step of ``robot``'s samples, once it is past ``after``."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            m = self.newest_sample.get(robot)
+            if m is not None and m.k > after:
+                return m.k
+            time.sleep(0.005)  # polling what another thread writes; not a sync stand-in
+        raise TimeoutError(f"no sample of robot {robot} past step {after}")
+
+    # -- forgeries --------------------------------------------------------------------
+    def put(self, key: str, msg) -> None:
+        self.session.put(key, encode(msg))
+
+    def sample(self, robot: int, k: int, seq: int = 0, q=(50.0, 50.0, 0.0)) -> Sample:
+        """A well-formed sample of ``robot`` for step ``k`` (a robot far from where it is)."""
+        m = Sample(WIRE_VERSION, 0, seq, time.monotonic_ns(), robot=robot, k=k, t=k * 1e-3,
+                   q=q, q_dot=ZERO3, robots=[], obstacles=[])
+        self.put(self.keys.sample(robot), m)
+        return m
+
+    def cmd(self, robot: int, k: int, seq: int = 0, torque: float = 1.0,
+            plan_steps: int = 0) -> Reply:
+        """A well-formed command (and share) of ``robot``'s agent for step ``k``."""
+        share = ShareData(ZERO3, ZERO3, ZERO3, ZERO3, ZERO3, ZERO3)
+        u = (torque,) * 4
+        m = Reply(WIRE_VERSION, robot, seq, time.monotonic_ns(), robot=robot, k=k, t=0.0,
+                  torques=u, v_cmd=ZERO3, state_seq=0, state_stamp_ns=0, share=share,
+                  plan=[u] * plan_steps)
+        self.put(self.keys.cmd(robot), m)
+        return m
+
+    def control(self, command: str, seq: int = 0, k: int = 0, mac: str = "") -> None:
+        """A control message without the run's secret (a guessed or empty MAC)."""
+        self.put(self.keys.ctl(command), Control(WIRE_VERSION, 0, seq, time.monotonic_ns(),
+                                                 command=command, k=k, mac=mac))
+
+    def report(self, on_role: str, body_role: str, **fields) -> None:
+        """A report on ``report/<on_role>`` whose body says ``body_role``."""
+        m = NodeReport(WIRE_VERSION, 0, 0, 0, role=body_role, robot=-1, sent=1, dropped=0,
+                       late=0, invalid=0, steps=1, **fields)
+        self.put(self.keys.report(on_role), m)
+
+    def raw(self, key: str, data: bytes) -> None:
+        self.session.put(key, data)
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+        self.session.close()
+
+
+def _wait_ready(session, fleet: str, roles: set[str], timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        replies = session.liveliness().get(f"omr/{fleet}/ready/*", timeout=1.0)
+        seen = {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok is not None}
+        if roles <= seen:
+            return
+        time.sleep(0.05)
+    raise TimeoutError(f"fleet {fleet} not ready")
+
+
+@contextlib.contextmanager
+def fleet_under_attack(scenario: str, out: Path, *args: str, robots: int = 3
+                       ) -> Iterator[tuple[subprocess.Popen, Attacker]]:
+    """``omnifleet run SCENARIO --out OUT ARGS`` on its default (private) endpoints; yields
+    (launcher process, an :class:`Attacker` linked to every node) once all are ready."""
+    import zenoh
+
+    from deploy.transport import zenoh_config
+
+    fleet = f"t-attack-{os.getpid()}-{out.name}"
+    proc = start("run", scenario, "--no-figures", "--fleet", fleet, "--out", str(out), *args)
+    attacker = None
+    try:
+        where = out / "logs" / "endpoints.json"
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while not where.exists() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.05)  # polling for a file another process writes
+        endpoints = list(json.loads(where.read_text()).values())
+        session = zenoh.open(zenoh_config(connect=endpoints, gossip=False))
+        attacker = Attacker(fleet, session)
+        roles = {"plant", "leader", *(f"agent-{r}" for r in range(1, robots + 1))}
+        _wait_ready(session, fleet, roles, READY_TIMEOUT_S)
+        yield proc, attacker
+    finally:
+        if attacker is not None:
+            attacker.close()
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        for pid in pids_with(fleet):
+            os.kill(pid, signal.SIGKILL)
