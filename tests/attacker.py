@@ -33,6 +33,10 @@ from deploy.wire import (
     Reply,
     Sample,
     ShareData,
+    StateLog,
+    StateRow,
+    Telemetry,
+    TelemetryRow,
     encode,
 )
 
@@ -78,7 +82,7 @@ class Attacker:
 
     # -- forgeries --------------------------------------------------------------------
     def put(self, key: str, msg) -> None:
-        self.session.put(key, encode(msg))
+        self.raw(key, encode(msg))
 
     def sample(self, robot: int, k: int, seq: int = 0, q=(50.0, 50.0, 0.0)) -> Sample:
         """A well-formed sample of ``robot`` for step ``k`` (a robot far from where it is)."""
@@ -105,12 +109,32 @@ class Attacker:
 
     def report(self, on_role: str, body_role: str, **fields) -> None:
         """A report on ``report/<on_role>`` whose body says ``body_role``."""
-        m = NodeReport(WIRE_VERSION, 0, 0, 0, role=body_role, robot=-1, sent=1, dropped=0,
-                       late=0, invalid=0, steps=1, **fields)
+        body = dict(robot=-1, sent=1, dropped=0, late=0, invalid=0, steps=1) | fields
+        m = NodeReport(WIRE_VERSION, 0, 0, 0, role=body_role, **body)
         self.put(self.keys.report(on_role), m)
 
+    def state_log(self, role: str, robots: list[int], steps: list[int],
+                  q=(50.0, 50.0, 0.0)) -> None:
+        """Robot states for observers on ``log/<role>``, every robot at ``q``."""
+        rows = [StateRow(k, k * 1e-3, [q] * len(robots), [ZERO3] * len(robots),
+                         [False] * len(robots)) for k in steps]
+        self.put(self.keys.state_log(role), StateLog(WIRE_VERSION, 0, 0, 0, robots=robots,
+                                                     rows=rows))
+
+    def telemetry(self, robot: int, steps: list[int], nonfinite: bool = True) -> None:
+        """Telemetry rows of ``robot`` that say its law diverged."""
+        rows = [TelemetryRow(k=k, t=k * 1e-3, q_d=ZERO3, e=(9.0, 9.0, 0.0), s=ZERO3,
+                             v_cmd=ZERO3, torques=(0.0,) * 4, q0_hat=ZERO3, q_fd=ZERO3,
+                             fdb_error=None, order="", nonfinite=nonfinite) for k in steps]
+        self.put(self.keys.telemetry(robot), Telemetry(WIRE_VERSION, robot, 0, 0, robot=robot,
+                                                       rows=rows))
+
     def raw(self, key: str, data: bytes) -> None:
-        self.session.put(key, data)
+        """Put ``data`` on ``key``, blocking rather than dropping when a link is busy
+        (zenoh's default drops: a flood would lose the forgeries sent after it)."""
+        import zenoh
+
+        self.session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK)
 
     def close(self) -> None:
         for s in self._subs:
