@@ -42,7 +42,7 @@ from bridges.safety import CommandGate, Decision
 from deploy.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
 from deploy.options import DEFAULT_COMMAND_TIMEOUT_S
 from deploy.scenario import Scenario
-from deploy.step_guard import SEQ_SLACK
+from deploy.step_guard import CLOCK_SKEW_S, SEQ_SLACK
 from deploy.transport import Node
 from deploy.wire import (
     WIRE_VERSION,
@@ -80,6 +80,8 @@ class BridgeNode:
         self.clipped = 0  # commands that asked for more than the gate's bound (clipped)
         # how far back a command may answer: older ones would be stale anyway
         self.window_steps = int(command_timeout_s / sc.dt) + 2
+        self.other_k = [-1] * sc.n  # the step of each other robot's newest sample taken
+        self.skew_steps = int(CLOCK_SKEW_S / sc.dt) + 2
         self.monitor = DriverMonitor(self.node_ids, heartbeat_timeout_s, time.monotonic())
         self.timing = Timing()
         self.steps_done = 0
@@ -126,6 +128,13 @@ class BridgeNode:
                 self._frames.put((time.monotonic(), frame))
 
     def _on_other(self, j: int, m: Sample) -> None:  # on the node's thread
+        # another bridge's sample: newer than the last one taken, and not past our own
+        # step by more than the hosts' clock skew (the bridges share t = 0), so one
+        # forged sample moves that robot in our perception for its own step at most
+        if m.k <= self.other_k[j] or m.k > self.published_k + self.skew_steps:
+            self.node.refuse("other robot's sample step")
+            return
+        self.other_k[j] = m.k
         self.positions[j] = m.q[:2]
         self.velocities[j] = m.q_dot[:2]
 

@@ -53,6 +53,7 @@ class Attacker:
     keys: Keys = field(init=False)
     codec: Codec = field(init=False)
     newest_sample: dict[int, Sample] = field(default_factory=dict)
+    endpoints: dict[str, str] = field(default_factory=dict)  # role -> where it listens
 
     def __post_init__(self) -> None:
         self.keys = Keys(self.fleet)
@@ -170,9 +171,9 @@ def fleet_under_attack(scenario: str, out: Path, *args: str, robots: int = 3
         deadline = time.monotonic() + READY_TIMEOUT_S
         while not where.exists() and time.monotonic() < deadline and proc.poll() is None:
             time.sleep(0.05)  # polling for a file another process writes
-        endpoints = list(json.loads(where.read_text()).values())
-        session = zenoh.open(zenoh_config(connect=endpoints, gossip=False))
-        attacker = Attacker(fleet, session)
+        endpoints = json.loads(where.read_text())
+        session = zenoh.open(zenoh_config(connect=list(endpoints.values()), gossip=False))
+        attacker = Attacker(fleet, session, endpoints=endpoints)
         roles = {"plant", "leader", *(f"agent-{r}" for r in range(1, robots + 1))}
         _wait_ready(session, fleet, roles, READY_TIMEOUT_S)
         yield proc, attacker

@@ -55,6 +55,10 @@ def test_lockstep_forgeries_cost_only_themselves(tmp_path: Path, reference: Time
     out = tmp_path / "lockstep"
     with fleet_under_attack("lab", out, "--plant", "model", "--duration", LOCKSTEP_S) as (
             proc, a):
+        # the nodes listen on unix sockets in a directory only this user may enter
+        # (other users' processes cannot connect; this one, the same user's, can)
+        sock = Path(a.endpoints["plant"].removeprefix("unixsock-stream/"))
+        assert sock.parent.stat().st_mode & 0o777 == 0o700
         a.watch_samples(2)
         k = a.step_of(2, after=100)
         # rows for a step the run has not reached (within it: k + 150 < 600), first
@@ -174,3 +178,75 @@ def test_realtime_forgeries_neither_silence_an_agent_nor_zero_its_robot(tmp_path
     agent = refused(m, "agent-2")
     assert agent["sample: step ahead of our clock"] == 3, agent
     assert agent["sample: seq ahead of our clock"] == 1, agent
+
+
+# --- the CAN bridge, driven directly (no bus hardware, no zenoh) ----------------------------
+def _bridge(monkeypatch, secret: str | None):
+    from fuzz_fakes import FakeNode, RecordingBus
+
+    from bridges.bridge import BridgeNode
+    from bridges.protocol import OdriveCanSimple
+    from deploy.node_runtime import StopFlag
+    from deploy.scenario import load_scenario
+
+    if secret is not None:
+        monkeypatch.setenv(RUN_SECRET_ENV, secret)
+    sc = load_scenario("lab")
+    bus = RecordingBus()
+    ids = [0, 1, 2, 3]
+    b = BridgeNode(sc, 2, FakeNode(sc.robot_ids, "bridge-2"), StopFlag(), bus,
+                   OdriveCanSimple(ids), ids, command_timeout_s=1e9, heartbeat_timeout_s=1e9)
+    return b, bus
+
+
+def _reply(k: int, seq: int, torque: float) -> bytes:
+    from deploy.wire import Reply, ShareData, encode
+
+    z = (0.0, 0.0, 0.0)
+    return encode(Reply(WIRE_VERSION, 2, seq, 0, robot=2, k=k, t=0.0, torques=(torque,) * 4,
+                        v_cmd=z, state_seq=0, state_stamp_ns=0, share=ShareData(z, z, z, z, z, z)))
+
+
+def test_a_bridge_e_stops_only_on_a_signed_estop(monkeypatch):
+    """Found reading the bridge: it subscribed to ctl/* apart from its control inbox and
+    e-stopped its drives on any ``estop``, signed or not."""
+    from deploy.run_secret import control_mac
+    from deploy.wire import encode
+
+    b, bus = _bridge(monkeypatch, "s3cret")
+    try:
+        key = b.node.keys.ctl_all  # the fake delivers on the subscribed key itself
+        b.node.deliver(key, encode(Control(WIRE_VERSION, 0, 0, 0, command="estop", mac="0" * 32)))
+        assert not b.gate.estopped and b.node.refused == {"forged control": 1}
+        mac = control_mac("s3cret", "estop", 0, 0.0, 0, 1, 0)
+        b.node.deliver(key, encode(Control(WIRE_VERSION, 0, 1, 0, command="estop", mac=mac)))
+        assert b.gate.estopped and b.stop()
+    finally:
+        b.close()
+        bus.shutdown()
+
+
+def test_a_bridge_takes_a_command_only_for_a_step_it_sent_and_only_the_first(monkeypatch):
+    b, bus = _bridge(monkeypatch, None)
+    try:
+        key = b.node.keys.cmd(2)
+        b.published_k, b.window_steps = 100, 22  # our sample of step 100 went out
+        for raw in (_reply(2**62, 0, -2.0), _reply(101, 0, -2.0),  # steps not sent yet
+                    _reply(100, 2**62, -2.0)):  # a seq no sender of ours reaches
+            b.node.deliver(key, raw)
+        assert b.gate._torques is None  # nothing taken
+        b.node.deliver(key, _reply(100, 11, 1.5))
+        b.node.deliver(key, _reply(100, 11, -2.0))  # a second one for the same step
+        b.node.deliver(key, _reply(99, 10, -2.0))  # older than the newest taken
+        assert b.gate._torques == (1.5,) * 4
+        b.node.deliver(key, _reply(100 - b.window_steps - 1, 0, -2.0))  # long past
+        b.node.deliver(key, _reply(100, 11, 1e30))  # beyond the bound, but a second: refused
+        b.published_k = 101
+        b.node.deliver(key, _reply(101, 12, 1e30))  # beyond the bound: clipped, counted
+        assert b.clipped == 1 and max(b.gate.decide(0.0, False).torques) == 2.0
+        assert b.node.refused == {"future step": 2, "seq ahead of our clock": 1,
+                                  "not newer than the newest command": 3, "stale step": 1,
+                                  "torque beyond the bound (clipped)": 1}
+    finally:
+        b.close()
+        bus.shutdown()
