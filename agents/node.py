@@ -33,7 +33,7 @@ from deploy.lockstep_inputs import AgentLinks
 from deploy.node_runtime import ControlInbox, FaultGate, StopFlag, Timing, publish_report
 from deploy.options import DEFAULT_STEP_DEADLINE_S
 from deploy.scenario import Scenario
-from deploy.step_guard import JUMP_OK, OwnClock, StepGuard
+from deploy.step_guard import CLOCK_SKEW_S, JUMP_OK, OwnClock, StepGuard
 from deploy.transport import Node
 from deploy.wire import (
     LAUNCHER_ROLE,
@@ -220,7 +220,18 @@ class AgentNode:
     def _subscribe(self) -> None:
         keys, inp, rid = self.node.keys, self.inputs, self.rid
 
-        dt, guards, refuse, own = self.sc.dt, self.guards, self.node.refuse, self.clock
+        dt, guards, own = self.sc.dt, self.guards, self.clock
+        refuse = self.node.refuse
+        warned: set[str] = set()
+
+        def refuse_ahead(what: str, why: str) -> None:
+            refuse(f"{what}: {why}")
+            if what not in warned:  # a real sender here means clocks that disagree
+                warned.add(what)
+                print(f"{self.node.role}: refused a {what} ({why}; counted): forged, or "
+                      "on the realtime clock a host whose wall clock is ahead of ours by "
+                      f"more than {CLOCK_SKEW_S * 1e3:.0f} ms (NTP)", file=sys.stderr,
+                      flush=True)
         period = self.guards["sample"].period_s
         share_guards = {j: StepGuard(period_s=period) for j in self.neighbours}  # one per neighbour
         clock = time.monotonic if period is not None else _no_clock
@@ -239,7 +250,7 @@ class AgentNode:
         def on_sample(m: Sample) -> None:
             why = own.refusal(m.k, m.seq, now())
             if why is not None:  # cannot be real yet: costs only itself
-                refuse(f"sample: {why}")
+                refuse_ahead("sample", why)
                 return
             g = guards["sample"]
             if g.admit(m.k, clock()):
@@ -254,7 +265,7 @@ class AgentNode:
             g, ahead, at = guards["leader"], guards["sample"], clock()
             why = own.refusal(m.k + len(m.q) - 1, m.seq, now(), LEADER_AHEAD_STEPS)
             if why is not None:
-                refuse(f"leader: {why}")
+                refuse_ahead("leader", why)
                 return
             for p in leader_points(m, dt):
                 if lockstep and not ahead.within(p.k, LEADER_AHEAD_STEPS):
@@ -267,7 +278,7 @@ class AgentNode:
         def on_share(m: Reply) -> None:
             why = own.refusal(m.k, m.seq, now())
             if why is not None:
-                refuse(f"share: {why}")
+                refuse_ahead("share", why)
                 return
             at = clock()
             if lockstep and not guards["sample"].within(m.k, SHARE_AHEAD_STEPS):

@@ -42,7 +42,7 @@ from bridges.safety import CommandGate, Decision
 from deploy.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
 from deploy.options import DEFAULT_COMMAND_TIMEOUT_S
 from deploy.scenario import Scenario
-from deploy.step_guard import CLOCK_SKEW_S, SEQ_SLACK
+from deploy.step_guard import SEQ_SLACK, OwnClock
 from deploy.transport import Node
 from deploy.wire import (
     WIRE_VERSION,
@@ -78,10 +78,8 @@ class BridgeNode:
         self.published_k = -1  # the newest step whose sample went out
         self.command_k = -1  # the step of the newest command taken
         self.clipped = 0  # commands that asked for more than the gate's bound (clipped)
-        # how far back a command may answer: older ones would be stale anyway
-        self.window_steps = int(command_timeout_s / sc.dt) + 2
         self.other_k = [-1] * sc.n  # the step of each other robot's newest sample taken
-        self.skew_steps = int(CLOCK_SKEW_S / sc.dt) + 2
+        self.clock = OwnClock(sc.dt)  # t = 0 set by run_realtime: nobody is past it
         self.monitor = DriverMonitor(self.node_ids, heartbeat_timeout_s, time.monotonic())
         self.timing = Timing()
         self.steps_done = 0
@@ -128,10 +126,10 @@ class BridgeNode:
                 self._frames.put((time.monotonic(), frame))
 
     def _on_other(self, j: int, m: Sample) -> None:  # on the node's thread
-        # another bridge's sample: newer than the last one taken, and not past our own
-        # step by more than the hosts' clock skew (the bridges share t = 0), so one
-        # forged sample moves that robot in our perception for its own step at most
-        if m.k <= self.other_k[j] or m.k > self.published_k + self.skew_steps:
+        # another bridge's sample: newer than the last one taken, and not past the wall
+        # clock (the bridges share t = 0; step_guard.OwnClock), so one forged sample moves
+        # that robot in our perception for its own step at most
+        if m.k <= self.other_k[j] or self.clock.refusal(m.k, m.seq, time.monotonic()):
             self.node.refuse("other robot's sample step")
             return
         self.other_k[j] = m.k
@@ -148,9 +146,10 @@ class BridgeNode:
             return  # an initial share: no command in it
         # judged as the plant judges (plant/node.py): a command answers a sample already
         # sent; the newest step wins and the first command for it stays; one reply per
-        # step, so the seq never runs past our step (a restarted agent counts from 0)
+        # step, so the seq never runs past our step (a restarted agent counts from 0).
+        # A late one for an older step is still taken when it is the newest (the gate
+        # times it from its arrival, as before): the bridge keeps no table to bound
         why = ("future step" if m.k > self.published_k else
-               "stale step" if m.k < self.published_k - self.window_steps else
                "seq ahead of our clock" if m.seq > self.published_k + SEQ_SLACK else
                "not newer than the newest command" if m.k <= self.command_k else None)
         if why is not None:
@@ -254,6 +253,7 @@ class BridgeNode:
 
     def run_realtime(self, t0_mono: float, steps: int) -> None:
         dt = self.sc.dt
+        self.clock.t0_s = t0_mono
         ticker = Periodic(t0_mono, dt, self.timing, self.node.mailbox)
         last = getattr(self, "_pre_run_last", None)
         try:

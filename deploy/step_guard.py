@@ -84,9 +84,10 @@ class StepGuard:
 # -- the receiver's own clock: how far ahead any step or seq can possibly be -----------
 
 SEQ_SLACK = 2  # a stream's seq may run this far past its step (an initial share: seq 0 at k = -1)
-# realtime: how far a sender's clock may run ahead of ours (hosts share wall time by NTP;
-# t = 0 is ``ctl/start``'s wall-clock instant)
-CLOCK_SKEW_S = 0.05
+# realtime: how far a sender's clock may run ahead of ours (hosts share wall time by NTP,
+# within milliseconds on a LAN; t = 0 is ``ctl/start``'s wall-clock instant). A host whose
+# clock is further ahead has its real messages refused: the agent says so on stderr
+CLOCK_SKEW_S = 0.1
 DEADLINE_MARGIN = 0.9  # lockstep: a plant's deadline wait measured on our clock, with room
 
 
