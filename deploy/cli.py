@@ -87,6 +87,7 @@ def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, l
     result = run_in_process(sc, plant, args.duration, progress, gui=args.gui, faults=plan,
                             on_series=None if live is None else live.follow)
     extra = {} if plan is None else {"faults": fault_metrics(plan, result.faults or {})}
+    extra["torque_clipped"] = {str(r): n for r, n in (result.torque_clipped or {}).items()}
     recorder = None
     if not args.no_record:
         out.mkdir(parents=True, exist_ok=True)

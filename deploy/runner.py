@@ -24,7 +24,14 @@ from deploy.lockstep_inputs import AgentLinks, HeldInput
 from deploy.scenario import PLANT_KINDS, Scenario
 from deploy.timeseries import TimeSeries
 from deploy.wire import PLANT_ROLE, agent_role
-from plant.command import applied_command, clamped_plan, command_for_step, held_step
+from plant.command import (
+    applied_command,
+    clamped_plan,
+    command_for_step,
+    exceeds,
+    held_step,
+    torque_bound,
+)
 from plant.disturbance import make_disturbance
 from plant.model_plant import KinematicPlant, ModelPlant
 from plant.perception import sensor_for
@@ -41,6 +48,9 @@ class RunResult:
     contacts: list[dict] | None = None  # physical contact events (pybullet); None: not simulated
     faults: dict[str, dict[str, int]] | None = None  # injected faults per edge (with a plan)
     step_unix_ns: np.ndarray | None = None  # wall clock as each step began (the recording)
+    # per robot id, the commands that asked for more torque than the bound (clipped), as
+    # the plant node counts them (plant/command.py); the agents' own: none on a bounded law
+    torque_clipped: dict[int, int] | None = None
 
 
 def make_plant(sc: Scenario, kind: str, gui: bool = False):
@@ -159,6 +169,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     horizon = sc.spec.degradation.command_horizon if model.plan is not None else 0
     look_ahead = [LookAhead(a, horizon) for a in agents] if horizon else None
 
+    bound, clipped = torque_bound(sc.spec.limits), dict.fromkeys(ids, 0)
     start = time.perf_counter()
     for k in range(steps):
         step_unix_ns[k] = time.time_ns()
@@ -175,6 +186,8 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
             out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
             plan = [] if look_ahead is None else look_ahead[i].plan(
                 agent, out, t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
+            if exceeds(out.torques, plan, bound):
+                clipped[rid] += 1
             commands[(rid, k)] = (*applied_command(out.torques, out.v_cmd, sc.spec.limits),
                                   clamped_plan(plan, sc.spec.limits))
             shares[(rid, k)] = out.share
@@ -199,7 +212,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
             progress(k + 1, steps)
     wall = time.perf_counter() - start
     return RunResult(sc, plant_kind, series, wall, contact_log(plant), model.report()
-                     if model.plan is not None else None, step_unix_ns)
+                     if model.plan is not None else None, step_unix_ns, clipped)
 
 
 def _forget(before: int, by_step: dict, leaders: dict, *by_robot_step: dict) -> None:
