@@ -269,6 +269,11 @@ def _hardening_lines(m: dict) -> list[str]:
         at = "" if s.get("t_s") is None else f" at t = {s['t_s']:.3f} s"
         lines.append(f"  STOPPED                    by ctl/{s['command']}{at} (sender {s['sender']}): "
                      "the run did not go to its end")
+    refused = (m.get("messages") or {}).get("refused") or {}
+    if refused:
+        lines.append(f"  refused on arrival         {sum(refused.values())} message(s) by "
+                     f"{len({k.split(':')[0] for k in refused})} node(s) "
+                     "(metrics.json messages.refused: by node and reason)")
     clipped = m.get("torque_clipped") or {}
     if any(clipped.values()):
         lines.append("  torque clipped to bound    "
