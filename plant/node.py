@@ -59,7 +59,14 @@ from deploy.wire import (
     run_roles,
     sensed_bodies,
 )
-from plant.command import applied_command, command_for_step, exceeds, held_step, torque_bound
+from plant.command import (
+    applied_command,
+    command_for_step,
+    exceeds,
+    held_step,
+    torque_bound,
+    velocity_exceeds,
+)
 from plant.perception import sensor_for
 
 SENT_STAMPS_KEPT = 64  # samples per robot whose answers still count for the latency
@@ -143,6 +150,8 @@ class PlantNode:
         if exceeds(m.torques, m.plan, self.bound):
             self.clipped[m.robot] = self.clipped.get(m.robot, 0) + 1
             self.node.refuse("torque beyond the bound (clipped)", dropped=False)
+        if velocity_exceeds(m.v_cmd, self.sc.spec.limits):  # what a kinematic plant moves at
+            self.node.refuse("velocity beyond the bound (clipped)", dropped=False)
         self.commands[(m.robot, m.k)] = m
         old = self.newest.get(m.robot)
         # newer by step (an agent restarted after a crash numbers its messages from 0

@@ -31,7 +31,7 @@ from bridges.protocol import OdriveCanSimple, SetInputTorque
 from deploy.node_runtime import StopFlag
 from deploy.scenario import Scenario, load_scenario
 from deploy.wire import WIRE_VERSION, Reply, ShareData, encode
-from plant.command import PLAUSIBLE_TORQUE_NM
+from plant.command import PLAUSIBLE_SPEED_MPS, PLAUSIBLE_TORQUE_NM, PLAUSIBLE_YAW_RATE_RADPS
 from plant.node import PlantNode
 
 NODE_IDS = [0, 1, 2, 3]
@@ -157,12 +157,14 @@ def test_plant_clamps_each_wheel_and_the_velocity_command(name: str) -> None:
     lim = sc.spec.limits
     if math.isinf(lim.max_wheel_torque_nm):  # no limit: the plausibility bound still holds
         assert tuple(p.torques[0]) == (PLAUSIBLE_TORQUE_NM, -3.0, 1.0, 0.0)
-        assert tuple(p.v_cmd[0]) == (1e300, 0.0, -1e300)
+        # no speed limit either: the plausibility bounds (a kinematic plant moves at it)
+        assert tuple(p.v_cmd[0]) == (PLAUSIBLE_SPEED_MPS, 0.0, -PLAUSIBLE_YAW_RATE_RADPS)
     else:
         assert tuple(p.torques[0]) == (2.0, -2.0, 1.0, 0.0)
         assert tuple(p.v_cmd[0]) == pytest.approx((1.5, 0.0, -3.0), rel=1e-15)
     # beyond the bound: clipped, and counted for its robot
-    assert p.node.refused == {"torque beyond the bound (clipped)": 1} and p.clipped == {1: 1}
+    assert p.node.refused == {"torque beyond the bound (clipped)": 1,
+                              "velocity beyond the bound (clipped)": 1} and p.clipped == {1: 1}
 
 
 def test_bridge_without_a_scenario_limit_clamps_to_what_the_protocol_encodes() -> None:
