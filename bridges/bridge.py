@@ -339,7 +339,7 @@ class BridgeNode:
         so it does not mistake the end of the run for a lost bridge."""
         publish_report(self.node, self.rid, self.steps_done, self.timing,
                        command_stops=self.command_stops[:1000],
-                       torque_clipped={self.rid: self.clipped} if self.clipped else {})
+                       torque_clipped={str(self.rid): self.clipped} if self.clipped else {})
         c = self.protocol.counters
         print(f"{self.node.role}: CAN frames sent {self.frames_sent}, axes re-armed "
               f"{self.rearms}; received decoded {c.decoded}, rejected {c.rejected}",

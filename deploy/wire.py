@@ -365,9 +365,9 @@ class NodeReport(Message, frozen=True):
     command_stops: list[tuple[int, float, float]] = []
     refused: dict[str, int] = {}  # messages refused on arrival, by reason (forged, implausible)
     law_resets: int = 0  # agent: its law restarted from the robot after a long gap (realtime)
-    # plant or CAN bridge: per robot id, the commands that asked for more wheel torque than
-    # the bound (plant/command.py torque_bound): clipped to it
-    torque_clipped: dict[int, int] = {}
+    # plant or CAN bridge: per robot id (as text, as in metrics.json), the commands that asked
+    # for more wheel torque than the bound (plant/command.py torque_bound): clipped to it
+    torque_clipped: dict[str, int] = {}
     nonfinite: int = 0  # values the node computed that were NaN or Inf (Node.note_nonfinite)
     zid: str = ""  # this node's zenoh id
     peers: list[str] = []  # the zenoh ids it had a link with as it ended (zenoh's own info)

@@ -335,6 +335,6 @@ class PlantNode:
         publish_report(self.node, -1, self.steps_done, self.timing, contacts=contacts,
                        contacts_total=0 if log is None else len(log),
                        faults=self.faults.report(), command_stops=self.command_stops[:1000],
-                       torque_clipped=dict(self.clipped))
+                       torque_clipped={str(r): n for r, n in self.clipped.items()})
         others = set(self.peers) - {LAUNCHER_ROLE}
         self.node.mailbox.wait_until(lambda: not (others & self.node.peers_alive), linger_s)
