@@ -131,6 +131,9 @@ class AgentOutput:
     left_out: int = 0  # inputs too old for eq. (14) this step
     # the safety filter (agents/safety_filter.py): None when it had nothing to guard
     safety: SafetyResult | None = None
+    # what this step found non-finite in the agent's state and restarted from the newest
+    # measurement (AgentCore.recover): empty when nothing was
+    reset: tuple[str, ...] = ()
 
 
 class AgentCore:
@@ -320,9 +323,73 @@ class AgentCore:
         exception: the float hot path raises where numpy would return inf/NaN
         (x**r overflowing in sig(), cos(inf)), and that is the same outcome."""
         try:
-            return self._step(t, q, q_dot, shares, leader, obstacles, robots, dt, ages)
+            out = self._step(t, q, q_dot, shares, leader, obstacles, robots, dt, ages)
         except (ArithmeticError, ValueError):
-            return self._diverged(q, q_dot)
+            out = self._diverged(q, q_dot)
+        if out.nonfinite or not self._state_finite():
+            # never stay diverged: a NaN in an integrator stays there for good (a paused
+            # realtime agent sent zero torques for the rest of its run); this step's
+            # torques are zero (counted), the next starts from the measurement
+            out.reset = self.recover(q, q_dot, shares, leader)
+        return out
+
+    def _state_finite(self) -> bool:
+        """The integrators' and observers' state holds no NaN/Inf (a sum of finite
+        floats of this size is finite; one NaN or Inf makes it so)."""
+        return isfinite(sum(self._q0_hat) + sum(self._v0_hat) + sum(self._q_d)
+                        + sum(self._z2_hat) + (0.0 if self._z1_hat is None else sum(self._z1_hat))
+                        + (0.0 if self._v_d_prev is None else sum(self._v_d_prev))
+                        + self._speed_factor)
+
+    def recover(self, q: np.ndarray, q_dot: np.ndarray, shares: Mapping[int, Share],
+                leader: tuple[np.ndarray, np.ndarray] | None) -> tuple[str, ...]:
+        """Restart from the newest measurement what a diverged step left non-finite, and
+        the dynamic level (reference and observer) whenever the law gave a non-finite
+        command. Returns what was restarted:
+
+        - "reference": q_d := q, the measured pose (eq. 11's integrator; e = 0), and the
+          last command v_d forgotten (the first order hold restarts from v_d);
+        - "observer": z1_hat from the next measurement, z2_hat := 0 (eq. 39, as at start);
+        - "estimator": q0_hat, v0_hat from the leader when heard, else the mean of the
+          neighbours' finite estimates, else the robot's own pose at rest (eq. 14);
+        - "speed": the degradation speed factor from 0 (it ramps back up)."""
+        done: list[str] = []
+        q_v, finite = _vec3(np.asarray(q, float)), self._state_finite()
+        if not (_finite(self._q_d) and (self._v_d_prev is None or _finite(self._v_d_prev))) \
+                or finite:
+            # finite state but a non-finite command: the step itself diverged (a huge h)
+            if _finite(q_v):
+                self._q_d = q_v
+                done.append("reference")
+            self._v_d_prev = None
+        if not (_finite(self._z2_hat) and (self._z1_hat is None or _finite(self._z1_hat))) \
+                or finite:
+            self._z1_hat, self._z2_hat = None, (0.0, 0.0, 0.0)
+            done.append("observer")
+        if not (_finite(self._q0_hat) and _finite(self._v0_hat)):
+            self._q0_hat, self._v0_hat = self._estimate_from(q_v, shares, leader)
+            done.append("estimator")
+        if not isfinite(self._speed_factor):
+            self._speed_factor = 0.0
+            done.append("speed")
+        return tuple(done)
+
+    def _estimate_from(self, q: Vec3, shares: Mapping[int, Share],
+                       leader: tuple[np.ndarray, np.ndarray] | None) -> tuple[Vec3, Vec3]:
+        """A leader estimate to restart eq. (14) from: the leader as heard, the mean of
+        the neighbours' finite estimates, or (nothing finite heard) the robot itself."""
+        if leader is not None and self.cfg.leader_weight != 0.0:
+            lq, lv = _vec3(leader[0]), _vec3(leader[1])
+            if _finite(lq) and _finite(lv):
+                return lq, lv
+        est = [(_vec3(sh.q0_hat), _vec3(sh.v0_hat)) for j, _ in self.cfg.neighbours
+               if (sh := shares.get(j)) is not None]
+        est = [(x, v) for x, v in est if _finite(x) and _finite(v)]
+        if est:
+            n = float(len(est))
+            return (tuple(sum(x[i] for x, _ in est) / n for i in range(3)),  # type: ignore[return-value]
+                    tuple(sum(v[i] for _, v in est) / n for i in range(3)))
+        return (q if _finite(q) else (0.0, 0.0, 0.0)), (0.0, 0.0, 0.0)
 
     def _diverged(self, q: np.ndarray, q_dot: np.ndarray) -> AgentOutput:
         nan3 = np.full(3, np.nan)

@@ -201,7 +201,11 @@ class AgentNode:
         # lockstep from our last answer and the plant's deadline, realtime from t = 0
         self.clock = OwnClock(sc.dt, None if realtime else step_deadline_s,
                               answered_at=time.monotonic())
-        self.law_resets = 0  # realtime: the law restarted from the robot after a long gap
+        # the law restarted from the robot: after a gap longer than the inputs stay fresh
+        # (realtime), or from a non-finite state (AgentCore.recover)
+        self.law_resets = 0
+        self.nonfinite_commands = 0  # steps whose law gave NaN/Inf: zero torques sent
+        self.stale_samples = 0  # realtime: samples older than stale_after_s, not answered
         self.steps_done = 0
         self.telemetry_every = 1  # realtime decimates (see run_realtime)
         self.telemetry_batch = TELEMETRY_BATCH_MAX
@@ -333,8 +337,15 @@ class AgentNode:
                       plan: list[Vec4], stale: int) -> None:
         self._publish_reply(k, t, state, out, out.share, plan)
         if out.nonfinite:  # the law gave NaN/Inf: zero torques went out instead
+            self.nonfinite_commands += 1
             self.node.note_nonfinite(f"command at t = {t:.3f} s (step {k}): the control law "
                                      "diverged, zero torques sent instead")
+        if out.reset:
+            self.law_resets += 1
+            if self.law_resets <= 3:
+                print(f"{self.node.role}: t = {t:.3f} s (step {k}): non-finite "
+                      f"{', '.join(out.reset)} restarted from the robot's state",
+                      file=sys.stderr, flush=True)
         if k % self.telemetry_every:
             return
         fdb = out.task_errors.get("FDB")
@@ -457,6 +468,7 @@ class AgentNode:
                                           round(TELEMETRY_BATCH_S * telemetry_hz)))
         last_k = -1
         last_step = None
+        stale_after = self.core.cfg.degradation.stale_after_s
         last_t: float | None = None
         share_msgs: dict[int, Reply] = {}
         synced = t0_mono is not None
@@ -485,6 +497,15 @@ class AgentNode:
                 # torques after its command timeout) and count the miss
                 self.timing.deadline_misses += 1
                 continue
+            if synced and (now - t0_mono) - state.t > stale_after:
+                # a sample older than the inputs stay fresh, by our clock: the backlog
+                # of a process that was off the CPU (SIGSTOP, a starved host). Answering
+                # it computed commands from where the robot was seconds ago (a paused
+                # lab agent stepped 3 backlog samples 0.3-0.8 s old, restarting its law
+                # on each); skip to a fresh one, which restarts the law once (below)
+                self.stale_samples += 1
+                last_k = state.k
+                continue
             if last_step is not None:
                 self.timing.add_jitter(int(abs((now - last_step) - dt) * 1e9))
             last_step = now
@@ -496,7 +517,7 @@ class AgentNode:
             if any(j not in share_msgs for j in self.neighbours):
                 continue
             ages = realtime_ages(state, leader, share_msgs, dt)
-            if synced and h > self.core.cfg.degradation.stale_after_s:
+            if synced and h > stale_after:
                 # this process was off the CPU (paused, starved) longer than its inputs
                 # stay fresh: the plant has zeroed the robot meanwhile. Integrating the
                 # observer, the estimator and the reference across the gap left a
@@ -545,9 +566,16 @@ class AgentNode:
             self.gate.close()
         if self.law_resets:
             print(f"{self.node.role}: law restarted from the robot's state {self.law_resets} "
-                  "time(s) after a gap longer than its inputs stay fresh", file=sys.stderr)
+                  "time(s) (a gap longer than its inputs stay fresh, or a non-finite state)",
+                  file=sys.stderr)
+        if self.stale_samples:
+            print(f"{self.node.role}: {self.stale_samples} sample(s) older than "
+                  f"{self.core.cfg.degradation.stale_after_s * 1e3:.0f} ms on arrival left "
+                  "unanswered", file=sys.stderr)
         held = self.guards["sample"].held
         if held:
             self.node.refused["unconfirmed jump"] = held
         publish_report(self.node, self.rid, self.steps_done, self.timing,
-                       faults=self.faults.report(), law_resets=self.law_resets)
+                       faults=self.faults.report(), law_resets=self.law_resets,
+                       nonfinite_commands=self.nonfinite_commands,
+                       stale_samples=self.stale_samples)

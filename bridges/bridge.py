@@ -54,7 +54,7 @@ from deploy.wire import (
     agent_role,
     sensed_bodies,
 )
-from plant.command import exceeds, torque_bound
+from plant.command import ZeroTorqueSpans, exceeds, torque_bound
 from plant.perception import sense
 
 MAX_POSE_LEAD_S = 0.02  # longest the published pose is carried past the newest encoder data
@@ -93,6 +93,7 @@ class BridgeNode:
         # zero torque for want of a fresh command (a dead or silent agent), as
         # (robot, age of the newest command once the zero frames were sent, s; run time, s)
         self.command_stops: list[tuple[int, float, float]] = []
+        self.zero_torque = ZeroTorqueSpans()  # how long each stale stop lasted
         self._send_lock = threading.Lock()
         self._frames: queue.SimpleQueue = queue.SimpleQueue()
         self._closing = False
@@ -268,6 +269,7 @@ class BridgeNode:
                 with self.node.mailbox.lock:
                     d = self.gate.decide(now, faulted)
                     if d.armed and not self.armed:
+                        self.zero_torque.end(self.rid, k * dt)
                         self.arm()
                         self._apply(d)
                     elif not d.armed and self.armed:
@@ -293,6 +295,7 @@ class BridgeNode:
     def _log_stop(self, t: float) -> None:
         age = self.gate.command_age_s(self.zeroed_at)
         self.command_stops.append((self.rid, age, t))
+        self.zero_torque.begin(self.rid, t)
         print(f"{self.node.role}: t = {t:.3f} s: zero torque on the bus, the newest command "
               f"{age * 1e3:.1f} ms old", file=sys.stderr, flush=True)
 
@@ -339,6 +342,7 @@ class BridgeNode:
         so it does not mistake the end of the run for a lost bridge."""
         publish_report(self.node, self.rid, self.steps_done, self.timing,
                        command_stops=self.command_stops[:1000],
+                       zero_torque=self.zero_torque.close(self.steps_done * self.sc.dt),
                        torque_clipped={str(self.rid): self.clipped} if self.clipped else {})
         c = self.protocol.counters
         print(f"{self.node.role}: CAN frames sent {self.frames_sent}, axes re-armed "

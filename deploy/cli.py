@@ -17,6 +17,8 @@ from deploy.fault_plan import FaultPlanError
 from deploy.node_cli import CLOCKS, add_node_commands, fault_plan, gui_problem, run_scenario
 from deploy.options import OptionError, add_option
 from deploy.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
+from deploy.run_folder import RunFolderError
+from deploy.run_folder import prepare as prepare_run_folder
 from deploy.scenario import PLANT_KINDS, ScenarioError
 from deploy.transport import TransportError
 from deploy.verdict import divergence_banner, judge, verdict_line
@@ -51,6 +53,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
     for note in sc.notes:
         print(f"note: {note}", file=sys.stderr)
     out = Path(args.out) if args.out else Path("runs") / sc.name
+    try:
+        removed = prepare_run_folder(out, args.overwrite)
+    except RunFolderError as exc:
+        print(f"omnifleet run: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if removed:
+        print(f"omnifleet run: --overwrite: removed the previous run's {', '.join(removed)} "
+              f"from {out}/", file=sys.stderr)
     label = f"{sc.name} ({plant}, {'in-process' if args.in_process else args.clock})"
     live = _start_live(args, sc)
     if live is False:
@@ -71,6 +81,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if banner:
         print(banner, file=sys.stderr)
     print(_summary(metrics, out))
+    broken = (metrics.get("recording") or {}).get("error")
+    if broken:  # never a run that looks complete with a recording that is not
+        print(f"omnifleet run: FAILED: the recording failed ({broken}); "
+              f"{metrics['recording']['lost']} message(s) not recorded", file=sys.stderr)
+        return 1
     if args.check and not metrics["verdict"]["pass"]:
         print("omnifleet run: the run does NOT meet the criteria (settling, no contact, "
               "nothing non-finite)", file=sys.stderr)
@@ -81,20 +96,38 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, label: str, live):
     from deploy.outputs import write_run
     from deploy.recorder import McapRecorder
-    from deploy.runner import run_in_process, terminal_progress
+    from deploy.runner import run_in_process, run_progress
 
-    progress = _with_live(terminal_progress(label), live)
+    progress = _with_live(run_progress(label), live)
     result = run_in_process(sc, plant, args.duration, progress, gui=args.gui, faults=plan,
                             on_series=None if live is None else live.follow)
     extra = {} if plan is None else {"faults": fault_metrics(plan, result.faults or {})}
+    extra["law_resets"] = result.law_resets
     extra["torque_clipped"] = {str(r): n for r, n in (result.torque_clipped or {}).items()}
     recorder = None
     if not args.no_record:
         out.mkdir(parents=True, exist_ok=True)
         recorder = McapRecorder(out / RECORDING, sim_dt=sc.dt)
+    if result.interrupted:
+        from deploy.outputs import write_interrupted
+
+        metrics = write_interrupted(sc, result.series, out, plant, "lockstep",
+                                    result.wall_time_s, result.interrupted, extra, recorder,
+                                    contact_log=result.contacts, step_unix_ns=result.step_unix_ns)
+        _interrupted(metrics, out)
     return write_run(sc, result.series, out, plant, "lockstep", result.wall_time_s,
                      extra=extra, figures=not args.no_figures, contact_log=result.contacts,
                      recorder=recorder, step_unix_ns=result.step_unix_ns)
+
+
+def _interrupted(metrics: dict, out: Path) -> None:
+    """Say what an interrupted run wrote, then end as interrupted (exit 130/143)."""
+    print(_summary(metrics, out) if metrics.get("steps") else
+          f"{metrics['scenario']}: interrupted before any step; written to {out}/ "
+          f"({', '.join(metrics['files'])})\n{verdict_line(metrics['verdict'])}")
+    exc = KeyboardInterrupt(metrics["interrupted_by"])
+    exc.signal_name = metrics["interrupted_by"]  # type: ignore[attr-defined]
+    raise exc
 
 
 def _start_live(args: argparse.Namespace, sc):
@@ -131,10 +164,10 @@ def _with_live(progress, live):
 def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label: str, live=None):
     import time
 
-    from deploy.launcher import Launcher, LaunchOptions, RunFailed
+    from deploy.launcher import Interrupted, Launcher, LaunchOptions, RunFailed
     from deploy.outputs import run_wall_clock, write_run
     from deploy.recorder import McapRecorder
-    from deploy.runner import terminal_progress
+    from deploy.runner import run_progress
 
     recorder = None
     if not args.no_record:  # ours, so that the scene joins it at the end (LaunchOptions.recorder)
@@ -154,13 +187,23 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         from deploy.live_view import collector_rows
 
         live.follow(launcher.collector.ts, collector_rows(launcher.collector, args.clock == "realtime"))
+    started = time.perf_counter()
     try:
-        extra = launcher.run(terminal_progress(label))
+        extra = launcher.run(run_progress(label))
     except RunFailed as exc:
         print(f"omnifleet run: FAILED: {exc}", file=sys.stderr)
         if recorder is not None:
             recorder.close()
         return None
+    except Interrupted as exc:  # every child stopped: write what was measured, marked
+        from deploy.outputs import write_interrupted
+
+        series = launcher.collector.series(realtime=args.clock == "realtime")
+        metrics = write_interrupted(
+            sc, series, out, plant, args.clock, time.perf_counter() - started, exc.signal_name,
+            {"messages": None, "reports": "not collected (interrupted)",
+             "law_resets": None}, recorder)
+        _interrupted(metrics, out)
     except BaseException:
         if recorder is not None:
             recorder.close()  # flushed, also after Ctrl-C
@@ -181,6 +224,10 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
             float(f) / g if g else None for f, g in zip(c.faulted.sum(axis=0), got, strict=True)]
         if "faults" in extra:
             extra["faults"]["can"] = can_fault_counts(launcher.truth_files)
+    # an agent counts every non-finite command it computed; the series only the rows its
+    # telemetry carried (realtime decimates them): the larger of the two
+    reported = [x for x in extra.get("nonfinite_commands_reported", []) if x is not None]
+    extra["nonfinite_commands"] = max(int(series.nonfinite.sum()), sum(reported))
     wall = extra.pop("wall_time_s")
     messages = extra.pop("messages")
     contact_log, contacts_total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
@@ -241,6 +288,9 @@ def _summary(m: dict, out: Path) -> str:
         f"{m['scenario']}: {m['robots']} robots, {m['plant']} plant, {m['clock']}, "
         f"{m['sim_time_s']:.2f} s simulated in {m['wall_time_s']:.2f} s "
         f"(x{m['real_time_factor']:.2f} real time)",
+        *([f"  INTERRUPTED ({m.get('interrupted_by')}): what follows covers the "
+           f"{m['sim_time_s']:.2f} s measured before it; no figures"] if m.get("interrupted")
+          else []),
         "  settling time (s)          "
         + ("n/a (kinematic plant: no dynamic level)" if m["plant"] == "kinematic" else
            f"{_fmt_list(m['settling_time_s'])}  bound {m['settling_bound_s']:.3f}"),
@@ -253,12 +303,31 @@ def _summary(m: dict, out: Path) -> str:
         f"  contacts                   {m['contacts']}",
         f"  peak / RMS torque (N m)    {m['peak_torque_nm']:.4g} / {m['rms_torque_nm']:.4g}",
         *_safety_lines(m),
+        *_law_lines(m),
         *_transport_lines(m),
         *_hardening_lines(m),
-        f"  written to {out}/ (metrics.json, timeseries.npz, figures"
-        + (f", {RECORDING})" if "recording" in m else ")"),
+        f"  written to {out}/ ({', '.join(m.get('files') or ['metrics.json'])})",
         *([verdict_line(m["verdict"])] if "verdict" in m else []),
     ])
+
+
+def _law_lines(m: dict) -> list[str]:
+    """How often each robot's law restarted from the robot, what it computed non-finite,
+    and (realtime) the longest stretch each robot ran on zero torque."""
+    resets = m.get("law_resets")
+    if resets is None:  # an interrupted distributed run: the agents never reported
+        return ["  law restarts               n/a (the agents' reports were not collected)"]
+    lines = [f"  law restarts               {_fmt_ints(resets)} (from the robot's state: a gap "
+             f"or a non-finite state); non-finite commands {m.get('nonfinite_commands', 0)}"]
+    longest = m.get("zero_torque_longest_s")
+    if longest is not None:
+        lines.append(f"  longest on zero torque     {_fmt_list(longest)} s (command timeout "
+                     f"{m['command_timeout_s']:.3f} s)")
+    return lines
+
+
+def _fmt_ints(xs: list) -> str:
+    return "[" + ", ".join("n/a" if x is None else str(x) for x in xs) + "]"
 
 
 def _hardening_lines(m: dict) -> list[str]:
@@ -327,11 +396,22 @@ def _transport_lines(m: dict) -> list[str]:
     return lines
 
 
+def package_version() -> str:
+    """The installed package's version (its metadata, from pyproject.toml)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("omnifleet")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "unknown (not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="omnifleet",
         description="Collision-free formation control for mecanum-wheel robot fleets.",
     )
+    p.add_argument("--version", action="version", version=f"omnifleet {package_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     run = sub.add_parser(
         "run", help="run a scenario and write its report folder",
@@ -376,6 +456,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_option(run, "--duration")
     add_option(run, "--control-rate")
     run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    run.add_argument("--overwrite", action="store_true",
+                     help="--out already holds a run: remove its outputs first (without it "
+                     "such a folder is refused: a run never mixes its outputs with another's)")
     add_option(run, "--priority", default=REALTIME_PRIORITY,
                help="realtime: raise every node's CPU priority by N (nice -N and its "
                "session's autogroup; needs CAP_SYS_NICE, else each node says so), so "

@@ -16,6 +16,10 @@ per process, reproducibly from one seed::
     process = "agent-2"
     at_s = 10.0
     restart_after_s = 4.0            # optional
+    [[kill]]
+    process = "agent-3"
+    at_s = 5.0
+    pause_s = 2.0                    # SIGSTOP, SIGCONT 2 s later (not with restart_after_s)
     [can]                            # --plant can-emulated: the buses' frames
     frame_loss = 0.01
     corrupt = 0.001
@@ -76,6 +80,7 @@ class Kill(_S, kw_only=True):
     process: str
     at_s: float
     restart_after_s: float | None = None
+    pause_s: float | None = None  # SIGSTOP instead of SIGKILL, SIGCONT after this long
 
 
 class CanFaults(_S, kw_only=True):
@@ -210,6 +215,12 @@ def validate_plan(path: str, raw: FaultPlanFile, sc: Scenario) -> FaultPlan:
             raise _fail(path, f"{key}.at_s", f"must be within the run [0, {duration}) s")
         if kill.restart_after_s is not None and not (0.0 < kill.restart_after_s <= 3600.0):
             raise _fail(path, f"{key}.restart_after_s", "must be in (0, 3600] s")
+        if kill.pause_s is not None:
+            if not (0.0 < kill.pause_s <= 3600.0):
+                raise _fail(path, f"{key}.pause_s", "must be in (0, 3600] s")
+            if kill.restart_after_s is not None:
+                raise _fail(path, f"{key}.pause_s", "a paused process resumes by itself; "
+                            "give pause_s or restart_after_s, not both")
     if len({k.process for k in raw.kill}) != len(raw.kill):
         raise _fail(path, "kill", "one kill per process")
     _probability(path, "can.frame_loss", raw.can.frame_loss)

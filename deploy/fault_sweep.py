@@ -92,7 +92,7 @@ def _run_distributed(scenario: str, drop: float, seed: int, run_dir: Path,
     plan = run_dir / "faults.toml"
     plan.write_text(plan_text(drop, seed))
     cmd = [sys.executable, "-m", "deploy.cli", "run", scenario, "--faults", str(plan),
-           "--out", str(run_dir), "--no-figures", "--no-record"]
+           "--out", str(run_dir), "--overwrite", "--no-figures", "--no-record"]
     if duration is not None:
         cmd += ["--duration", repr(duration)]
     if plant is not None:

@@ -1,4 +1,5 @@
-"""The fault plan's process kills and restarts, in the order the run meets them."""
+"""The fault plan's process kills, restarts, pauses and resumes, in the order the run
+meets them."""
 
 from __future__ import annotations
 
@@ -7,12 +8,20 @@ from dataclasses import dataclass, field
 
 from deploy.fault_plan import Kill
 
+# what the launcher does at an event, and the word metrics.json logs it under
+KILL, RESTART, PAUSE, RESUME = "killed", "restarted", "paused", "resumed"
+_ORDER = {KILL: 0, PAUSE: 0, RESTART: 1, RESUME: 1}  # at one instant: stop before start
+
 
 @dataclass(frozen=True)
 class KillEvent:
     at_s: float  # run time
     process: str  # role
-    restart: bool  # False: kill it; True: start it again
+    action: str  # KILL (SIGKILL), RESTART (start it again), PAUSE (SIGSTOP), RESUME (SIGCONT)
+
+    @property
+    def restart(self) -> bool:
+        return self.action == RESTART
 
 
 @dataclass
@@ -23,10 +32,14 @@ class KillSchedule:
 
     def __post_init__(self) -> None:
         for k in self.plan:
-            self.pending.append(KillEvent(k.at_s, k.process, False))
+            if k.pause_s is not None:  # SIGSTOP, then SIGCONT: a process off the CPU
+                self.pending.append(KillEvent(k.at_s, k.process, PAUSE))
+                self.pending.append(KillEvent(k.at_s + k.pause_s, k.process, RESUME))
+                continue
+            self.pending.append(KillEvent(k.at_s, k.process, KILL))
             if k.restart_after_s is not None:
-                self.pending.append(KillEvent(k.at_s + k.restart_after_s, k.process, True))
-        self.pending.sort(key=lambda e: (e.at_s, e.restart))
+                self.pending.append(KillEvent(k.at_s + k.restart_after_s, k.process, RESTART))
+        self.pending.sort(key=lambda e: (e.at_s, _ORDER[e.action]))
 
     def due(self, t: float) -> list[KillEvent]:
         """The events whose time has come, removed from the schedule."""
@@ -35,6 +48,5 @@ class KillSchedule:
         return out
 
     def log(self, event: KillEvent, t: float, pid: int) -> None:
-        self.events.append({"process": event.process,
-                            "event": "restarted" if event.restart else "killed",
+        self.events.append({"process": event.process, "event": event.action,
                             "planned_s": event.at_s, "t_s": round(t, 4), "pid": pid})

@@ -34,9 +34,13 @@ from agents.leader_node import TICK_EVERY
 from deploy.collector import Collector
 from deploy.fault_model import fault_metrics, merge_reports
 from deploy.fault_plan import FaultPlan
-from deploy.kill_schedule import KillSchedule
+from deploy.kill_schedule import PAUSE, RESUME, KillSchedule
 from deploy.node_runtime import START_LEAD_S, StopFlag, peak_rss_kb
-from deploy.options import DEFAULT_STARTUP_TIMEOUT_S, DEFAULT_STEP_DEADLINE_S
+from deploy.options import (
+    DEFAULT_COMMAND_TIMEOUT_S,
+    DEFAULT_STARTUP_TIMEOUT_S,
+    DEFAULT_STEP_DEADLINE_S,
+)
 from deploy.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
 from deploy.run_secret import RUN_SECRET_ENV, control_is_genuine, new_secret
 from deploy.scenario import Scenario
@@ -124,6 +128,35 @@ class LaunchOptions:
     # --- issue 18 hook: a McapRecorder made (and closed) by the caller, who adds the run's
     # scene to it at the end; None: the launcher makes its own and closes it
     recorder: Any = None
+
+
+def agent_figures(agents: list[NodeReport | None]) -> dict[str, Any]:
+    """What each robot's agent counted (metrics.json): how often its law restarted from
+    the robot (a gap longer than its inputs stay fresh, a non-finite state), the
+    commands it computed non-finite (zero torques sent), the realtime samples too old
+    on arrival to answer. Reports that never came count as None."""
+    def each(name: str) -> list[int | None]:
+        return [None if r is None else int(getattr(r, name)) for r in agents]
+    return {"law_resets": each("law_resets"),
+            "nonfinite_commands_reported": each("nonfinite_commands"),
+            "stale_samples": each("stale_samples")}
+
+
+def zero_torque_figures(reports: list[NodeReport], robot_ids: list[int]) -> dict[str, Any]:
+    """Each stretch a robot ran on zero torque for want of a fresh command (plant or CAN
+    bridge, realtime), and per robot the longest (0 when none): the verdict compares it
+    with the command timeout (deploy/verdict.py)."""
+    spans = sorted((s for r in reports for s in r.zero_torque), key=lambda s: s[1])
+    longest = {rid: 0.0 for rid in robot_ids}
+    for rid, _, d in spans:
+        if rid in longest:
+            longest[rid] = max(longest[rid], d)
+    out: dict[str, Any] = {"zero_torque_longest_s": [round(longest[r], 4) for r in robot_ids],
+                           "command_timeout_s": DEFAULT_COMMAND_TIMEOUT_S}
+    if spans:
+        out["zero_torque"] = [{"robot": r, "t_s": round(t, 4), "duration_s": round(d, 4)}
+                              for r, t, d in spans]
+    return out
 
 
 def free_udp_port() -> int:
@@ -352,6 +385,7 @@ class Launcher:
         for c in live:
             try:
                 os.kill(c.proc.pid, signal.SIGTERM)
+                os.kill(c.proc.pid, signal.SIGCONT)  # a paused one (fault plan) hears it too
             except ProcessLookupError:
                 pass
         deadline = time.monotonic() + STOP_GRACE_S
@@ -524,11 +558,14 @@ class Launcher:
             return
         t = time.monotonic() - self.run_t0
         for event in self.kills.due(t):
-            # kill: the live process of that role; restart: the one killed
+            # kill or pause: the live process of that role; restart: the one killed
             child = [c for c in self.children if c.role == event.process
                      and c.killed == event.restart][-1]
             if event.restart:
                 self.kills.log(event, t, self._restart(child))
+            elif event.action in (PAUSE, RESUME):  # off the CPU and back, as a starved host
+                os.kill(child.proc.pid, signal.SIGSTOP if event.action == PAUSE else signal.SIGCONT)
+                self.kills.log(event, t, child.proc.pid)
             else:
                 child.killed = True
                 os.kill(child.proc.pid, signal.SIGKILL)
@@ -611,11 +648,7 @@ class Launcher:
             messages["invalid"] += r.invalid
             for why, n in r.refused.items():
                 refused[f"{r.role}: {why}"] = n
-        resets = {r.robot: r.law_resets for r in reports.values() if r.law_resets}
-        if resets:  # realtime agents that restarted their law after being off the CPU
-            out_resets = {str(k): v for k, v in sorted(resets.items())}
-        else:
-            out_resets = None
+        agents = [reports.get(agent_role(r)) for r in self.sc.robot_ids]
         if self.control_refused:
             refused["launcher: forged control"] = self.control_refused
         if self.misfiled:
@@ -642,19 +675,22 @@ class Launcher:
                   "peak_rss_mb": round(peak_rss_kb() / 1024.0, 1), "exit_code": None,
                   "reported": True}],
         }
-        if out_resets:
-            out["law_resets"] = out_resets
+        # per robot, in the scenario's order (None: its agent's report never came); a
+        # restarted agent reports for its second life too (the collector keeps the last)
+        out |= agent_figures(agents)
         # commands that asked for more torque than the bound, clipped, per robot
         clipped = {str(r): 0 for r in self.sc.robot_ids}
         for rep in reports.values():
             for rid, n in rep.torque_clipped.items():
-                if str(rid) in clipped:
-                    clipped[str(rid)] += n
+                if rid in clipped:
+                    clipped[rid] += n
         out["torque_clipped"] = clipped
         if self.stopped_by is not None:
             out["stopped_by"] = self.stopped_by
         plant = reports.get(PLANT_ROLE)
         bridges = [reports[bridge_role(r)] for r in self.sc.robot_ids if bridge_role(r) in reports]
+        out |= zero_torque_figures([r for r in [plant, *bridges] if r is not None],
+                                   self.sc.robot_ids)
         stops = sorted((s for r in [plant, *bridges] if r is not None for s in r.command_stops),
                        key=lambda s: s[2])  # the plant's, or on CAN each bridge's, by run time
         if stops:

@@ -45,6 +45,9 @@ def write_run(
             recorder.close({"scenario": sc.name, "plant": plant, "clock": clock})
         metrics["recording"] = recorder.summary()
     metrics["verdict"] = judge(metrics, divergence(series, sc.robot_ids))
+    # what this run writes, and nothing else (the summary names exactly these)
+    metrics["files"] = ["metrics.json", "timeseries.npz", *(
+        [recorder.path.name] if recorder is not None else []), *(["figures"] if figures else [])]
     write_metrics(metrics, out_dir / "metrics.json")
     series.save(out_dir / "timeseries.npz")
     if figures:
@@ -64,3 +67,28 @@ def run_wall_clock(end_unix_ns: int, wall_s: float, run_t0_monotonic: float | No
         t0 = time.time_ns() - int((time.monotonic() - run_t0_monotonic) * 1e9)
     return {"t0_unix_ns": t0, "step_unix_ns": np.linspace(t0, end_unix_ns, steps).astype(np.int64)
             if lockstep else None}
+
+
+def write_interrupted(sc: Scenario, series: TimeSeries, out_dir: Path, plant: str, clock: str,
+                      wall_time_s: float, signal_name: str, extra: dict[str, Any] | None = None,
+                      recorder: McapRecorder | None = None, **kw: Any) -> dict[str, Any]:
+    """An interrupted run's folder: metrics.json marked ``"interrupted": true`` with what
+    was measured up to then (no figures; the recording closed readable, with the scene
+    of the steps measured). Its verdict is never PASS (deploy/verdict.py). With no step
+    measured at all, metrics.json says only that."""
+    extra = {**(extra or {}), "interrupted": True, "interrupted_by": signal_name}
+    if series.steps > 0:
+        return write_run(sc, series, out_dir, plant, clock, wall_time_s, extra=extra,
+                         figures=False, recorder=recorder, **kw)
+    if recorder is not None:
+        recorder.close({"scenario": sc.name, "plant": plant, "clock": clock})
+    out_dir.mkdir(parents=True, exist_ok=True)
+    metrics = {"scenario": sc.name, "plant": plant, "clock": clock, "robots": sc.n, "steps": 0,
+               "sim_time_s": 0.0, "wall_time_s": wall_time_s, **extra,
+               "verdict": {"pass": False, "complete": False, "diverged": None,
+                           "reasons": [f"interrupted ({signal_name}) before any step"]},
+               "files": ["metrics.json", *([recorder.path.name] if recorder else [])]}
+    if recorder is not None:
+        metrics["recording"] = recorder.summary()
+    write_metrics(metrics, out_dir / "metrics.json")
+    return metrics

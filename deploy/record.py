@@ -142,6 +142,16 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
     sc: Scenario = run_scenario(args)
     plant = args.plant or sc.spec.plant.kind
+    from deploy.run_folder import RunFolderError, prepare
+
+    try:
+        removed = prepare(Path(args.out), args.overwrite)
+    except RunFolderError as exc:
+        print(f"omnifleet record: {exc}", file=sys.stderr)
+        return 2
+    if removed:
+        print(f"omnifleet record: --overwrite: removed the previous run's {', '.join(removed)}",
+              file=sys.stderr)
     opts = LaunchOptions(scenario_arg=args.scenario, plant=plant, clock=args.clock,
                          out=Path(args.out), duration_s=args.duration,
                          control_rate_hz=args.control_rate,
@@ -174,11 +184,18 @@ def _cmd_record(args: argparse.Namespace) -> int:
     series = rec.collector.series(realtime=args.clock == "realtime")
     wall, messages = extra.pop("wall_time_s"), extra.pop("messages")
     contact_log, total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
-    write_run(sc, series, Path(args.out), plant, args.clock, wall, messages, extra,
-              figures=not args.no_figures, contact_log=contact_log, contacts_total=total,
-              recorder=recording, **run_wall_clock(end_unix_ns, wall, rec.run_t0, series.steps,
-                                                   args.clock == "lockstep"))
-    print(f"omnifleet record: {series.steps} steps written to {args.out}", file=sys.stderr)
+    metrics = write_run(sc, series, Path(args.out), plant, args.clock, wall, messages, extra,
+                        figures=not args.no_figures, contact_log=contact_log,
+                        contacts_total=total, recorder=recording,
+                        **run_wall_clock(end_unix_ns, wall, rec.run_t0, series.steps,
+                                         args.clock == "lockstep"))
+    print(f"omnifleet record: {series.steps} steps written to {args.out} "
+          f"({', '.join(metrics['files'])})", file=sys.stderr)
+    broken = (metrics.get("recording") or {}).get("error")
+    if broken:
+        print(f"omnifleet record: FAILED: the recording failed ({broken}); "
+              f"{metrics['recording']['lost']} message(s) not recorded", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -205,5 +222,7 @@ def add_record_command(sub: argparse._SubParsersAction) -> None:
     add_option(p, "--startup-timeout", default=120.0)
     p.add_argument("--no-record", action="store_true", help="no recording.mcap")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--overwrite", action="store_true",
+                   help="--out already holds a run: remove its outputs first (else refused)")
     p.set_defaults(func=_cmd_record)
 

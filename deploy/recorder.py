@@ -25,8 +25,12 @@ the SDK's protobuf ones. The SDK still provides every scene schema and encoding.
 Messages are appended by the launcher's thread and written by one writer thread in
 batches, so a slow disk never blocks a subscriber; :meth:`close` drains what is
 queued and writes the MCAP summary (also after Ctrl-C). A message that cannot
-be written (a value JSON cannot hold) is counted in ``failed``, never raised:
-``written`` is exactly the number of messages in the file.
+be encoded (a value JSON cannot hold) is counted in ``failed``, never raised; every
+integer the MCAP record holds is brought into its range first (a wire seq >= 2^32
+killed the writer thread once). Should the writer fail anyway (a full disk, a bug),
+the recorder is ``broken``: it says why, stops queueing (memory stays flat),
+counts what it could not write in ``lost``, and the run fails loudly (non-zero exit,
+verdict not PASS). ``written`` is exactly the number of messages in the file.
 """
 
 from __future__ import annotations
@@ -79,14 +83,19 @@ class McapRecorder:
         self._closed = False
         self._sim_ns = 0  # newest simulation time seen on the wire (messages without one)
         self.written = 0
-        self.failed = 0  # messages that could not be written (counted, never raised)
+        self.failed = 0  # messages that could not be encoded (counted, never raised)
         self.first_error: str | None = None
+        self.broken: str | None = None  # why the writer failed (the run then fails)
+        self.lost = 0  # messages not written because it had failed
         self._thread = threading.Thread(target=self._drain_forever, name="mcap", daemon=True)
         self._thread.start()
 
     # -- wire messages --------------------------------------------------------------
     def add(self, key: str, arrival_unix_ns: int, msg: msgspec.Struct) -> None:
         """Thread-safe (deque.append is atomic). ``arrival_unix_ns``: the wall clock."""
+        if self.broken is not None:
+            self.lost += 1  # nothing queued for a writer that cannot write (flat memory)
+            return
         self._queue.append((key, arrival_unix_ns, msg))
 
     def _json_channel(self, topic: str, kind: type) -> tuple[StructJson, int]:
@@ -118,20 +127,45 @@ class McapRecorder:
         return ns
 
     def _write_wire(self, key: str, arrival_ns: int, msg: Any) -> None:
-        try:
+        if self.broken is not None:
+            self.lost += 1
+            return
+        try:  # the value: what cannot be encoded is refused and counted
             codec, ch = self._json_channel(wire_topic(key), type(msg))
             data = codec.encode(msg)
             seq = getattr(msg, "seq", None)
-            if not isinstance(seq, int):
+            if not isinstance(seq, int) or isinstance(seq, bool):
                 seq = self._next_sequence(ch)
-            self._writer.add_message(ch, log_time=_clamp_ns(self._log_time(msg, arrival_ns)),
-                                     data=data, publish_time=_clamp_ns(arrival_ns),
-                                     sequence=seq & UINT32)  # MCAP's sequence is uint32
+            log_time = _clamp_ns(self._log_time(msg, arrival_ns))
         except Exception as exc:  # noqa: BLE001 - a recorder never dies on a value
             self.failed += 1
             self.first_error = self.first_error or f"{key}: {type(exc).__name__}: {exc}"
             return
+        # the writer: every field within the record's range, so what fails here is the
+        # writer itself (a full disk), never the value
+        self._add(ch, log_time, data, _clamp_ns(arrival_ns), seq & UINT32,  # uint32
+                  what=key)
+
+    def _add(self, ch: int, log_time: int, data: bytes, publish_time: int, sequence: int,
+             what: str) -> None:
+        try:
+            self._writer.add_message(ch, log_time=log_time, data=data,
+                                     publish_time=publish_time, sequence=sequence)
+        except Exception as exc:  # noqa: BLE001 - said loudly by the run, not raised here
+            self._break(f"writing {what}: {type(exc).__name__}: {exc}")
+            self.lost += 1
+            return
         self.written += 1
+
+    def _break(self, why: str) -> None:
+        if self.broken is None:
+            self.broken = why
+            import sys
+
+            print(f"recorder: FAILED ({why}); the rest of the run is not recorded and "
+                  "the run will fail", file=sys.stderr, flush=True)
+        self.lost += len(self._queue)
+        self._queue.clear()
 
     def _next_sequence(self, ch: int) -> int:
         n = self._sequence.get(ch, 0)
@@ -145,9 +179,12 @@ class McapRecorder:
                 self._write_wire(*q.popleft())
 
     def _drain_forever(self) -> None:
-        while not self._closing:
-            self._wake.wait(0.25)
-            self._drain()
+        try:
+            while not self._closing:
+                self._wake.wait(0.25)
+                self._drain()
+        except BaseException as exc:  # noqa: BLE001 - never a silent death of the thread
+            self._break(f"writer thread: {type(exc).__name__}: {exc}")
 
     # -- scene and plots ------------------------------------------------------------
     def write_message(self, topic: str, msg: Any, log_time_ns: int, publish_time_ns: int) -> None:
@@ -159,14 +196,15 @@ class McapRecorder:
             else:
                 ch = self._protobuf_channel(topic, msg)
                 data = msg.encode()
-            self._writer.add_message(ch, log_time=_clamp_ns(log_time_ns), data=data,
-                                     publish_time=_clamp_ns(publish_time_ns),
-                                     sequence=self._next_sequence(ch) & UINT32)
         except Exception as exc:  # noqa: BLE001
             self.failed += 1
             self.first_error = self.first_error or f"{topic}: {type(exc).__name__}: {exc}"
             return
-        self.written += 1
+        if self.broken is not None:
+            self.lost += 1
+            return
+        self._add(ch, _clamp_ns(log_time_ns), data, _clamp_ns(publish_time_ns),
+                  self._next_sequence(ch) & UINT32, what=topic)
 
     def _protobuf_channel(self, topic: str, msg: Any) -> int:
         ch = self._channels.get(topic)
@@ -216,17 +254,27 @@ class McapRecorder:
         self._closing = True
         self._wake.set()
         self._thread.join()
-        self._drain()
+        try:
+            self._drain()
+        except BaseException as exc:  # noqa: BLE001
+            self._break(f"closing: {type(exc).__name__}: {exc}")
         with self._lock:
-            self._writer.add_metadata(LIBRARY, {
-                "log_time": "simulation time (t = 0 is 1970-01-01T00:00:00Z)"
-                if self.sim_dt is not None else "wall clock",
-                "publish_time": "wall clock",
-                "messages_failed": str(self.failed),
-                **(metadata or {})})
-            self._writer.finish()
-            self._file.close()
+            try:
+                self._writer.add_metadata(LIBRARY, {
+                    "log_time": "simulation time (t = 0 is 1970-01-01T00:00:00Z)"
+                    if self.sim_dt is not None else "wall clock",
+                    "publish_time": "wall clock",
+                    "messages_failed": str(self.failed),
+                    **({"broken": self.broken} if self.broken else {}),
+                    **(metadata or {})})
+                self._writer.finish()
+            except Exception as exc:  # noqa: BLE001
+                self._break(f"finishing the file: {type(exc).__name__}: {exc}")
+            finally:
+                self._file.close()
         self._closed = True
+        if self.broken is not None:  # the count is what the file holds, read back
+            self.written = messages_in(self.path)
 
     def summary(self) -> dict[str, Any]:
         """For metrics.json."""
@@ -234,4 +282,18 @@ class McapRecorder:
                                "failed": self.failed}
         if self.first_error:
             out["first_error"] = self.first_error
+        if self.broken is not None:
+            out["error"] = self.broken
+            out["lost"] = self.lost
         return out
+
+
+def messages_in(path: Path) -> int:
+    """How many messages the MCAP file at ``path`` really holds (0 when unreadable)."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as f:
+            return sum(1 for _ in make_reader(f).iter_messages())
+    except Exception:  # noqa: BLE001 - a truncated file: count what a reader gets
+        return 0

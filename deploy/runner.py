@@ -22,7 +22,7 @@ from deploy.fault_model import FaultModel
 from deploy.fault_plan import FaultPlan
 from deploy.lockstep_inputs import AgentLinks, HeldInput
 from deploy.scenario import PLANT_KINDS, Scenario
-from deploy.timeseries import TimeSeries
+from deploy.timeseries import COLUMNS, TimeSeries
 from deploy.wire import PLANT_ROLE, agent_role
 from plant.command import (
     applied_command,
@@ -48,6 +48,8 @@ class RunResult:
     contacts: list[dict] | None = None  # physical contact events (pybullet); None: not simulated
     faults: dict[str, dict[str, int]] | None = None  # injected faults per edge (with a plan)
     step_unix_ns: np.ndarray | None = None  # wall clock as each step began (the recording)
+    law_resets: list[int] | None = None  # per robot: the law restarted from a non-finite state
+    interrupted: str | None = None  # "SIGINT": stopped early, the series holds the steps done
     # per robot id, the commands that asked for more torque than the bound (clipped), as
     # the plant node counts them (plant/command.py); the agents' own: none on a bounded law
     torque_clipped: dict[int, int] | None = None
@@ -168,51 +170,61 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     # commands can only be lost with a fault plan: only then is the look-ahead worth its cost
     horizon = sc.spec.degradation.command_horizon if model.plan is not None else 0
     look_ahead = [LookAhead(a, horizon) for a in agents] if horizon else None
+    law_resets = [0] * sc.n
 
     bound, clipped = torque_bound(sc.spec.limits), dict.fromkeys(ids, 0)
     start = time.perf_counter()
-    for k in range(steps):
-        step_unix_ns[k] = time.time_ns()
-        t = k * dt
-        q0, v0 = leader.state()
-        leaders[k] = (q0, v0)
-        worlds[k] = [(plant.q[i].copy(), plant.q_dot[i].copy(), *sense(i)) for i in range(sc.n)]
-        for i, agent in enumerate(agents):
-            rid = ids[i]
-            world, lead, shs, ages = links[i].take(
-                k, lambda idx, i=i: worlds[idx][i] if idx in worlds else None, leaders.get,
-                lambda j, idx: shares.get((j, idx)), dt)
-            q, q_dot, robots_seen, obstacles_seen = world
-            out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
-            plan = [] if look_ahead is None else look_ahead[i].plan(
-                agent, out, t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
-            if exceeds(out.torques, plan, bound):
-                clipped[rid] += 1
-            commands[(rid, k)] = (*applied_command(out.torques, out.v_cmd, sc.spec.limits),
-                                  clamped_plan(plan, sc.spec.limits))
-            shares[(rid, k)] = out.share
-            series.record_agent(k, i, out, agent)
-        series.record_world(
-            k, t, q0, v0, plant.q, plant.q_dot, targets.at(t, q0, v0)
-        )
-        for i, rid in enumerate(ids):
-            cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get((rid, idx)))
-            if cmd is None:
-                continue
-            planned = command_for_step(k - age, cmd[0], cmd[2],
-                                       k if zero_missed else held_step(k - age, cmd[2], k))
-            if planned is None:  # "zero": past the newest command's plan
-                torques[i], v_cmd[i] = 0.0, 0.0
-            else:  # its own command, its look-ahead for step k, or held past it
-                torques[i], v_cmd[i] = planned, cmd[1]
-        plant.step(t, dt, torques, v_cmd)
-        leader.advance()
-        _forget(k - keep, worlds, leaders, shares, commands)
-        if progress is not None:
-            progress(k + 1, steps)
+    done, interrupted = 0, None
+    try:  # Ctrl-C: what was measured so far is still the run's (deploy/cli.py)
+        for k in range(steps):
+            step_unix_ns[k] = time.time_ns()
+            t = k * dt
+            q0, v0 = leader.state()
+            leaders[k] = (q0, v0)
+            worlds[k] = [(plant.q[i].copy(), plant.q_dot[i].copy(), *sense(i)) for i in range(sc.n)]
+            for i, agent in enumerate(agents):
+                rid = ids[i]
+                world, lead, shs, ages = links[i].take(
+                    k, lambda idx, i=i: worlds[idx][i] if idx in worlds else None, leaders.get,
+                    lambda j, idx: shares.get((j, idx)), dt)
+                q, q_dot, robots_seen, obstacles_seen = world
+                out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
+                plan = [] if look_ahead is None else look_ahead[i].plan(
+                    agent, out, t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
+                if exceeds(out.torques, plan, bound):
+                    clipped[rid] += 1
+                commands[(rid, k)] = (*applied_command(out.torques, out.v_cmd, sc.spec.limits),
+                                      clamped_plan(plan, sc.spec.limits))
+                shares[(rid, k)] = out.share
+                law_resets[i] += bool(out.reset)
+                series.record_agent(k, i, out, agent)
+            series.record_world(
+                k, t, q0, v0, plant.q, plant.q_dot, targets.at(t, q0, v0)
+            )
+            for i, rid in enumerate(ids):
+                cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get((rid, idx)))
+                if cmd is None:
+                    continue
+                planned = command_for_step(k - age, cmd[0], cmd[2],
+                                           k if zero_missed else held_step(k - age, cmd[2], k))
+                if planned is None:  # "zero": past the newest command's plan
+                    torques[i], v_cmd[i] = 0.0, 0.0
+                else:  # its own command, its look-ahead for step k, or held past it
+                    torques[i], v_cmd[i] = planned, cmd[1]
+            plant.step(t, dt, torques, v_cmd)
+            leader.advance()
+            _forget(k - keep, worlds, leaders, shares, commands)
+            if progress is not None:
+                progress(k + 1, steps)
+            done = k + 1
+    except KeyboardInterrupt:
+        interrupted = "SIGINT"
+        series = TimeSeries(**{c: getattr(series, c)[:done].copy() for c in COLUMNS})
+        step_unix_ns = step_unix_ns[:done]
     wall = time.perf_counter() - start
     return RunResult(sc, plant_kind, series, wall, contact_log(plant), model.report()
-                     if model.plan is not None else None, step_unix_ns, clipped)
+                     if model.plan is not None else None, step_unix_ns, law_resets, interrupted,
+                     clipped)
 
 
 def _forget(before: int, by_step: dict, leaders: dict, *by_robot_step: dict) -> None:
@@ -239,3 +251,33 @@ def terminal_progress(total_label: str) -> Callable[[int, int], None] | None:
             bar.close()
 
     return update
+
+
+LOG_PROGRESS_EVERY_S = 5.0  # not on a terminal: one progress line this often
+
+
+def log_progress(label: str, every_s: float = LOG_PROGRESS_EVERY_S,
+                 clock: Callable[[], float] = time.monotonic) -> Callable[[int, int], None]:
+    """Progress as plain lines on stderr (``LABEL: step K/N (P %), T s``), the first at
+    once and then at most one per ``every_s``, and the last: piped output showed nothing
+    for a minute."""
+    start = clock()
+    last = [None]
+
+    def update(done: int, total: int) -> None:
+        now = clock()
+        if last[0] is not None and now - last[0] < every_s and done < total:
+            return
+        if done >= total and last[0] == float("inf"):
+            return
+        last[0] = float("inf") if done >= total else now
+        pct = 100.0 * done / total if total else 100.0
+        print(f"{label}: step {done}/{total} ({pct:.0f} %), {now - start:.0f} s",
+              file=sys.stderr, flush=True)
+
+    return update
+
+
+def run_progress(label: str) -> Callable[[int, int], None]:
+    """A progress bar on a terminal (tqdm), progress lines every few seconds otherwise."""
+    return terminal_progress(label) or log_progress(label)

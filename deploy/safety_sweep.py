@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import argparse
 import csv
-import math
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
+
+from deploy.options import add_option, check_duration
 
 EXIT_BAD_INPUT = 2
 
@@ -83,14 +83,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from deploy.scenario import load_scenario
 
     sc = load_scenario(args.scenario)  # ScenarioError: exit 2 with file and key (cli.main)
-    for name in ("duration", "obstacle_jitter", "start_jitter"):
-        value = getattr(args, name)
-        if value is not None and (not math.isfinite(value) or value < 0 or
-                                  (name == "duration" and value < sc.dt)):
-            print(f"omnifleet safety sweep: --{name.replace('_', '-')} must be a finite number "
-                  f"{'of at least one control period' if name == 'duration' else '>= 0'}, "
-                  f"not {value!r}", file=sys.stderr)
-            return EXIT_BAD_INPUT
+    check_duration(args.duration, sc.spec.control_rate_hz)  # OptionError: exit 2 (cli.main)
     plant = args.plant or sc.spec.plant.kind
     args.out.mkdir(parents=True, exist_ok=True)
     rows: list[SweepRow] = []
@@ -117,16 +110,6 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 1 if args.check and any(r.contacts for r in rows) else 0
 
 
-def _positive_int(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, not {n}")
-    return n
-
-
 def add_safety_command(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("safety", help="check that no robot touches: seeded perturbation sweeps")
     s = p.add_subparsers(dest="safety_cmd", required=True)
@@ -134,13 +117,13 @@ def add_safety_command(sub: argparse._SubParsersAction) -> None:
                       "(obstacles and starts jittered) and count contacts",
                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sw.add_argument("scenario", help="bundled scenario name or TOML file")
-    sw.add_argument("--seeds", type=_positive_int, default=10, help="seeds 0..N-1 (default 10)")
+    add_option(sw, "--seeds", default=10, help="seeds 0..K-1")
     sw.add_argument("--plant", choices=["pybullet", "model", "kinematic"],
                     help="plant (default: the scenario's)")
-    sw.add_argument("--duration", type=float, help="simulated seconds (default: the scenario's)")
-    sw.add_argument("--obstacle-jitter", type=float, help="m (default: two robot radii)")
-    sw.add_argument("--start-jitter", type=float, help="m (default: one robot radius)")
-    sw.add_argument("--jobs", type=_positive_int, default=2, help="runs at once (default 2)")
+    add_option(sw, "--duration")
+    add_option(sw, "--obstacle-jitter")
+    add_option(sw, "--start-jitter")
+    add_option(sw, "--jobs", default=2, help="in-process runs at once")
     sw.add_argument("--out", type=Path, default=Path("runs/safety-sweep"),
                     help="folder for sweep.csv and sweep.md (default runs/safety-sweep)")
     sw.add_argument("--check", action="store_true", help="exit 1 when any run touched")

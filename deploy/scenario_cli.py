@@ -172,11 +172,9 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
         "every start within --start-jitter, drawn again where it would overlap an obstacle or "
         "another robot; the same seed gives the same file. `omnifleet safety sweep` runs many.")
     per.add_argument("name", help="bundled scenario name or TOML file")
-    per.add_argument("--seed", type=int, required=True, metavar="K", help="the perturbation's seed")
-    per.add_argument("--obstacle-jitter", type=float, metavar="M",
-                     help="how far an obstacle may move (default: two robot radii)")
-    per.add_argument("--start-jitter", type=float, metavar="M",
-                     help="how far a start may move (default: one robot radius)")
+    add_option(per, "--seed", required=True, help="the perturbation's seed")
+    add_option(per, "--obstacle-jitter")
+    add_option(per, "--start-jitter")
     per.add_argument("--out", required=True, metavar="FILE", help="where to write the TOML")
     per.add_argument("--force", action="store_true", help="replace --out if it exists")
     per.set_defaults(func=_cmd_perturb)

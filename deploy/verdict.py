@@ -3,9 +3,11 @@
 PASS when every robot settles (|e| stays below ``settle_threshold``) before
 sqrt(2) T_p, nothing ever touches (no contact, every surface-to-surface gap > 0) and
 nothing is non-finite (no NaN/Inf in the states, and the control law never
-gave one), and the run went to its end: a run ended early by a genuine ``ctl/stop``
-or ``ctl/estop`` (``stopped_by`` in metrics.json) is never PASS. A run whose states
-become non-finite or absurd (a robot ``DIVERGED_DISTANCE_M`` from its formation target, or faster than
+gave one), no robot ran on zero torque (its agent silent) for longer than the command
+timeout, the run was not interrupted, its recording did not fail, and it went to its
+end: a run ended early by a genuine ``ctl/stop`` or ``ctl/estop`` (``stopped_by`` in
+metrics.json) is never PASS. A run whose states become non-finite or absurd (a robot
+``DIVERGED_DISTANCE_M`` from its formation target, or faster than
 ``DIVERGED_SPEED_MPS``) has **diverged**; the verdict says when and which robot.
 
 Written to ``metrics.json`` as ``verdict`` by every run; ``--check`` turns it
@@ -70,25 +72,41 @@ def judge(metrics: dict[str, Any], diverged: dict[str, Any] | None = None) -> di
     finite = nonfinite == 0 and diverged is None
     if nonfinite:
         reasons.append(f"{nonfinite} non-finite command(s)")
+    # a robot left on zero torque (its agent silent) longer than the command timeout was
+    # not under control for that long, whatever the settling figures say afterwards
+    timeout = metrics.get("command_timeout_s")
+    unpowered = [(i, d) for i, d in enumerate(metrics.get("zero_torque_longest_s") or [])
+                 if timeout is not None and d is not None and d > timeout]
+    for i, d in unpowered:
+        reasons.append(f"robot #{i + 1} ran on zero torque for {d:.3f} s "
+                       f"(> command timeout {timeout:.3f} s)")
+    if metrics.get("interrupted"):
+        reasons.append(f"interrupted ({metrics['interrupted_by']})" if metrics.get(
+            "interrupted_by") else "interrupted")
+    recording = metrics.get("recording") or {}
+    if recording.get("error"):
+        reasons.append(f"the recording failed: {recording['error']}")
+    complete = not metrics.get("interrupted") and not recording.get("error")
     if diverged is not None:
         reasons.append(f"DIVERGED: robot {diverged['robot']} {diverged['what']} "
                        f"at t = {diverged['t_s']:.3f} s")
     stopped = metrics.get("stopped_by")
-    if stopped:
+    if stopped:  # a genuine ctl/stop or ctl/estop ended the run early (issue 21)
         at = stopped.get("t_s")
         reasons.append(f"STOPPED by ctl/{stopped['command']}"
                        + ("" if at is None else f" at t = {at:.3f} s"))
-    return {"pass": bool(settled) and no_contact and finite and not stopped,
+    return {"pass": (bool(settled) and no_contact and finite and not unpowered and complete
+                     and not stopped),
             "settled": settled, "no_contact": no_contact, "finite": finite,
-            "stopped": bool(stopped), "diverged": diverged,
-            "settling_bound_s": bound, "reasons": reasons}
+            "powered": not unpowered, "complete": complete, "stopped": bool(stopped),
+            "diverged": diverged, "settling_bound_s": bound, "reasons": reasons}
 
 
 def verdict_line(v: dict[str, Any]) -> str:
     """The summary's last line."""
     if v["pass"]:
         return (f"verdict: PASS (every robot settled before {v['settling_bound_s']:.3f} s, "
-                "no contact, nothing non-finite)")
+                "no contact, nothing non-finite, never unpowered)")
     return "verdict: FAIL (" + "; ".join(v["reasons"]) + ")"
 
 

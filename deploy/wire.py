@@ -364,19 +364,24 @@ class NodeReport(Message, frozen=True):
     # fresh command, as (robot, age of its newest command then, s; run time, s)
     command_stops: list[tuple[int, float, float]] = []
     refused: dict[str, int] = {}  # messages refused on arrival, by reason (forged, implausible)
-    law_resets: int = 0  # agent: its law restarted from the robot after a long gap (realtime)
-    # plant or CAN bridge: per robot id (as text, as in metrics.json), the commands that asked
-    # for more wheel torque than the bound (plant/command.py torque_bound): clipped to it
-    torque_clipped: dict[str, int] = {}
+    law_resets: int = 0  # agent: its law restarted from the robot (a long gap, a non-finite state)
     nonfinite: int = 0  # values the node computed that were NaN or Inf (Node.note_nonfinite)
     zid: str = ""  # this node's zenoh id
     peers: list[str] = []  # the zenoh ids it had a link with as it ended (zenoh's own info)
+    nonfinite_commands: int = 0  # agent: steps whose law gave NaN/Inf (zero torques sent)
+    stale_samples: int = 0  # agent (realtime): samples too old on arrival, not answered
+    # plant (realtime) or CAN bridge: each stretch a robot ran on zero torque for want of a
+    # fresh command, as (robot, run time it began, s; how long it lasted, s)
+    zero_torque: list[tuple[int, float, float]] = []
+    # plant or CAN bridge: per robot id (as text, as in metrics.json), the commands that asked
+    # for more wheel torque than the bound (plant/command.py torque_bound): clipped to it
+    torque_clipped: dict[str, int] = {}
 
     def __post_init__(self) -> None:
         if (len(self.latency_ns) > MAX_REPORT_SAMPLES or len(self.jitter_ns) > MAX_REPORT_SAMPLES
                 or len(self.received) > MAX_REPORT_KEYS or len(self.faults) > MAX_REPORT_KEYS
                 or len(self.refused) > MAX_REPORT_KEYS or len(self.command_stops) > 1000
-                or len(self.torque_clipped) > MAX_BODIES):
+                or len(self.zero_torque) > 1000 or len(self.torque_clipped) > MAX_BODIES):
             raise ValueError("report too large")
         if len(self.zid) > MAX_ROLE_CHARS or len(self.peers) > MAX_BODIES or any(
                 len(p) > MAX_ROLE_CHARS for p in self.peers):

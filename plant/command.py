@@ -93,3 +93,30 @@ def held_step(k_cmd: int, plan: Sequence[Sequence[float]], k: int) -> int:
     (k_cmd for a command without a plan: its own torques, as a drive holds its
     setpoint). A command that arrives late (a delayed link) is still applied."""
     return min(k, k_cmd + len(plan))
+
+
+class ZeroTorqueSpans:
+    """Realtime: each stretch a robot ran on zero torque for want of a fresh command
+    (its agent silent past the command timeout), as (robot, begin, seconds) on the run
+    clock. The verdict fails a run in which one lasted longer than the command timeout
+    (deploy/verdict.py): that robot was not under control."""
+
+    MAX = 1000  # spans kept (the report's bound)
+
+    def __init__(self) -> None:
+        self._open: dict[int, float] = {}
+        self.spans: list[tuple[int, float, float]] = []
+
+    def begin(self, robot: int, t: float) -> None:
+        self._open.setdefault(robot, t)
+
+    def end(self, robot: int, t: float) -> None:
+        began = self._open.pop(robot, None)
+        if began is not None and len(self.spans) < self.MAX:
+            self.spans.append((robot, began, max(0.0, t - began)))
+
+    def close(self, t: float) -> list[tuple[int, float, float]]:
+        """Every span, those still open ending at ``t`` (the end of the run)."""
+        for robot in list(self._open):
+            self.end(robot, t)
+        return self.spans

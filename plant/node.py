@@ -60,6 +60,7 @@ from deploy.wire import (
     sensed_bodies,
 )
 from plant.command import (
+    ZeroTorqueSpans,
     applied_command,
     command_for_step,
     exceeds,
@@ -118,6 +119,7 @@ class PlantNode:
         self.bound = torque_bound(sc.spec.limits)
         self.clipped: dict[int, int] = {}
         self.command_stops: list[tuple[int, float, float]] = []  # (robot, command age, t)
+        self.zero_torque = ZeroTorqueSpans()  # how long each stop lasted
         for rid in self.ids:
             on_cmd = self._on_cmd if self.gate is None else self.gate.wrap(
                 agent_role(rid), PLANT_ROLE, self._on_cmd)
@@ -298,13 +300,16 @@ class PlantNode:
                         self.unpowered.add(rid)
                         age, t = now - self.newest_at[rid], self.steps_done * self.sc.dt
                         self.command_stops.append((rid, age, t))
+                        self.zero_torque.begin(rid, t)
                         print(f"plant: t = {t:.3f} s: newest command from {agent_role(rid)} is "
                               f"{age * 1e3:.1f} ms old: torques zeroed; the others now perceive "
                               f"robot {rid} as an obstacle", flush=True)
                 else:
                     self.torques[i], self.v_cmd[i] = applied_command(cmd.torques, cmd.v_cmd,
                                                                      self.sc.spec.limits)
-                    self.unpowered.discard(rid)
+                    if rid in self.unpowered:
+                        self.unpowered.discard(rid)
+                        self.zero_torque.end(rid, self.steps_done * self.sc.dt)
                 if cmd is None or cmd.state_seq != self.last_state_seq.get(rid):
                     self.timing.deadline_misses += 1  # the latest state went unanswered
             self.commands.clear()
@@ -335,6 +340,7 @@ class PlantNode:
         publish_report(self.node, -1, self.steps_done, self.timing, contacts=contacts,
                        contacts_total=0 if log is None else len(log),
                        faults=self.faults.report(), command_stops=self.command_stops[:1000],
+                       zero_torque=self.zero_torque.close(self.steps_done * self.sc.dt),
                        torque_clipped={str(r): n for r, n in self.clipped.items()})
         others = set(self.peers) - {LAUNCHER_ROLE}
         self.node.mailbox.wait_until(lambda: not (others & self.node.peers_alive), linger_s)
