@@ -3,7 +3,8 @@
 The same command works on one machine (the launcher starts it with loopback
 endpoints) and across machines (``--listen``/``--connect`` or
 ``--zenoh-config``). Every node of a run must be given the same scenario, fleet
-name, clock, and --duration/--control-rate if any.
+name, clock, and --duration/--control-rate/--step-deadline if any (a lockstep agent
+judges how far ahead the plant can be by the plant's step deadline: step_guard.py).
 """
 
 from __future__ import annotations
