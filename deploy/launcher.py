@@ -42,7 +42,7 @@ from deploy.options import (
     DEFAULT_STEP_DEADLINE_S,
 )
 from deploy.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
-from deploy.run_secret import RUN_SECRET_ENV, control_is_genuine, new_secret
+from deploy.run_secret import RUN_SECRET_ENV, control_is_genuine, new_secret, report_is_genuine
 from deploy.scenario import Scenario
 from deploy.step_guard import CLOCK_SKEW_S
 from deploy.transport import Node, zenoh_config
@@ -58,6 +58,7 @@ from deploy.wire import (
     agent_role,
     bridge_role,
     control,
+    run_roles,
 )
 
 STOP_GRACE_S = 3.0
@@ -203,6 +204,7 @@ class Launcher:
         self.control_refused = 0  # control messages heard whose signature did not check
         self.stopped_by: dict[str, Any] | None = None  # a genuine ctl/stop or ctl/estop
         self.misfiled = 0  # reports and state logs whose key is not their sender's
+        self.forged_reports = 0  # reports of no role of the run, or not signed by its nodes
         self.tick_k = -1  # lockstep: the newest signed ctl/tick (the plant's step)
         self.collector.horizon = self._horizon
 
@@ -435,6 +437,13 @@ class Launcher:
             self.invalid += 1
             self.misfiled += 1
             return
+        if isinstance(msg, NodeReport) and (msg.role not in self._report_roles()
+                                            or not report_is_genuine(self.secret, msg)):
+            # only the run's roles (the table of reports stays bounded), signed with the
+            # run's secret (a report on report/plant with a fake contact is refused)
+            self.invalid += 1
+            self.forged_reports += 1
+            return
         if isinstance(msg, StateLog) and not self._state_source(key, msg):
             self.invalid += 1  # robot states from a node that does not hold them
             self.misfiled += 1
@@ -442,6 +451,11 @@ class Launcher:
         if isinstance(msg, StateLog) and self.opts.clock == "realtime":
             self.progress_k = max(self.progress_k, msg.rows[-1].k)
         self.collector.add(msg)
+
+    def _report_roles(self) -> set[str]:
+        """The roles whose reports a run files: its nodes (a plant or bridges)."""
+        ids = self.sc.robot_ids
+        return {*run_roles(ids), *(bridge_role(r) for r in ids)}
 
     def _state_source(self, key: str, msg: StateLog) -> bool:
         """Whether ``msg`` came on the key of a node that holds those robots' states:
@@ -653,6 +667,8 @@ class Launcher:
             refused["launcher: forged control"] = self.control_refused
         if self.misfiled:
             refused["launcher: report or state log on another node's key"] = self.misfiled
+        if self.forged_reports:
+            refused["launcher: report not from a node of the run"] = self.forged_reports
         for why, n in self.collector.refused.items():
             refused[f"launcher: {why}"] = n
         if refused:  # counted in "dropped" too; here by node and reason

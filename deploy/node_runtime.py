@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from deploy.fault_model import FaultModel
-from deploy.run_secret import control_is_genuine, run_secret
+from deploy.run_secret import control_is_genuine, run_secret, sign_report
 from deploy.transport import Mailbox, Node
 from deploy.wire import MAX_REPORT_SAMPLES, WIRE_VERSION, Control, NodeReport
 
@@ -247,11 +247,12 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
     """The node's :class:`NodeReport`; ``extra``: further NodeReport fields."""
     c = node.counters
     timing = timing or Timing()
-    node.publish(node.keys.report(node.role), lambda seq, stamp: NodeReport(
+    secret = run_secret()  # signed like control: the launcher files only its nodes' reports
+    node.publish(node.keys.report(node.role), lambda seq, stamp: sign_report(secret, NodeReport(
         WIRE_VERSION, node.sender, seq, stamp, role=node.role, robot=robot, sent=c.sent,
         dropped=c.dropped, late=c.late, invalid=c.invalid, steps=steps, nonfinite=c.nonfinite,
         latency_ns=timing.latency_ns, jitter_ns=timing.jitter_ns,
         deadline_misses=timing.deadline_misses, peak_rss_kb=peak_rss_kb(),
         received=dict(node.received), refused=dict(node.refused), zid=node.zid,
         peers=node.linked_peers(), **extra,
-    ))
+    )))

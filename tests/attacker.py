@@ -109,10 +109,17 @@ class Attacker:
                                                  command=command, k=k, mac=mac))
 
     def report(self, on_role: str, body_role: str, **fields) -> None:
-        """A report on ``report/<on_role>`` whose body says ``body_role``."""
-        body = dict(robot=-1, sent=1, dropped=0, late=0, invalid=0, steps=1) | fields
-        m = NodeReport(WIRE_VERSION, 0, 0, 0, role=body_role, **body)
-        self.put(self.keys.report(on_role), m)
+        """A report on ``report/<on_role>`` whose body says ``body_role``; ``fields`` may
+        hold what the type refuses (a negative count): it is written field by field."""
+        import msgspec
+
+        m = NodeReport(WIRE_VERSION, 0, 0, 0, role=body_role, robot=-1, sent=1, dropped=0,
+                       late=0, invalid=0, steps=1)
+        names = NodeReport.__struct_fields__
+        row = list(msgspec.structs.astuple(m))
+        for name, value in fields.items():
+            row[names.index(name)] = value
+        self.raw(self.keys.report(on_role), msgspec.msgpack.encode(row))
 
     def state_log(self, role: str, robots: list[int], steps: list[int],
                   q=(50.0, 50.0, 0.0)) -> None:

@@ -76,9 +76,12 @@ def test_lockstep_forgeries_cost_only_themselves(tmp_path: Path, reference: Time
         # control without the secret
         for seq, command in enumerate(("stop", "estop", "end")):
             a.control(command, seq=seq)
-        # reports: another role's body, and one too large to decode
-        a.report("agent-2", "plant", contacts=[ContactRecord(0.1, 0.2, 1, 2, 0.5)],
-                 contacts_total=1, invalid=-1000)
+        # reports: another role's body, one on the plant's own key (unsigned), one with a
+        # negative count, and one too large to decode
+        fake_contact = {"contacts": [ContactRecord(0.1, 0.2, 1, 2, 0.5)], "contacts_total": 1}
+        a.report("agent-2", "plant", **fake_contact)
+        a.report("plant", "plant", **fake_contact)
+        a.report("agent-3", "agent-3", invalid=-1000)
         a.raw(a.keys.report("agent-1"), b"\x00" * (MAX_REPORT_BYTES + 1))
         # the series: rows on a key that is not the plant's, second rows for steps long
         # filed (telemetry that says the law diverged)
@@ -100,12 +103,15 @@ def test_lockstep_forgeries_cost_only_themselves(tmp_path: Path, reference: Time
     launcher = refused(m, "launcher")
     assert launcher["forged control"] == 3
     assert launcher["report or state log on another node's key"] == 2
+    assert launcher["report not from a node of the run"] == 1
+    assert all(p["reported"] for p in m["processes"])  # the real ones, signed, all filed
     assert launcher["second state row for a step"] == 3
     assert launcher["state row ahead of the run"] == 1
     assert launcher["second telemetry row for a step"] == 3
     assert launcher["telemetry row ahead of the run"] == 1
     assert m["contacts"] == 0 and not m["contact_log"]  # not the forged report's contact
-    assert m["messages"]["invalid"] >= 2  # the misfiled report and the oversized one
+    # the misfiled report and state log, the unsigned one, the negative one, the oversized
+    assert m["messages"]["invalid"] >= 5
     # nothing was steered: the run is the in-process reference, bit for bit
     assert_same_series(TimeSeries.load(out / "timeseries.npz"), reference)
 
