@@ -276,3 +276,24 @@ def test_50k_commands_for_future_steps_leave_the_plants_table_as_it_was():
     for k in range(101, 50_101):
         p.node.deliver(key, _reply(k, 0, -2.0))
     assert list(p.commands) == [(2, 100)] and p.node.refused == {"future step": 50_000}
+
+
+def test_made_up_keys_under_a_wildcard_leave_the_received_table_bounded():
+    """ctl/* hears any key a peer makes up: counted per key, a node's table grew with
+    each, and a report of more than 1024 entries does not decode (the node's whole
+    report would have been lost)."""
+    from deploy.transport import MAX_RECEIVED_KEYS, Node, zenoh_config
+    from deploy.wire import Codec, Keys, encode
+
+    node = Node("probe", Keys("t-wild"), Codec([1]), zenoh_config(gossip=False))
+    try:
+        node.subscribe(node.keys.ctl_all, Control, lambda m: None)
+        n = MAX_RECEIVED_KEYS + 100
+        for i in range(n):
+            node.session.put(f"{node.keys.root}/ctl/made-up-{i}",
+                             encode(Control(WIRE_VERSION, 0, i, 0, command="tick")))
+        assert node.mailbox.wait_until(lambda: sum(node.received.values()) == n, 20.0)
+        assert len(node.received) == MAX_RECEIVED_KEYS + 1
+        assert node.received[node.keys.ctl_all] == 100
+    finally:
+        node.close()
