@@ -100,7 +100,8 @@ class BridgeNode:
         # the other robots, for perception: their published states (initially the scenario's)
         self.positions, self.velocities = q0[:, :2].copy(), np.zeros((sc.n, 2))
         self.radii = [sc.spec.robot.body_radius_m] * sc.n
-        self.obstacles = sc.obstacle_bodies()  # the map
+        self.obstacles = sc.obstacle_bodies()  # the map: discs,
+        self.shapes = sc.obstacle_shapes()  # walls and polygons
         self.log_rows: list[StateRow] = []
         node.subscribe(node.keys.cmd(robot_id), Reply, self._on_cmd, robot=robot_id)
         for j, rid in enumerate(sc.robot_ids):
@@ -312,7 +313,7 @@ class BridgeNode:
             pos, vel = self.positions.copy(), self.velocities.copy()
         pos[i], vel[i] = q[:2], qd[:2]
         robots, obstacles = sense(i, pos, vel, self.radii, self.sc.robot_ids, self.obstacles,
-                                  self.sc.spec.behaviors.detection_range_m)
+                                  self.sc.spec.behaviors.detection_range_m, self.shapes)
         self.published_k = max(self.published_k, k)
         node.publish(keys.sample(self.rid), lambda seq, stamp: Sample(
             WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, q=tuple(q.tolist()),

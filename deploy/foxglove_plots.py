@@ -72,8 +72,6 @@ class FleetSignals(msgspec.Struct, kw_only=True):
 class _Limits:
     ids: list[int]
     radius: float
-    obstacles: np.ndarray  # (m, 2)
-    obstacle_radii: np.ndarray  # (m,)
     max_speed: float
     max_torque: float
     threshold: float
@@ -88,8 +86,6 @@ class FleetPlots:
         self.sc = sc
         self.st = _Limits(
             ids=list(sc.robot_ids), radius=s.robot.body_radius_m,
-            obstacles=np.array([o.position for o in s.obstacles], float).reshape(-1, 2),
-            obstacle_radii=np.array([o.radius_m for o in s.obstacles], float),
             max_speed=s.limits.max_speed_mps, max_torque=s.limits.max_wheel_torque_nm,
             threshold=s.metrics.settle_threshold, bound=math.sqrt(2.0) * s.controller.T_p)
         self.targets = FormationTargets(sc)
@@ -121,7 +117,7 @@ class FleetPlots:
         peak = np.max(np.abs(tau), axis=2)
         vcmd = np.hypot(ts.v_cmd[rows, :, 0], ts.v_cmd[rows, :, 1])
         d_h = ts.q0_hat[rows, :, 2] - lq[:, None, 2]
-        obst, rob = _clearances(q[:, :, :2], st.radius, st.obstacles, st.obstacle_radii)
+        obst, rob = _clearances(q[:, :, :2], st.radius, self.sc.obstacle_gaps(q[:, :, :2]))
         cols = {
             "tracking_error": err, "formation_error": np.linalg.norm(q[:, :, :2] - target, axis=2),
             "fdb_error": ts.fdb_error[rows],
@@ -169,16 +165,12 @@ class FleetPlots:
             yield k, out
 
 
-def _clearances(p: np.ndarray, radius: float, obstacles: np.ndarray,
-                obstacle_radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(rows, n, 2) positions -> per row and robot: clearance to the nearest
-    obstacle's surface, to the nearest other robot's surface (inf: none)."""
+def _clearances(p: np.ndarray, radius: float,
+                obstacle_gaps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, n, 2) positions and (rows, n, m) obstacle gaps -> per row and robot: gap
+    to the nearest obstacle's surface, to the nearest other robot's surface (inf: none)."""
     rows, n = p.shape[:2]
-    if len(obstacles):
-        d = np.linalg.norm(p[:, :, None, :] - obstacles[None, None], axis=3)
-        obst = (d - radius - obstacle_radii[None, None]).min(axis=2)
-    else:
-        obst = np.full((rows, n), np.inf)
+    obst = obstacle_gaps.min(axis=2) if obstacle_gaps.shape[2] else np.full((rows, n), np.inf)
     dr = np.linalg.norm(p[:, :, None, :] - p[:, None, :, :], axis=3) - 2 * radius
     dr[:, np.arange(n), np.arange(n)] = np.inf
     return obst, dr.min(axis=2)

@@ -10,7 +10,9 @@ Scene (``foxglove.SceneUpdate``, frame ``world``, z up, the plane z = 0):
 
 - ``/scene/obstacles``: each obstacle as a cylinder of its radius (at least
   ``MIN_DRAWN_RADIUS_M``: the paper's obstacles are points), its R_a ring
-  (radius + ``obstacle_safe_distance_m``, as in Fig. 4);
+  (radius + ``obstacle_safe_distance_m``, as in Fig. 4); each wall and polygon as
+  its prism (triangles, 1 m tall) and outline, with its R_a band (the curve at R_a
+  from its surface);
 - ``/scene/robots``: each robot as a disc of its body radius with an arrow for
   its heading, and the virtual leader;
 - ``/scene/formation``: each robot's desired formation position x_fd of
@@ -49,6 +51,7 @@ from foxglove.messages import (
     SceneUpdate,
     TextPrimitive,
     Timestamp,
+    TriangleListPrimitive,
     Vector3,
 )
 
@@ -69,6 +72,7 @@ from deploy.foxglove_topics import (
 from deploy.palette import COLORS
 from deploy.scenario import Scenario
 from deploy.timeseries import BEHAVIOR_BITS, TimeSeries
+from plant.shapes import Polygon, offset_outline
 
 TRACE_STEP_S = 0.05  # one trace point per 50 ms of the run (the recent part, live)
 TRACE_RECENT_S = 2.0  # live: the last 2 s at TRACE_STEP_S, older history coarser
@@ -85,6 +89,7 @@ class _Static:
     obstacle_radii: np.ndarray  # (m,)
     r_a: float
     r_c: float
+    shapes: tuple[Polygon, ...] = ()  # walls and polygons
 
 
 class FleetScene:
@@ -102,7 +107,8 @@ class FleetScene:
             ids=list(sc.robot_ids), radius=s.robot.body_radius_m,
             obstacles=np.array([o.position for o in s.obstacles], float).reshape(-1, 2),
             obstacle_radii=np.array([o.radius_m for o in s.obstacles], float),
-            r_a=s.behaviors.obstacle_safe_distance_m, r_c=s.behaviors.robot_safe_distance_m)
+            r_a=s.behaviors.obstacle_safe_distance_m, r_c=s.behaviors.robot_safe_distance_m,
+            shapes=tuple(sc.obstacle_shapes()))
         self.stamp_offset_ns = stamp_offset_ns
         self.trace_stride = stride(sc, 1.0 / TRACE_STEP_S)
         self.history_stride = stride(sc, 1.0 / trace_history_step_s)
@@ -161,6 +167,13 @@ class FleetScene:
                     bottom_scale=1.0, top_scale=1.0, color=grey)],
                 lines=[_ring(p, float(r) + st.r_a, ring, dashed=True)],
                 texts=[_label((p[0], p[1]), f"o{j + 1}", grey)]))
+        for poly in st.shapes:
+            out.append(SceneEntity(
+                frame_id=WORLD_FRAME, id=f"obstacle-{-poly.ident}",
+                triangles=[_prism(poly, 1.0, grey)],
+                lines=[_outline(poly.array, ring, z=1.0),
+                       _outline(offset_outline(poly, st.r_a), ring, z=0.02, dashed=True)],
+                texts=[_label(poly.centroid, poly.name, grey)]))
         return out
 
     def _robot(self, rid: int, i: int, q: np.ndarray, stamp: Timestamp) -> SceneEntity:
@@ -267,6 +280,31 @@ def _label(p, text: str, color: Color, dz: float = 1.2) -> TextPrimitive:
 
 
 RING_SEGMENTS = 48
+
+
+def _outline(points: np.ndarray, color: Color, z: float, dashed: bool = False) -> LinePrimitive:
+    kind = LinePrimitiveLineType.LineList if dashed else LinePrimitiveLineType.LineLoop
+    pts = [Point3(x=float(x), y=float(y), z=z) for x, y in points]
+    if dashed and len(pts) % 2:
+        pts = pts[:-1]
+    return LinePrimitive(type=kind, thickness=1.5 if dashed else 2.0, scale_invariant=True,
+                         points=pts, color=color)
+
+
+def _prism(poly: Polygon, height: float, color: Color) -> TriangleListPrimitive:
+    """A convex polygon extruded to ``height``: top fan and the side walls, as triangles."""
+    v = poly.array
+    n = len(v)
+    tris: list[tuple[float, float, float]] = []
+    for k in range(1, n - 1):  # top: a fan from vertex 0 (convex)
+        tris += [(*v[0], height), (*v[k], height), (*v[k + 1], height)]
+    for k in range(n):
+        a, b = v[k], v[(k + 1) % n]
+        tris += [(*a, 0.0), (*b, 0.0), (*b, height), (*a, 0.0), (*b, height), (*a, height)]
+    return TriangleListPrimitive(pose=Pose(position=Vector3(x=0.0, y=0.0, z=0.0),
+                                           orientation=Quaternion(w=1.0)),
+                                 points=[Point3(x=float(x), y=float(y), z=float(z)) for x, y, z in tris],
+                                 color=color)
 
 
 def _ring(center, radius: float, color: Color, dashed: bool = False) -> LinePrimitive:

@@ -62,6 +62,7 @@ from deploy.wire import (
 )
 
 STOP_GRACE_S = 3.0
+REJOIN_GRACE_S = 3.0  # a restarted node may exit this long after the others
 # zenoh's runtime pools cut to one worker each: a node needs no more, and every
 # thread is a wake-up competing for 2 cores (the hop 80 -> 60 µs p50, ping-pong)
 ZENOH_RUNTIME = ("(app: (worker_threads: 1), acc: (worker_threads: 1), "
@@ -95,8 +96,10 @@ class Child:
     log: Any = None
     zenoh: bool = True  # a zenoh peer with liveliness tokens (an emulator speaks CAN only)
     links: list[str] = field(default_factory=list)  # roles it connects to (beside the launcher)
+    talks_with: list[str] = field(default_factory=list)  # every role it has a link with
     stop_after_run: bool = False  # runs until stopped (an emulator): SIGTERM after the run
     killed: bool = False  # killed by the fault plan: its exit status is expected
+    restarted: bool = False  # started again by the fault plan, while the fleet runs
 
     def tail(self, n: int = TAIL_LINES) -> str:
         try:
@@ -283,6 +286,7 @@ class Launcher:
             if c.zenoh:
                 c.links = sorted((o for o in talk[c.role] if order[o] < order[c.role]),
                                  key=order.get)
+                c.talks_with = sorted(talk[c.role], key=order.get)
                 c.argv += ["--listen", self.endpoint_of(c.role)]
                 for other in c.links:
                     c.argv += ["--connect", self.endpoint_of(other)]
@@ -539,7 +543,7 @@ class Launcher:
                     progress(self.progress_k + 1, self.steps)
                 # hear the fleet meanwhile (the handlers run here, off the fleet's path)
                 node.mailbox.wait_until(lambda: self.ended or self.stop(),
-                                        0.05 if not self.kills.pending else 0.005)
+                                        0.05 if not self.kills.pending else 0.005, bounded=True)
             wall = time.perf_counter() - start
             if progress is not None:
                 progress(self.steps, self.steps)
@@ -588,10 +592,17 @@ class Launcher:
 
     def _restart(self, dead: Child) -> int:
         argv = [*dead.argv, "--rejoin"] if dead.role.startswith("agent-") else dead.argv
+        # The peers that had opened their link to the dead node do not open it again
+        # (zenoh re-dials only the endpoints a session connects to, not the ones it
+        # accepted on): a restarted agent 2 never heard agent 3, waited for its
+        # liveliness token until the run ended and took no step. It dials them all.
+        argv = [*argv, *(a for other in dead.talks_with if other not in dead.links
+                         for a in ("--connect", self.endpoint_of(other)))]
         if self.run_dir is not None:  # the killed node's socket file stays behind it
             (self.run_dir / f"{dead.role}.sock").unlink(missing_ok=True)
         child = Child(dead.role, dead.robot, argv,
-                      dead.log_path.with_name(f"{dead.role}.restart.log"), links=dead.links)
+                      dead.log_path.with_name(f"{dead.role}.restart.log"),
+                      links=dead.talks_with, talks_with=dead.talks_with, restarted=True)
         self._spawn(child)
         self.children.append(child)
         return child.proc.pid
@@ -611,6 +622,10 @@ class Launcher:
     def _announce_start(self, node: Node) -> None:
         start_unix_ns = time.time_ns() + int(START_LEAD_S * 1e9)
         self.t0_mono = time.monotonic() + START_LEAD_S
+        # the fault plan's clock too: waiting to hear our own start back left run_t0 unset
+        # (or set late), and an agent killed "at 4 s" was killed at ~11 s and restarted
+        # after the run had ended (it waited for peers that had left: "did not exit")
+        self.run_t0 = self.t0_mono
         self._control(node, "start", start_unix_ns)
 
     def _control(self, node: Node, command: str, start_unix_ns: int = 0) -> None:
@@ -622,12 +637,29 @@ class Launcher:
         that run until stopped (emulators) are stopped."""
         deadline = time.monotonic() + timeout_s
         nodes = [c for c in self.children if not c.stop_after_run]
+        steady = [c for c in nodes if not c.restarted]
+        others_done_at = None
         while time.monotonic() < deadline:
             if self.stop():
                 raise Interrupted(self.stop.reason)
-            if all(self._reap(c, False) for c in nodes):
-                break
+            if all(self._reap(c, False) for c in steady):
+                others_done_at = others_done_at or time.monotonic()
+                if (all(self._reap(c, False) for c in nodes)
+                        or time.monotonic() > others_done_at + REJOIN_GRACE_S):
+                    break
             node.mailbox.wait_until(self.stop, 0.02)
+        for c in nodes:
+            # a restarted node still starting when the run ended (a loaded host: imports and
+            # the handshake took longer than the run had left) missed the end: stop it
+            if c.restarted and not self._reap(c, False):
+                c.proc.send_signal(signal.SIGTERM)
+                until = time.monotonic() + 10.0
+                while not self._reap(c, False) and time.monotonic() < until:
+                    time.sleep(0.02)
+                if c.exit_code in (-signal.SIGTERM, 143):
+                    print(f"omnifleet run: {c.role} (restarted) was still rejoining when the run "
+                          "ended: stopped", file=sys.stderr)
+                    c.exit_code = 0
         for c in self.children:
             if c.stop_after_run and not self._reap(c, False):
                 c.proc.send_signal(signal.SIGTERM)

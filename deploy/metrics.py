@@ -12,7 +12,8 @@ Formation RMS is |q_xy - (x_0 + rho_i)| per robot, over the whole run and from t
 robot's own settling time on (None for a robot that never settled: a robot that
 settles late would otherwise look best). The gaps are surface to surface: centre
 distance minus both radii, so 0 is contact (Fig. 6 of the paper plots centre
-distances; a robot-robot gap g is a centre distance g + 2 r).
+distances; a robot-robot gap g is a centre distance g + 2 r). A wall's or polygon's gap
+is the robot centre's distance to its nearest point minus the robot's radius.
 
 ``contacts`` counts physical contact events when the plant simulates bodies
 (pybullet: ``contact_source`` "physics", every event in ``contact_log`` with its
@@ -40,7 +41,11 @@ from deploy.timeseries import TimeSeries
 TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "jitter_ms",
                "deadline_misses", "messages", "recording", "series_cells_filled",
                "odometry_drift", "liveliness", "emulator_lag_ms", "bridge_faulted_fraction",
-               "bridge_latency_ms")
+               "bridge_latency_ms",
+               # what the nodes report of themselves (a distributed run only: in process
+               # there is no command to time out, no sample to arrive stale)
+               "command_timeout_s", "nonfinite_commands_reported", "stale_samples",
+               "zero_torque_longest_s")
 
 
 def settling_time(t: np.ndarray, err_norm: np.ndarray, threshold: float) -> float | None:
@@ -134,9 +139,9 @@ def compute_metrics(
         settling = [settling_time(t, err[:, i], threshold) for i in range(n)]
     whole, after = formation_rms(t, series.q[:, :, :2], series.target, settling)
     radii = np.full(n, s.robot.body_radius_m)
-    obs = np.array([o.position for o in s.obstacles], float).reshape(-1, 2)
-    obs_r = np.array([o.radius_m for o in s.obstacles], float)
-    rr, ro = pair_clearances(series.q[:, :, :2], radii, obs, obs_r)
+    rr, _ = pair_clearances(series.q[:, :, :2], radii, np.zeros((0, 2)), np.zeros(0))
+    # discs, walls and polygons: the true geometry (plant/shapes.py, G2)
+    ro = sc.obstacle_gaps(series.q[:, :, :2]).reshape(len(t), -1)
     sim_time = series.steps * sc.dt
     lim = s.limits
     return {

@@ -16,7 +16,8 @@ from pathlib import Path
 # every name `omnifleet run` / `record` writes into its folder (deploy/outputs.py,
 # deploy/figures.py, the recorder, the launcher's logs/)
 RUN_OUTPUTS = ("metrics.json", "timeseries.npz", "recording.mcap", "logs",
-               "fig4_trajectories.png", "fig5_errors.png", "fig6_distances_torques.png")
+               "fig4_trajectories.png", "fig5_errors.png", "fig6_distances_torques.png",
+               "CAPTIONS.md")
 
 
 class RunFolderError(ValueError):

@@ -69,6 +69,7 @@ def make_plant(sc: Scenario, kind: str, gui: bool = False):
         return PybulletPlant(
             [sc.model()] * sc.n, q, qd, disturbance, [sc.spec.robot.body_radius_m] * sc.n,
             sc.robot_ids, sc.obstacle_bodies(), sc.spec.plant.substeps, gui=gui,
+            shapes=sc.obstacle_shapes(),
         )
     if kind == "model":
         return ModelPlant([sc.model()] * sc.n, q, qd, disturbance, sc.spec.plant.substeps)
@@ -100,15 +101,14 @@ class FormationTargets:
     """x_0 + rho_i with the true leader heading (for the formation error metric)."""
 
     def __init__(self, sc: Scenario) -> None:
-        f = sc.spec.formation
-        self.initial = (f.initial_scale[0], f.initial_scale[1])
-        self.changes = sc.scale_changes()
+        self.initial = [sc.initial_scale(i) for i in range(sc.n)]  # each robot's own S(t)
+        self.changes = [sc.scale_changes(i) for i in range(sc.n)]
         self.r = [np.array(r.offset, float) for r in sc.spec.robots]
 
     def at(self, t: float, q0: np.ndarray, v0: np.ndarray) -> np.ndarray:
-        s, sd = scale_at(t, self.initial, self.changes)
         out = np.empty((len(self.r), 2))
         for i, r_i in enumerate(self.r):
+            s, sd = scale_at(t, self.initial[i], self.changes[i])
             zeta, _ = offsets(r_i, 0.0, float(q0[2]), float(v0[2]), s, sd)
             out[i] = q0[:2] + zeta[:2]
         return out

@@ -13,6 +13,7 @@ import difflib
 import math
 import re
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 from types import UnionType
 from typing import Literal, Union, get_args, get_origin
@@ -27,8 +28,10 @@ from agents.eso import EsoGains
 from agents.estimator import EstimatorGains
 from agents.formation import ScaleChange
 from agents.leader import Harmonic, LeaderGenerator, LeaderSpec
+from agents.waypoint_path import waypoint_path
 from deploy.options import MAX_RATE_HZ
 from plant.mecanum import MecanumModel, RobotParams
+from plant.shapes import Polygon, convex_ccw, signed_distances, wall_vertices
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 BEHAVIOR_NAMES = ("FDB", "FOCB", "FRCB")
@@ -55,6 +58,12 @@ class RobotPhysics(_S, kw_only=True):
     coulomb_smoothing_radps: float = 0.5
 
 
+class ScaleStep(_S, kw_only=True):
+    start_s: float
+    end_s: float
+    to: list[float]
+
+
 class RobotEntry(_S, kw_only=True):
     id: int
     position: list[float]
@@ -62,6 +71,9 @@ class RobotEntry(_S, kw_only=True):
     velocity: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0])
     offset: list[float]
     heading_offset_rad: float = 0.0
+    # this robot's own S(t) (its offset scaled on its own schedule); default: [formation]'s
+    initial_scale: list[float] | None = None
+    scale_changes: list[ScaleStep] | None = None
     estimate_position: list[float] | None = None  # q0_hat(0) [x, y, phi]; default: own pose
     estimate_velocity: list[float] | None = None  # v0_hat(0); default: own velocity
 
@@ -81,18 +93,18 @@ class PathComponent(_S, kw_only=True):
 
 class Leader(_S, kw_only=True):
     kind: Literal["analytic", "path_follower"] = "analytic"
-    x: PathComponent
-    y: PathComponent
+    # "harmonic": x, y as one sin/cos term each; "waypoints": a C2 spline through
+    # ``waypoints`` driven at ``speed_mps`` with ramps of ``accel_mps2`` (agents/waypoint_path.py)
+    path: Literal["harmonic", "waypoints"] = "harmonic"
+    x: PathComponent | None = None
+    y: PathComponent | None = None
+    waypoints: list[list[float]] | None = None
+    speed_mps: float | None = None
+    accel_mps2: float | None = None
     theta0: float = 0.0
     theta_rate: float = 1.0
     follow_gain: float = 3.5
     heading: Literal["tangent", "polar"] = "tangent"
-
-
-class ScaleStep(_S, kw_only=True):
-    start_s: float
-    end_s: float
-    to: list[float]
 
 
 class Formation(_S, kw_only=True):
@@ -105,6 +117,20 @@ class Formation(_S, kw_only=True):
 class Obstacle(_S, kw_only=True):
     position: list[float]
     radius_m: float = 0.0
+
+
+class Wall(_S, kw_only=True):
+    """A straight wall: the rectangle of ``thickness_m`` around start-end (plant/shapes.py)."""
+
+    start: list[float]
+    end: list[float]
+    thickness_m: float = 0.1
+
+
+class PolygonObstacle(_S, kw_only=True):
+    """A convex polygon, its vertices in either winding."""
+
+    vertices: list[list[float]]
 
 
 class Behaviors(_S, kw_only=True):
@@ -215,6 +241,8 @@ class ScenarioFile(_S, kw_only=True):
     leader: Leader
     formation: Formation = msgspec.field(default_factory=Formation)
     obstacles: list[Obstacle] = msgspec.field(default_factory=list)
+    walls: list[Wall] = msgspec.field(default_factory=list)
+    polygons: list[PolygonObstacle] = msgspec.field(default_factory=list)
     behaviors: Behaviors = msgspec.field(default_factory=Behaviors)
     safety: Safety = msgspec.field(default_factory=Safety)
     estimator: Estimator = msgspec.field(default_factory=Estimator)
@@ -276,12 +304,18 @@ class Scenario:
         """The same scenario stepped at another control rate."""
         return replace(self, spec=msgspec.structs.replace(self.spec, control_rate_hz=hz))
 
-    def scale_changes(self) -> tuple[ScaleChange, ...]:
-        """The formation's S(t) schedule as the agents use it."""
-        return tuple(
-            ScaleChange(c.start_s, c.end_s, (c.to[0], c.to[1]))
-            for c in self.spec.formation.scale_changes
-        )
+    def scale_changes(self, index: int | None = None) -> tuple[ScaleChange, ...]:
+        """The S(t) schedule as the agents use it: the formation's, or robot ``index``'s
+        own when it has one."""
+        own = None if index is None else self.spec.robots[index].scale_changes
+        changes = self.spec.formation.scale_changes if own is None else own
+        return tuple(ScaleChange(c.start_s, c.end_s, (c.to[0], c.to[1])) for c in changes)
+
+    def initial_scale(self, index: int | None = None) -> tuple[float, float]:
+        """S(0): the formation's, or robot ``index``'s own when it has one."""
+        own = None if index is None else self.spec.robots[index].initial_scale
+        s0 = self.spec.formation.initial_scale if own is None else own
+        return s0[0], s0[1]
 
     def robot_params(self) -> RobotParams:
         return RobotParams(**msgspec.structs.asdict(self.spec.robot))
@@ -290,20 +324,54 @@ class Scenario:
         return MecanumModel.from_params(self.robot_params())
 
     def leader_spec(self) -> LeaderSpec:
+        return self._leader_spec
+
+    @cached_property
+    def _leader_spec(self) -> LeaderSpec:  # a waypoint spline is built once (~10 ms)
         ld = self.spec.leader
 
-        def harm(c: PathComponent) -> Harmonic:
-            return Harmonic(c.fn, c.amp, c.freq, c.phase, c.offset)
+        def harm(c: PathComponent | None) -> Harmonic | None:
+            return None if c is None else Harmonic(c.fn, c.amp, c.freq, c.phase, c.offset)
 
-        return LeaderSpec(
-            harm(ld.x), harm(ld.y), ld.theta0, ld.theta_rate, ld.kind, ld.follow_gain, ld.heading
-        )
+        wp = None
+        if ld.path == "waypoints":
+            wp = waypoint_path(ld.waypoints, ld.speed_mps, ld.accel_mps2)
+        return LeaderSpec(harm(ld.x), harm(ld.y), ld.theta0, ld.theta_rate, ld.kind,
+                          ld.follow_gain, ld.heading, wp)
 
     def obstacle_bodies(self) -> list[Body]:
         return [
             Body(-(k + 1), np.array(o.position, float), np.zeros(2), o.radius_m)
             for k, o in enumerate(self.spec.obstacles)
         ]
+
+    def obstacle_shapes(self) -> list[Polygon]:
+        """Walls, then polygons, as convex polygons; their idents follow the discs'
+        (-(k + 1) over discs, walls, polygons in that order)."""
+        return list(self._shapes)
+
+    @cached_property
+    def _shapes(self) -> tuple[Polygon, ...]:
+        return tuple(obstacle_shapes(self.spec))
+
+    def obstacle_names(self) -> dict[int, str]:
+        """ident -> the scenario key of every obstacle (``obstacles[0]``, ``walls[1]``, ...)."""
+        names = {-(k + 1): f"obstacles[{k}]" for k in range(len(self.spec.obstacles))}
+        names.update({p.ident: p.name for p in self.obstacle_shapes()})
+        return names
+
+    def obstacle_gaps(self, positions: np.ndarray) -> np.ndarray:
+        """Surface-to-surface gaps of robots at ``positions`` (..., n, 2) to every
+        obstacle (discs, walls, polygons in ident order): (..., n, m); 0 is contact
+        (plant/shapes.py, G2)."""
+        p = np.asarray(positions, dtype=float)
+        r = self.spec.robot.body_radius_m
+        cols = [np.linalg.norm(p - np.array(o.position, float), axis=-1) - o.radius_m - r
+                for o in self.spec.obstacles]
+        cols += [signed_distances(p, poly) - r for poly in self._shapes]
+        if not cols:
+            return np.zeros((*p.shape[:-1], 0))
+        return np.stack(cols, axis=-1)
 
     def initial_state(self) -> tuple[np.ndarray, np.ndarray]:
         q = np.array([[*r.position, r.heading_rad] for r in self.spec.robots], float)
@@ -338,8 +406,8 @@ class Scenario:
             leader_weight=float(self.leader_weights[index]),
             offset=(r.offset[0], r.offset[1]),
             heading_offset=r.heading_offset_rad,
-            initial_scale=(s.formation.initial_scale[0], s.formation.initial_scale[1]),
-            scale_changes=self.scale_changes(),
+            initial_scale=self.initial_scale(index),
+            scale_changes=self.scale_changes(index),
             kappa1=s.formation.kappa1,
             kappa2=s.formation.kappa2,
             enabled=frozenset(b.enabled),
@@ -369,6 +437,19 @@ class Scenario:
             safety_margin_m=s.safety.margin_m,
             safety_exit_time_s=s.safety.exit_time_s,
         )
+
+
+def obstacle_shapes(s: ScenarioFile) -> list[Polygon]:
+    """The walls and polygons of a (shape-checked) scenario file, idents after the discs."""
+    first = len(s.obstacles)
+    out = [Polygon(-(first + k + 1), wall_vertices(w.start, w.end, w.thickness_m), f"walls[{k}]")
+           for k, w in enumerate(s.walls)]
+    first += len(s.walls)
+    for k, pg in enumerate(s.polygons):
+        ccw = convex_ccw(pg.vertices)
+        assert ccw is not None, "validated on load"
+        out.append(Polygon(-(first + k + 1), ccw, f"polygons[{k}]"))
+    return out
 
 
 def _fail(path: str, key: str, msg: str) -> ScenarioError:
@@ -406,10 +487,12 @@ def unreached_robots(adjacency: np.ndarray, leader: np.ndarray) -> list[int]:
 
 
 def start_overlaps(positions: np.ndarray, ids: list[int], radius: float,
-                   obstacles: list[tuple[str, np.ndarray, float]]) -> list[str]:
+                   obstacles: list[tuple[str, np.ndarray, float]],
+                   shapes: list[Polygon] = ()) -> list[str]:
     """Every pair that touches or overlaps at t = 0 (gap = centre distance minus the
     radii, <= 0), as a sentence naming both and the gap: robot-robot, then robot-obstacle
-    (``obstacles``: (name, centre, radius) of each disc)."""
+    (``obstacles``: (name, centre, radius) of each disc), then robot-wall/polygon
+    (gap = signed distance to the polygon minus the radius, G2 of plant/shapes.py)."""
     out = []
     for a in range(len(ids)):
         for b in range(a + 1, len(ids)):
@@ -424,7 +507,112 @@ def start_overlaps(positions: np.ndarray, ids: list[int], radius: float,
             if d - radius - r <= 0:
                 out.append(f"robot {rid} starts on {name}: centres {d:.3f} m apart, gap "
                            f"{d - radius - r:.3f} m (radii {radius:g} and {r:g})")
+        for poly in shapes:
+            px, py, d = poly.nearest(float(positions[a][0]), float(positions[a][1]))
+            if d - radius <= 0:
+                out.append(f"robot {rid} starts on {poly.name}: its centre is {d:.3f} m from "
+                           f"the nearest point ({px:.3f}, {py:.3f}){' (inside)' if d < 0 else ''}, "
+                           f"gap {d - radius:.3f} m (robot.body_radius_m = {radius:g})")
     return out
+
+
+def _check_scales(path: str, key: str, initial: list[float] | None,
+                  changes: list[ScaleStep] | None) -> None:
+    """S(0) two numbers; the windows of S(t) ordered and non-empty."""
+    if initial is not None:
+        _check_len(path, f"{key}.initial_scale", initial, 2)
+    last_end = -math.inf
+    for k, c in enumerate(changes or []):
+        _check_len(path, f"{key}.scale_changes[{k}].to", c.to, 2)
+        if not (c.end_s > c.start_s >= last_end):
+            raise _fail(path, f"{key}.scale_changes[{k}]", "windows must be ordered and non-empty")
+        last_end = c.end_s
+
+
+def _check_leader_path(path: str, ld: Leader, notes: list[str]) -> None:
+    """``path = "harmonic"`` needs x and y and nothing of the waypoints; ``"waypoints"``
+    needs at least two distinct consecutive points and a positive speed and acceleration."""
+    wp_keys = {"waypoints": ld.waypoints, "speed_mps": ld.speed_mps, "accel_mps2": ld.accel_mps2}
+    if ld.path == "harmonic":
+        extra = [k for k, v in wp_keys.items() if v is not None]
+        if extra:
+            raise _fail(path, f"leader.{extra[0]}", 'only with path = "waypoints" (path is '
+                        '"harmonic", the default)')
+        for key, value in (("x", ld.x), ("y", ld.y)):
+            if value is None:
+                raise _fail(path, f"leader.{key}", 'required with path = "harmonic" (the default); '
+                            'or set path = "waypoints" with waypoints, speed_mps, accel_mps2')
+        return
+    for key, value in (("x", ld.x), ("y", ld.y)):
+        if value is not None:
+            raise _fail(path, f"leader.{key}", 'only with path = "harmonic"; with path = '
+                        '"waypoints" the path is the waypoints')
+    for key, value in wp_keys.items():
+        if value is None:
+            raise _fail(path, f"leader.{key}", 'required with path = "waypoints"')
+    pts = ld.waypoints
+    if len(pts) < 2:
+        raise _fail(path, "leader.waypoints", f"at least 2 points are needed, got {len(pts)}")
+    for j, p in enumerate(pts):
+        _check_len(path, f"leader.waypoints[{j}]", p, 2)
+        _check_coordinates(path, f"leader.waypoints[{j}]", p)
+    for j in range(1, len(pts)):
+        if math.hypot(pts[j][0] - pts[j - 1][0], pts[j][1] - pts[j - 1][1]) <= 1e-9:
+            raise _fail(path, f"leader.waypoints[{j}]", f"repeats the point before it {pts[j]}")
+    for key in ("speed_mps", "accel_mps2"):
+        if wp_keys[key] <= 0:
+            raise _fail(path, f"leader.{key}", f"must be > 0, got {wp_keys[key]:g}")
+    try:
+        wp = waypoint_path(pts, ld.speed_mps, ld.accel_mps2)
+    except (ValueError, ArithmeticError) as exc:  # scipy on coordinates near overflow
+        raise _fail(path, "leader.waypoints", f"no spline through these points: {exc}") from exc
+    if not (math.isfinite(wp.length) and math.isfinite(wp.profile.duration)):
+        raise _fail(path, "leader.waypoints", "the path's length is not a finite number "
+                    "(coordinates too large)")
+    notes.append(f"leader: {wp.length:.4g} m of waypoint path, at rest at the last waypoint "
+                 f"from t = {wp.profile.duration:.4g} s")
+
+
+MAX_COORDINATE_M = 1e6  # walls, polygons, waypoints: a world of +-1000 km (no overflow)
+MIN_FEATURE_M = 1e-3  # a wall's length and thickness, a polygon's edge: at least 1 mm
+
+
+def _check_coordinates(path: str, key: str, values: list[float]) -> None:
+    if any(abs(v) > MAX_COORDINATE_M for v in values):
+        raise _fail(path, key, f"must be within +-{MAX_COORDINATE_M:g} m, got {values}")
+
+
+def _check_shapes(path: str, s: ScenarioFile) -> None:
+    """Walls: two 2-D points apart and a positive thickness; polygons: at least three
+    2-D vertices forming a strictly convex polygon of positive area."""
+    for k, w in enumerate(s.walls):
+        _check_len(path, f"walls[{k}].start", w.start, 2)
+        _check_len(path, f"walls[{k}].end", w.end, 2)
+        _check_coordinates(path, f"walls[{k}].start", w.start)
+        _check_coordinates(path, f"walls[{k}].end", w.end)
+        _check_coordinates(path, f"walls[{k}].thickness_m", [w.thickness_m])
+        if math.hypot(w.end[0] - w.start[0], w.end[1] - w.start[1]) < MIN_FEATURE_M:
+            raise _fail(path, f"walls[{k}]", f"start and end are the same point {w.start}: "
+                        f"a wall needs a length of at least {MIN_FEATURE_M:g} m (for a post, "
+                        "use [[obstacles]])")
+        if w.thickness_m < MIN_FEATURE_M:
+            raise _fail(path, f"walls[{k}].thickness_m", f"must be at least {MIN_FEATURE_M:g} m "
+                        f"(> 0), got {w.thickness_m:g}")
+    for k, pg in enumerate(s.polygons):
+        key = f"polygons[{k}].vertices"
+        if len(pg.vertices) < 3:
+            raise _fail(path, key, f"a polygon needs at least 3 vertices, got {len(pg.vertices)}")
+        for j, v in enumerate(pg.vertices):
+            _check_len(path, f"{key}[{j}]", v, 2)
+            _check_coordinates(path, f"{key}[{j}]", v)
+        for j, (a, b) in enumerate(zip(pg.vertices, pg.vertices[1:] + pg.vertices[:1], strict=True)):
+            if math.hypot(b[0] - a[0], b[1] - a[1]) < MIN_FEATURE_M:
+                raise _fail(path, key, f"vertices {j} and {(j + 1) % len(pg.vertices)} are closer "
+                            f"than {MIN_FEATURE_M:g} m: {a}, {b}")
+        if convex_ccw(pg.vertices) is None:
+            raise _fail(path, key, "must be a convex polygon of positive area, vertices in "
+                        "order around it (either way), no three on a line; split a concave "
+                        "obstacle into convex polygons")
 
 
 def _check_all_finite(path: str, node, key: str = "") -> None:
@@ -498,21 +686,20 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
     for i in range(n):
         if f.kappa1 + f.kappa2 * A[i].sum() <= 0:
             raise _fail(path, "formation.kappa1", f"robot {ids[i]}: kappa1 + kappa2 sum_j a_ij is 0")
-    _check_len(path, "formation.initial_scale", f.initial_scale, 2)
-    last_end = -math.inf
-    for k, c in enumerate(f.scale_changes):
-        _check_len(path, f"formation.scale_changes[{k}].to", c.to, 2)
-        if not (c.end_s > c.start_s >= last_end):
-            raise _fail(path, f"formation.scale_changes[{k}]", "windows must be ordered and non-empty")
-        last_end = c.end_s
+    _check_scales(path, "formation", f.initial_scale, f.scale_changes)
+    for k, r in enumerate(s.robots):
+        _check_scales(path, f"robots[{k}]", r.initial_scale, r.scale_changes)
+    _check_leader_path(path, s.leader, notes)
     for k, o in enumerate(s.obstacles):
         _check_len(path, f"obstacles[{k}].position", o.position, 2)
         if o.radius_m < 0:
             raise _fail(path, f"obstacles[{k}].radius_m", "must be >= 0")
+    _check_shapes(path, s)
     overlaps = start_overlaps(
         np.array([r.position for r in s.robots], float), ids, s.robot.body_radius_m,
         [(f"obstacles[{k}] at ({o.position[0]:g}, {o.position[1]:g})",
-          np.array(o.position, float), o.radius_m) for k, o in enumerate(s.obstacles)])
+          np.array(o.position, float), o.radius_m) for k, o in enumerate(s.obstacles)],
+        obstacle_shapes(s))
     if overlaps:
         raise _fail(path, "robots.position", "; ".join(overlaps))
     bh = s.behaviors

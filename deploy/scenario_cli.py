@@ -62,8 +62,10 @@ def _cmd_check(args: argparse.Namespace) -> int:
     sc = load_scenario(args.file)  # ScenarioError: exit 2 with file and key (cli.main)
     for note in sc.notes:
         print(f"note: {note}", file=sys.stderr)
-    print(f"{args.file}: valid: {sc.n} robots, {1.0 / sc.dt:g} Hz, {sc.spec.duration_s:g} s, "
-          f"{len(sc.obstacle_bodies())} obstacles, plant {sc.spec.plant.kind}")
+    s = sc.spec
+    print(f"{args.file}: valid: {sc.n} robots, {1.0 / sc.dt:g} Hz, {s.duration_s:g} s, "
+          f"{len(s.obstacles)} disc obstacles, {len(s.walls)} walls, {len(s.polygons)} polygons, "
+          f"leader path {s.leader.path}, plant {s.plant.kind}")
     return 0
 
 
@@ -124,7 +126,8 @@ def _cmd_perturb(args: argparse.Namespace) -> int:
     text = f"# omnifleet scenario perturb {args.name} --seed {args.seed}\n" + scenario_toml(sc)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
-    print(f"wrote {out}: {sc.name}, {len(sc.spec.obstacles)} obstacles and {sc.n} starts jittered "
+    moved = len(sc.spec.obstacles) + len(sc.spec.walls) + len(sc.spec.polygons)
+    print(f"wrote {out}: {sc.name}, {moved} obstacles and {sc.n} starts jittered "
           f"(run it: omnifleet run {out})")
     return 0
 

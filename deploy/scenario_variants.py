@@ -1,6 +1,7 @@
 """Variants of a scenario, made in memory and validated like a file (issue 17):
 
-- :func:`perturbed`: obstacles and starts jittered, seeded (the same seed gives the same
+- :func:`perturbed`: obstacles (discs, walls, polygons: each moved rigidly) and starts
+  jittered, seeded (the same seed gives the same
   scenario); a start that would overlap an obstacle or another robot (gap below
   ``min_start_gap_m``) is drawn again, so a variant never starts in contact;
 - :func:`with_obstacle_pair`: the scenario's obstacles replaced by two discs leaving a
@@ -19,7 +20,7 @@ from typing import Any
 
 import msgspec
 
-from deploy.scenario import Obstacle, Scenario, parse_scenario
+from deploy.scenario import Obstacle, Scenario, obstacle_shapes, parse_scenario
 
 MAX_DRAWS = 200  # per start: a field that leaves no room is an error, not a hang
 
@@ -49,6 +50,18 @@ def perturbed(sc: Scenario, seed: int, obstacle_jitter_m: float | None = None,
         return [x + d * math.cos(a), y + d * math.sin(a)]
 
     obstacles = [msgspec.structs.replace(o, position=jitter(*o.position, oj)) for o in s.obstacles]
+
+    def shift(points: list[list[float]]) -> list[list[float]]:  # one rigid move for a body
+        dx, dy = jitter(0.0, 0.0, oj)
+        return [[x + dx, y + dy] for x, y in points]
+
+    walls = []
+    for w in s.walls:
+        start, end = shift([w.start, w.end])
+        walls.append(msgspec.structs.replace(w, start=start, end=end))
+    polygons = [msgspec.structs.replace(p, vertices=shift(p.vertices)) for p in s.polygons]
+    shapes = obstacle_shapes(msgspec.structs.replace(s, obstacles=obstacles, walls=walls,
+                                                     polygons=polygons))
     placed: list[tuple[float, float]] = []
     robots = []
     for k, robot in enumerate(s.robots):
@@ -56,6 +69,7 @@ def perturbed(sc: Scenario, seed: int, obstacle_jitter_m: float | None = None,
             x, y = jitter(*robot.position, sj)
             if all(math.hypot(x - o.position[0], y - o.position[1]) - o.radius_m - r >= min_start_gap_m
                    for o in obstacles) and all(
+                    p.nearest(x, y)[2] - r >= min_start_gap_m for p in shapes) and all(
                     math.hypot(x - px, y - py) - 2 * r >= min_start_gap_m for px, py in placed):
                 break
         else:
@@ -63,7 +77,8 @@ def perturbed(sc: Scenario, seed: int, obstacle_jitter_m: float | None = None,
                              f"within {MAX_DRAWS} draws; use a smaller jitter")
         placed.append((x, y))
         robots.append(msgspec.structs.replace(robot, position=[x, y]))
-    spec = msgspec.structs.replace(s, obstacles=obstacles, robots=robots)
+    spec = msgspec.structs.replace(s, obstacles=obstacles, walls=walls, polygons=polygons,
+                                   robots=robots)
     return _reloaded(sc, spec, f"{s.name}-perturbed-{seed}")
 
 

@@ -121,19 +121,28 @@ class Mailbox:
         with self.lock:
             handler(item)
 
-    def drain(self) -> None:
-        """Handle everything already arrived, without waiting."""
+    def drain(self, until: float | None = None) -> None:
+        """Handle everything already arrived, without waiting; with ``until`` (a
+        time.monotonic()), stop there even if more keeps arriving."""
         q = self._queue
+        n = 0
         while not q.empty():
             self._run(q.get_nowait())  # one consumer: what empty() saw is still there
+            n += 1
+            if until is not None and n % 32 == 0 and time.monotonic() >= until:
+                return
 
-    def wait_until(self, ready: Callable[[], bool], timeout_s: float) -> bool:
+    def wait_until(self, ready: Callable[[], bool], timeout_s: float, bounded: bool = False) -> bool:
         """Handle arrivals until ``ready()`` holds (True) or ``timeout_s`` passes
-        (False). Everything already arrived is handled before the first check."""
-        self.drain()
+        (False). Everything already arrived is handled before the first check,
+        unless ``bounded``: then the wait returns by its timeout even when messages
+        arrive faster than their handlers run (the launcher, recording a loaded fleet:
+        its kill schedule waited for the traffic to stop, and an agent planned to be
+        killed at 4 s was killed after the run had ended)."""
+        deadline = time.monotonic() + timeout_s
+        self.drain(deadline if bounded else None)
         if ready():
             return True
-        deadline = time.monotonic() + timeout_s
         get = self._queue.get
         while True:
             left = deadline - time.monotonic()
@@ -144,7 +153,7 @@ class Mailbox:
             except queue.Empty:
                 return ready()
             self._run(entry)
-            self.drain()
+            self.drain(deadline if bounded else None)
             if ready():
                 return True
 

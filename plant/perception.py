@@ -1,7 +1,12 @@
 """What robot i senses: the other robots and the obstacles within r_det.
 
 A body is seen when the distance from robot i's centre to the body's surface is
-at most r_det. Pure function of positions; both plants call it.
+at most r_det. Pure function of positions; every plant calls it.
+
+A wall or a convex polygon (plant/shapes.py) is seen as its point nearest robot i's
+centre: a body of radius 0 at rest there, so the avoidance tasks and the safety
+filter guard the closest point and its distance (docs/safety.md, "walls and
+polygons"); as the robot moves the point slides along the wall.
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from agents.core import Body
+from plant.shapes import Polygon
 
 if TYPE_CHECKING:
     from deploy.scenario import Scenario
@@ -27,8 +33,10 @@ def sense(
     robot_ids: Sequence[int],
     obstacles: Sequence[Body],
     detection_range_m: float,
+    shapes: Sequence[Polygon] = (),
 ) -> tuple[list[Body], list[Body]]:
-    """(robots, obstacles) seen by the robot at row ``i`` of ``positions``."""
+    """(robots, obstacles) seen by the robot at row ``i`` of ``positions``: discs,
+    then the nearest points of the walls and polygons (``shapes``) in range."""
     me = positions[i]
     robots: list[Body] = []
     for j in range(len(positions)):
@@ -40,7 +48,19 @@ def sense(
         o for o in obstacles
         if float(np.hypot(*(o.position - me))) - o.radius <= detection_range_m
     ]
-    return robots, seen
+    return robots, seen + shape_bodies(float(me[0]), float(me[1]), shapes, detection_range_m)
+
+
+def shape_bodies(x: float, y: float, shapes: Sequence[Polygon],
+                 detection_range_m: float) -> list[Body]:
+    """Each wall or polygon whose nearest point to (x, y) is within r_det, as a body of
+    radius 0 at rest at that point (plant/shapes.py, G1)."""
+    out = []
+    for poly in shapes:
+        px, py, d = poly.nearest(x, y)
+        if d <= detection_range_m:
+            out.append(Body(poly.ident, np.array([px, py]), np.zeros(2), 0.0))
+    return out
 
 
 def sensor_for(plant, sc: Scenario) -> Sensor:
@@ -50,5 +70,6 @@ def sensor_for(plant, sc: Scenario) -> Sensor:
     if hasattr(plant, "perceive"):
         return lambda i: plant.perceive(i, det)
     radii = [sc.spec.robot.body_radius_m] * sc.n
-    ids, obstacles = sc.robot_ids, sc.obstacle_bodies()
-    return lambda i: sense(i, plant.q[:, :2], plant.q_dot[:, :2], radii, ids, obstacles, det)
+    ids, obstacles, shapes = sc.robot_ids, sc.obstacle_bodies(), sc.obstacle_shapes()
+    return lambda i: sense(i, plant.q[:, :2], plant.q_dot[:, :2], radii, ids, obstacles, det,
+                           shapes)
