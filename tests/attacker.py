@@ -59,10 +59,15 @@ class Attacker:
         self.keys = Keys(self.fleet)
         self.codec = Codec(list(range(1, 65)))
         self._subs: list[object] = []
+        self._watched: set[int] = set()
 
     # -- listening: what step the fleet is at --------------------------------------
     def watch_samples(self, robot: int) -> None:
         """Keep the newest sample of ``robot`` (the fleet's step, as a forger learns it)."""
+        if robot in self._watched:
+            return
+        self._watched.add(robot)
+
         def arrived(s) -> None:  # zenoh's thread
             m = self.codec.decode(Sample, s.payload.to_bytes(), robot)
             if m is not None:
@@ -181,6 +186,8 @@ def fleet_under_attack(scenario: str, out: Path, *args: str, robots: int = 3
         endpoints = json.loads(where.read_text())
         session = zenoh.open(zenoh_config(connect=list(endpoints.values()), gossip=False))
         attacker = Attacker(fleet, session, endpoints=endpoints)
+        for r in range(1, robots + 1):  # declared before the fleet starts stepping
+            attacker.watch_samples(r)
         roles = {"plant", "leader", *(f"agent-{r}" for r in range(1, robots + 1))}
         _wait_ready(session, fleet, roles, READY_TIMEOUT_S)
         yield proc, attacker

@@ -25,8 +25,8 @@ from deploy.wire import MAX_REPORT_BYTES, WIRE_VERSION, ContactRecord, Control
 
 pytest.importorskip("zenoh")
 
-LOCKSTEP_S = "3.0"  # 600 steps at 200 Hz: the probes land mid-run
-STEPS = 600
+LOCKSTEP_S = "8.0"  # 1600 steps at 200 Hz (~8 s here): the probes land mid-run
+STEPS = 1600
 FLOOD = 1000
 WHERE = 200  # steps ahead of the fleet (1 s): past anything a sender can have reached
 
@@ -62,6 +62,7 @@ def test_lockstep_forgeries_cost_only_themselves(tmp_path: Path, reference: Time
         assert sock.parent.stat().st_mode & 0o777 == 0o700
         a.watch_samples(2)
         k = a.step_of(2, after=100)
+        assert k < STEPS // 2, f"the prober first heard step {k}: too late to probe"
         # rows for a step the run has not reached (its last), first
         a.state_log("plant", [1, 2, 3], [STEPS - 1])
         a.telemetry(2, [STEPS - 1])
