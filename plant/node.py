@@ -136,13 +136,13 @@ class PlantNode:
         if m.k > self.published_k:
             self.node.refuse("future step")
             return
-        if m.k < self.published_k - self.window_steps:
-            self.node.refuse("stale step")
-            return
         if m.seq > self.published_k + SEQ_SLACK:
             # one reply per step: an agent's seq never runs past our step (one restarted
             # after a crash numbers from 0 again and is heard); nothing orders by seq
             self.node.refuse("seq ahead of our clock")
+            return
+        if m.k < self.published_k - self.window_steps:
+            self.node.refuse("stale step")
             return
         if (m.robot, m.k) in self.commands:
             # the first command for a step is the one (a second, forged or replayed,

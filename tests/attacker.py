@@ -155,15 +155,21 @@ class Attacker:
         self.session.close()
 
 
-def _wait_ready(session, fleet: str, roles: set[str], timeout_s: float) -> None:
+def _wait_ready(attacker: Attacker, roles: set[str], proc: subprocess.Popen,
+                timeout_s: float) -> None:
+    """Until every role is ready, or the fleet is already stepping (its samples reach
+    us: a short realtime run can be under way before a query sees every token)."""
     deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        replies = session.liveliness().get(f"omr/{fleet}/ready/*", timeout=1.0)
+    while time.monotonic() < deadline and proc.poll() is None:
+        if attacker.newest_sample:
+            return
+        replies = attacker.session.liveliness().get(f"omr/{attacker.fleet}/ready/*", timeout=0.5)
         seen = {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok is not None}
         if roles <= seen:
             return
-        time.sleep(0.05)
-    raise TimeoutError(f"fleet {fleet} not ready")
+        time.sleep(0.02)
+    raise TimeoutError(f"fleet {attacker.fleet} not ready"
+                       + ("" if proc.poll() is None else f" (the run exited {proc.returncode})"))
 
 
 @contextlib.contextmanager
@@ -184,12 +190,19 @@ def fleet_under_attack(scenario: str, out: Path, *args: str, robots: int = 3
         while not where.exists() and time.monotonic() < deadline and proc.poll() is None:
             time.sleep(0.05)  # polling for a file another process writes
         endpoints = json.loads(where.read_text())
+        # connect once every node listens: a connect to a socket not there yet is retried
+        # by zenoh with a growing back-off, and a short run could end meanwhile
+        socks = [Path(e.removeprefix("unixsock-stream/")) for e in endpoints.values()
+                 if e.startswith("unixsock-stream/")]
+        while (not all(x.exists() for x in socks) and time.monotonic() < deadline
+               and proc.poll() is None):
+            time.sleep(0.02)  # polling for files other processes create
         session = zenoh.open(zenoh_config(connect=list(endpoints.values()), gossip=False))
         attacker = Attacker(fleet, session, endpoints=endpoints)
         for r in range(1, robots + 1):  # declared before the fleet starts stepping
             attacker.watch_samples(r)
         roles = {"plant", "leader", *(f"agent-{r}" for r in range(1, robots + 1))}
-        _wait_ready(session, fleet, roles, READY_TIMEOUT_S)
+        _wait_ready(attacker, roles, proc, READY_TIMEOUT_S)
         yield proc, attacker
     finally:
         if attacker is not None:

@@ -165,7 +165,6 @@ def test_realtime_forgeries_neither_silence_an_agent_nor_zero_its_robot(tmp_path
         out = tmp_path / f"realtime{n[0]}"
         with fleet_under_attack("lab", out, "--plant", "model", "--clock", "realtime",
                                 "--duration", "2.0") as (proc, a):
-            a.watch_samples(2)
             k = a.step_of(2, after=100)
             a.cmd(2, 2**62, torque=-2.0)
             a.cmd(2, k, seq=2**62, torque=-2.0)
@@ -175,17 +174,20 @@ def test_realtime_forgeries_neither_silence_an_agent_nor_zero_its_robot(tmp_path
             a.sample(2, k + WHERE + 1)
             rc, _, err = finish(proc)
         assert rc == 0, err
-        return metrics(out)
+        m = metrics(out)
+        # what was refused does not depend on the scheduler: judged on every run
+        plant = refused(m, "plant")
+        assert plant["future step"] == 1 and plant["seq ahead of our clock"] == 1, plant
+        agent = refused(m, "agent-2")
+        assert agent["sample: step ahead of our clock"] == 3, agent
+        assert agent["sample: seq ahead of our clock"] == 1, agent
+        return m
 
+    # that nobody was zeroed and the run passed: only where the clock allowed it
     m = judged(run, lambda m: m, "realtime forgeries")
     stops = [s for s in m.get("command_stops", []) if s["robot"] == 2]
     assert not stops, stops  # robot 2 was never zeroed: its agent kept answering
     assert m["verdict"]["pass"], m["verdict"]
-    plant = refused(m, "plant")
-    assert plant["future step"] >= 1 and plant["seq ahead of our clock"] >= 1
-    agent = refused(m, "agent-2")
-    assert agent["sample: step ahead of our clock"] == 3, agent
-    assert agent["sample: seq ahead of our clock"] == 1, agent
 
 
 # --- the CAN bridge, driven directly (no bus hardware, no zenoh) ----------------------------
