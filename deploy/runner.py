@@ -24,7 +24,14 @@ from deploy.lockstep_inputs import AgentLinks, HeldInput
 from deploy.scenario import PLANT_KINDS, Scenario
 from deploy.timeseries import COLUMNS, TimeSeries
 from deploy.wire import PLANT_ROLE, agent_role
-from plant.command import applied_command, clamped_plan, command_for_step, held_step
+from plant.command import (
+    applied_command,
+    clamped_plan,
+    command_for_step,
+    exceeds,
+    held_step,
+    torque_bound,
+)
 from plant.disturbance import make_disturbance
 from plant.model_plant import KinematicPlant, ModelPlant
 from plant.perception import sensor_for
@@ -43,6 +50,9 @@ class RunResult:
     step_unix_ns: np.ndarray | None = None  # wall clock as each step began (the recording)
     law_resets: list[int] | None = None  # per robot: the law restarted from a non-finite state
     interrupted: str | None = None  # "SIGINT": stopped early, the series holds the steps done
+    # per robot id, the commands that asked for more torque than the bound (clipped), as
+    # the plant node counts them (plant/command.py); the agents' own: none on a bounded law
+    torque_clipped: dict[int, int] | None = None
 
 
 def make_plant(sc: Scenario, kind: str, gui: bool = False):
@@ -162,6 +172,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     look_ahead = [LookAhead(a, horizon) for a in agents] if horizon else None
     law_resets = [0] * sc.n
 
+    bound, clipped = torque_bound(sc.spec.limits), dict.fromkeys(ids, 0)
     start = time.perf_counter()
     done, interrupted = 0, None
     try:  # Ctrl-C: what was measured so far is still the run's (deploy/cli.py)
@@ -180,6 +191,8 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                 out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
                 plan = [] if look_ahead is None else look_ahead[i].plan(
                     agent, out, t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
+                if exceeds(out.torques, plan, bound):
+                    clipped[rid] += 1
                 commands[(rid, k)] = (*applied_command(out.torques, out.v_cmd, sc.spec.limits),
                                       clamped_plan(plan, sc.spec.limits))
                 shares[(rid, k)] = out.share
@@ -210,7 +223,8 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
         step_unix_ns = step_unix_ns[:done]
     wall = time.perf_counter() - start
     return RunResult(sc, plant_kind, series, wall, contact_log(plant), model.report()
-                     if model.plan is not None else None, step_unix_ns, law_resets, interrupted)
+                     if model.plan is not None else None, step_unix_ns, law_resets, interrupted,
+                     clipped)
 
 
 def _forget(before: int, by_step: dict, leaders: dict, *by_robot_step: dict) -> None:

@@ -265,6 +265,9 @@ def test_the_verdict_passes_only_settled_contact_free_finite_runs():
     assert not judge(_metrics(contacts=2))["pass"]
     assert not judge(_metrics(nonfinite_commands=1))["pass"]
     assert not judge(_metrics(plant="kinematic"))["pass"]  # as --check always did
+    stopped = judge(_metrics(stopped_by={"command": "stop", "sender": 0, "k": 64, "t_s": 0.32}))
+    assert not stopped["pass"] and stopped["stopped"]  # issue 21: a stopped run is no PASS
+    assert "STOPPED by ctl/stop at t = 0.320 s" in verdict_line(stopped)
 
 
 def test_a_diverging_run_says_so(in_process_run):
