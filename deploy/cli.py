@@ -22,7 +22,7 @@ from deploy.run_folder import prepare as prepare_run_folder
 from deploy.scenario import PLANT_KINDS, ScenarioError
 from deploy.transport import TransportError
 from deploy.verdict import divergence_banner, judge, verdict_line
-from deploy.wire import FleetNameError
+from deploy.wire import FleetNameError, Keys
 
 EXIT_BAD_INPUT = 2
 RECORDING = "recording.mcap"
@@ -52,6 +52,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     for note in sc.notes:
         print(f"note: {note}", file=sys.stderr)
+    if not args.in_process:
+        Keys(args.fleet or sc.name)  # FleetNameError: exit 2 (main), before --out is touched
     out = Path(args.out) if args.out else Path("runs") / sc.name
     try:
         removed = prepare_run_folder(out, args.overwrite)
