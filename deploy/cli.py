@@ -15,7 +15,7 @@ from pathlib import Path
 from deploy.contract.fault_plan import FaultPlanError
 from deploy.contract.options import OptionError, add_option
 from deploy.contract.scenario import PLANT_KINDS, ScenarioError
-from deploy.contract.wire import FleetNameError
+from deploy.contract.wire import FleetNameError, Keys
 from deploy.nodes.cli import CLOCKS, add_node_commands, fault_plan, gui_problem, run_scenario
 from deploy.report.run_folder import RunFolderError
 from deploy.report.run_folder import prepare as prepare_run_folder
@@ -52,6 +52,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     for note in sc.notes:
         print(f"note: {note}", file=sys.stderr)
+    if not args.in_process:
+        Keys(args.fleet or sc.name)  # FleetNameError: exit 2 (main), before --out is touched
     out = Path(args.out) if args.out else Path("runs") / sc.name
     try:
         removed = prepare_run_folder(out, args.overwrite)
@@ -103,6 +105,7 @@ def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, l
                             on_series=None if live is None else live.follow)
     extra = {} if plan is None else {"faults": fault_metrics(plan, result.faults or {})}
     extra["law_resets"] = result.law_resets
+    extra["torque_clipped"] = {str(r): n for r, n in (result.torque_clipped or {}).items()}
     recorder = None
     if not args.no_record:
         out.mkdir(parents=True, exist_ok=True)
@@ -304,6 +307,7 @@ def _summary(m: dict, out: Path) -> str:
         *_safety_lines(m),
         *_law_lines(m),
         *_transport_lines(m),
+        *_hardening_lines(m),
         f"  written to {out}/ ({', '.join(m.get('files') or ['metrics.json'])})",
         *([verdict_line(m["verdict"])] if "verdict" in m else []),
     ])
@@ -326,6 +330,27 @@ def _law_lines(m: dict) -> list[str]:
 
 def _fmt_ints(xs: list) -> str:
     return "[" + ", ".join("n/a" if x is None else str(x) for x in xs) + "]"
+
+
+def _hardening_lines(m: dict) -> list[str]:
+    """A run stopped early, and commands clipped to the torque bound."""
+    lines = []
+    s = m.get("stopped_by")
+    if s:
+        at = "" if s.get("t_s") is None else f" at t = {s['t_s']:.3f} s"
+        lines.append(f"  STOPPED                    by ctl/{s['command']}{at} (sender {s['sender']}): "
+                     "the run did not go to its end")
+    refused = (m.get("messages") or {}).get("refused") or {}
+    if refused:
+        lines.append(f"  refused on arrival         {sum(refused.values())} message(s) by "
+                     f"{len({k.split(':')[0] for k in refused})} node(s) "
+                     "(metrics.json messages.refused: by node and reason)")
+    clipped = m.get("torque_clipped") or {}
+    if any(clipped.values()):
+        lines.append("  torque clipped to bound    "
+                     + ", ".join(f"robot {r}: {n}" for r, n in clipped.items() if n)
+                     + " command(s)")
+    return lines
 
 
 def _safety_lines(m: dict) -> list[str]:

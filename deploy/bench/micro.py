@@ -156,3 +156,51 @@ def _median_us(fn: Callable[[], object], calls: int) -> float:
         fn()
         times.append(time.perf_counter_ns() - t0)
     return statistics.median(times) / 1e3
+
+
+def defence_us(sc: Scenario, calls: int, repeats: int) -> dict[str, list[float]]:
+    """What the issue-21 defences cost (µs), in the form the nodes run them:
+
+    - ``guard_message``: one received control-path message judged against the
+      receiver's own clock and its stream (``OwnClock.refusal`` + ``StepGuard.admit``,
+      as an agent does for its sample and each neighbour's share);
+    - ``guards_per_agent_step``: every guard an agent of ``sc`` runs in one step (its
+      sample and the shares of its most-connected robot's neighbours);
+    - ``control_mac``: checking one control message's HMAC (control travels every 32
+      steps in lockstep, ``agents/leader_node.TICK_EVERY``; start and end once a run)."""
+    from deploy.contract.run_secret import control_is_genuine, new_secret
+    from deploy.contract.wire import control
+    from deploy.runtime.step_guard import OwnClock, StepGuard
+
+    neighbours = max(len(sc.agent_config(i).neighbours) for i in range(sc.n))
+    out: dict[str, list[float]] = {"guard_message": [], "guards_per_agent_step": [],
+                                   "control_mac": []}
+    secret = new_secret()
+    msg = control("tick", 7, 123, secret, k=64)
+    assert control_is_genuine(secret, msg)  # a benchmark of a check that passes
+    for _ in range(repeats):
+        own = OwnClock(sc.dt, deadline_s=2.0, answered_at=time.monotonic())
+        streams = [StepGuard(newest=-1) for _ in range(1 + neighbours)]
+        k = [0]
+
+        def one(streams=streams, own=own, k=k) -> None:
+            now = time.monotonic()
+            own.answer(k[0] - 1, now)
+            for g in streams:
+                if own.refusal(k[0], k[0], now) is None:
+                    g.admit(k[0])
+            k[0] += 1
+
+        out["guards_per_agent_step"].append(_median_us(one, calls))
+        single = StepGuard(newest=-1)
+        k1 = [0]
+
+        def message(g=single, own=own, k=k1) -> None:
+            own.answer(k[0] - 1, 0.0)
+            if own.refusal(k[0], k[0], time.monotonic()) is None:
+                g.admit(k[0])
+            k[0] += 1
+
+        out["guard_message"].append(_median_us(message, calls))
+        out["control_mac"].append(_median_us(lambda: control_is_genuine(secret, msg), calls))
+    return out

@@ -296,6 +296,7 @@ class Bench:
         from deploy.bench.micro import (
             agent_step_us,
             codec_us,
+            defence_us,
             plant_step_us_per_robot,
             safety_filter_us,
         )
@@ -327,6 +328,15 @@ class Bench:
         for name, samples in codec_us(paper, self.s.codec_calls, self.s.repeats).items():
             self.figure(f"cost.codec_{name}_us", "µs",
                         f"{name}: encode + validated decode").samples += samples
+        # the issue-21 defences (docs/hardening.md): per message, per agent step, per
+        # control message
+        what = {"guard_message": "one received message judged against the receiver's own "
+                "clock and its stream (OwnClock + StepGuard)",
+                "guards_per_agent_step": "every such judgement of one agent step, paper "
+                "(its sample and its neighbours' shares)",
+                "control_mac": "the HMAC check of one control message (every 32 steps)"}
+        for name, samples in defence_us(paper, self.s.codec_calls, self.s.repeats).items():
+            self.figure(f"cost.defence_{name}_us", "µs", what[name]).samples += samples
         hops = {path: self.figure(f"cost.zenoh_hop_{path}_us", "µs", what) for path, what in (
             ("runtime", "one zenoh hop between two processes as the nodes use it (ping-pong / "
              "2, 200 B, unix socket): direct callback -> SimpleQueue -> the working thread"),

@@ -116,13 +116,17 @@ def _end(proc: subprocess.Popen) -> None:
     proc.wait()
 
 
-def zenoh_hop_us(round_trips: int, path: str = "runtime") -> float:
+def zenoh_hop_us(round_trips: int, path: str = "runtime", over: str | None = None) -> float:
     """Median one-way zenoh hop (µs) between this process and an echo child that
-    both receive the way ``path`` does (see the module's docstring)."""
+    both receive the way ``path`` does (see the module's docstring). ``over``:
+    ``unixsock`` (a run's default: a socket in a private directory) or ``tcp``
+    (loopback, what any local process can reach); default: unixsock, TCP for
+    ``indirect``."""
     from deploy.run.launcher import free_tcp_port
 
     where = tempfile.mkdtemp(prefix="omnifleet-hop-")
-    endpoint = (f"unixsock-stream/{where}/hop.sock" if path != "indirect"
+    over = over or ("tcp" if path == "indirect" else "unixsock")
+    endpoint = (f"unixsock-stream/{where}/hop.sock" if over == "unixsock"
                 else f"tcp/127.0.0.1:{free_tcp_port()}")
     session = _zenoh_session(path, listen=endpoint)
     child = _child(path, endpoint)

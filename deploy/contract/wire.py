@@ -42,6 +42,10 @@ MAX_BATCH = 256  # steps per batched message (leader, telemetry, state log)
 MAX_CONTACTS = 10_000  # contact events carried by a plant's report (the count is exact)
 MAX_REPORT_SAMPLES = 200_000  # timing samples a report carries (node_runtime.MAX_SAMPLES)
 MAX_REPORT_KEYS = 1024  # entries of a report's per-key and per-reason tables
+# a report's encoded size, refused before it is decoded: two full timing tables (200 000
+# samples each, at most 9 bytes a sample in msgpack: 3.6 MB), contacts (10 000 x ~50 B)
+# and the tables (3 x 1024 entries of < 100 B) stay under it
+MAX_REPORT_BYTES = 5 * 1024 * 1024
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -369,12 +373,22 @@ class NodeReport(Message, frozen=True):
     # plant (realtime) or CAN bridge: each stretch a robot ran on zero torque for want of a
     # fresh command, as (robot, run time it began, s; how long it lasted, s)
     zero_torque: list[tuple[int, float, float]] = []
+    # plant or CAN bridge: per robot id (as text, as in metrics.json), the commands that asked
+    # for more wheel torque than the bound (plant/command.py torque_bound): clipped to it
+    torque_clipped: dict[str, int] = {}
+    mac: str = ""  # HMAC of the report's encoding with the run's secret (deploy/contract/run_secret.py)
 
     def __post_init__(self) -> None:
+        if len(self.mac) > 64:
+            raise ValueError("mac too long")
+        if min(self.sent, self.dropped, self.late, self.invalid, self.steps, self.nonfinite,
+               self.deadline_misses, self.law_resets, self.nonfinite_commands,
+               self.stale_samples, self.contacts_total) < 0:
+            raise ValueError("a negative count")  # a forged "invalid = -1000"
         if (len(self.latency_ns) > MAX_REPORT_SAMPLES or len(self.jitter_ns) > MAX_REPORT_SAMPLES
                 or len(self.received) > MAX_REPORT_KEYS or len(self.faults) > MAX_REPORT_KEYS
                 or len(self.refused) > MAX_REPORT_KEYS or len(self.command_stops) > 1000
-                or len(self.zero_torque) > 1000):
+                or len(self.zero_torque) > 1000 or len(self.torque_clipped) > MAX_BODIES):
             raise ValueError("report too large")
         if len(self.zid) > MAX_ROLE_CHARS or len(self.peers) > MAX_BODIES or any(
                 len(p) > MAX_ROLE_CHARS for p in self.peers):
@@ -421,7 +435,10 @@ class Codec:
             self.wrong_version += 1
 
     def decode(self, kind: type[Message], data: bytes, robot: int | None = None) -> Any:
-        """The message, or None when it is invalid (never raises)."""
+        """The message, or None when it is invalid (never raises). A report larger
+        than ``MAX_REPORT_BYTES`` is refused before it is decoded."""
+        if kind is NodeReport and len(data) > MAX_REPORT_BYTES:
+            return None
         try:
             msg = self._decoders[kind].decode(data)
         except (msgspec.DecodeError, ValueError, TypeError):

@@ -27,6 +27,7 @@ from agents.core import AgentCore, AgentOutput, Share
 from agents.degradation import InputAges, predict
 from agents.look_ahead import LookAhead
 from deploy.contract.fault_plan import FaultPlan
+from deploy.contract.options import DEFAULT_STEP_DEADLINE_S
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import (
     LAUNCHER_ROLE,
@@ -48,7 +49,7 @@ from deploy.nodes.leader import LOOKAHEAD, TICK_EVERY
 from deploy.runtime.fault_model import FaultModel
 from deploy.runtime.lockstep_inputs import AgentLinks
 from deploy.runtime.node_runtime import ControlInbox, FaultGate, StopFlag, Timing, publish_report
-from deploy.runtime.step_guard import JUMP_OK, StepGuard
+from deploy.runtime.step_guard import CLOCK_SKEW_S, JUMP_OK, OwnClock, StepGuard
 from deploy.runtime.transport import Node
 from plant.bodies import Body
 
@@ -164,11 +165,13 @@ class AgentInputs:
 class AgentNode:
     def __init__(self, sc: Scenario, robot_id: int, node: Node, stop: StopFlag,
                  with_recorder: bool = False, plant_role: str = PLANT_ROLE,
-                 faults: FaultPlan | None = None, realtime: bool = False) -> None:
+                 faults: FaultPlan | None = None, realtime: bool = False,
+                 step_deadline_s: float = DEFAULT_STEP_DEADLINE_S) -> None:
         """``plant_role``: who publishes this robot's state (the plant, or a CAN bridge);
         ``faults``: the run's fault plan (this agent applies the faults of the
         edges it receives on: in lockstep when it picks a step's inputs, in
-        realtime as messages arrive)."""
+        realtime as messages arrive); ``step_deadline_s``: the plant's (lockstep),
+        which bounds how far ahead of our last answer the plant can be."""
         self.sc, self.node, self.stop = sc, node, stop
         self.plant_role = plant_role
         self.index = sc.index_of(robot_id)
@@ -195,6 +198,10 @@ class AgentNode:
         self.guards: dict[str, StepGuard] = {
             "sample": StepGuard(newest=None if realtime else -1, period_s=period),
             "leader": StepGuard(period_s=period)}
+        # the newest step any sender can be at, on our own clock (step_guard.OwnClock):
+        # lockstep from our last answer and the plant's deadline, realtime from t = 0
+        self.clock = OwnClock(sc.dt, None if realtime else step_deadline_s,
+                              answered_at=time.monotonic())
         # the law restarted from the robot: after a gap longer than the inputs stay fresh
         # (realtime), or from a non-finite state (AgentCore.recover)
         self.law_resets = 0
@@ -218,10 +225,22 @@ class AgentNode:
     def _subscribe(self) -> None:
         keys, inp, rid = self.node.keys, self.inputs, self.rid
 
-        dt, guards, refuse = self.sc.dt, self.guards, self.node.refuse
+        dt, guards, own = self.sc.dt, self.guards, self.clock
+        refuse = self.node.refuse
+        warned: set[str] = set()
+
+        def refuse_ahead(what: str, why: str) -> None:
+            refuse(f"{what}: {why}")
+            if what not in warned:  # a real sender here means clocks that disagree
+                warned.add(what)
+                print(f"{self.node.role}: refused a {what} ({why}; counted): forged, or "
+                      "on the realtime clock a host whose wall clock is ahead of ours by "
+                      f"more than {CLOCK_SKEW_S * 1e3:.0f} ms (NTP)", file=sys.stderr,
+                      flush=True)
         period = self.guards["sample"].period_s
         share_guards = {j: StepGuard(period_s=period) for j in self.neighbours}  # one per neighbour
         clock = time.monotonic if period is not None else _no_clock
+        now = time.monotonic
         # lockstep stores inputs by step until they are used: those far ahead of our own
         # sample stream are refused so the tables stay bounded. Realtime keeps only the
         # newest of each stream (its own guard) and clears the tables every step, and a
@@ -234,6 +253,10 @@ class AgentNode:
         # lockstep agent or silence a realtime one; what is stored stays near the
         # newest (bounded tables), and a step already stored is not overwritten.
         def on_sample(m: Sample) -> None:
+            why = own.refusal(m.k, m.seq, now())
+            if why is not None:  # cannot be real yet: costs only itself
+                refuse_ahead("sample", why)
+                return
             g = guards["sample"]
             if g.admit(m.k, clock()):
                 inp.states[m.k] = m
@@ -244,22 +267,30 @@ class AgentNode:
                 refuse("sample step")
 
         def on_leader(m: LeaderState) -> None:
-            g, ahead, now = guards["leader"], guards["sample"], clock()
+            g, ahead, at = guards["leader"], guards["sample"], clock()
+            why = own.refusal(m.k + len(m.q) - 1, m.seq, now(), LEADER_AHEAD_STEPS)
+            if why is not None:
+                refuse_ahead("leader", why)
+                return
             for p in leader_points(m, dt):
                 if lockstep and not ahead.within(p.k, LEADER_AHEAD_STEPS):
                     refuse("leader step")
                     continue
                 inp.leaders.setdefault(p.k, p)
-                if g.admit(p.k, now):
+                if g.admit(p.k, at):
                     inp.newest_leader = p
 
         def on_share(m: Reply) -> None:
-            now = clock()
+            why = own.refusal(m.k, m.seq, now())
+            if why is not None:
+                refuse_ahead("share", why)
+                return
+            at = clock()
             if lockstep and not guards["sample"].within(m.k, SHARE_AHEAD_STEPS):
                 refuse("share step")
                 return
             inp.shares.setdefault((m.robot, m.k), m)
-            if share_guards[m.robot].admit(m.k, now):
+            if share_guards[m.robot].admit(m.k, at):
                 inp.newest_share[m.robot] = m
 
         me, gate = agent_role(rid), self._gated
@@ -297,6 +328,7 @@ class AgentNode:
         v_cmd = (0.0, 0.0, 0.0) if out is None else _t3(out.v_cmd)
         share = ShareData(_t3(s.q0_hat), _t3(s.v0_hat), _t3(s.q), _t3(s.q_dot), _t3(s.zeta),
                           _t3(s.zeta_dot), s.info_age_s)
+        self.clock.answer(k, time.monotonic())  # lockstep: the plant can be one step past it
         self.node.publish(self.node.keys.cmd(rid), lambda seq, stamp: Reply(
             WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, t=t, torques=torques, v_cmd=v_cmd,
             state_seq=-1 if state is None else state.seq,
@@ -441,6 +473,7 @@ class AgentNode:
         last_t: float | None = None
         share_msgs: dict[int, Reply] = {}
         synced = t0_mono is not None
+        self.clock.t0_s = t0_mono  # no sender is past the wall clock (step_guard.OwnClock)
         while not self.stop():
             box.wait_until(
                 lambda seen=last_k: self.stop() or (inp.newest_state is not None
@@ -498,6 +531,7 @@ class AgentNode:
                 if not self._resync(state, leader, share_msgs, ages):
                     continue
                 t0_mono, synced = now - state.t, True
+                self.clock.t0_s = t0_mono
             for j, msg in share_msgs.items():
                 self.last_shares[j] = share_from_msg(msg)
             t = now - t0_mono

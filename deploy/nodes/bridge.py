@@ -44,8 +44,9 @@ from deploy.contract.wire import (
     sensed_bodies,
 )
 from deploy.runtime.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
+from deploy.runtime.step_guard import SEQ_SLACK, OwnClock
 from deploy.runtime.transport import Node
-from plant.command import ZeroTorqueSpans
+from plant.command import ZeroTorqueSpans, exceeds, torque_bound
 from plant.perception import sense
 
 MAX_POSE_LEAD_S = 0.02  # longest the published pose is carried past the newest encoder data
@@ -64,8 +65,13 @@ class BridgeNode:
         self.odometry = Odometry(sc.model(), q0[self.index])
         # the scenario's limit, and never beyond what the protocol can encode (paper.toml
         # has no limit: a 1001 N m command made the frame encoder raise in the callback)
-        self.gate = CommandGate(command_timeout_s, min(sc.spec.limits.max_wheel_torque_nm,
+        self.gate = CommandGate(command_timeout_s, min(torque_bound(sc.spec.limits),
                                                        protocol.max_abs_torque_nm))
+        self.published_k = -1  # the newest step whose sample went out
+        self.command_k = -1  # the step of the newest command taken
+        self.clipped = 0  # commands that asked for more than the gate's bound (clipped)
+        self.other_k = [-1] * sc.n  # the step of each other robot's newest sample taken
+        self.clock = OwnClock(sc.dt)  # t = 0 set by run_realtime: nobody is past it
         self.monitor = DriverMonitor(self.node_ids, heartbeat_timeout_s, time.monotonic())
         self.timing = Timing()
         self.steps_done = 0
@@ -94,8 +100,9 @@ class BridgeNode:
             if rid != robot_id:
                 node.subscribe(node.keys.sample(rid), Sample,
                                lambda m, j=j: self._on_other(j, m), robot=rid)
-        self.control = ControlInbox(node, stop)
-        node.subscribe(node.keys.ctl_all, Control, self._on_ctl)
+        # only control signed with the run's secret reaches _on_ctl: a forged ctl/estop
+        # from any peer e-stopped the drives (it was subscribed apart, unchecked)
+        self.control = ControlInbox(node, stop, on_genuine=self._on_ctl)
         self._reader = threading.Thread(target=self._read_bus, name="can-rx", daemon=True)
         self._reader.start()
         node.declare_alive()
@@ -113,6 +120,13 @@ class BridgeNode:
                 self._frames.put((time.monotonic(), frame))
 
     def _on_other(self, j: int, m: Sample) -> None:  # on the node's thread
+        # another bridge's sample: newer than the last one taken, and not past the wall
+        # clock (the bridges share t = 0; step_guard.OwnClock), so one forged sample moves
+        # that robot in our perception for its own step at most
+        if m.k <= self.other_k[j] or self.clock.refusal(m.k, m.seq, time.monotonic()):
+            self.node.refuse("other robot's sample step")
+            return
+        self.other_k[j] = m.k
         self.positions[j] = m.q[:2]
         self.velocities[j] = m.q_dot[:2]
 
@@ -124,6 +138,21 @@ class BridgeNode:
     def _on_cmd(self, m: Reply) -> None:  # on the node's thread, as it waits
         if m.k < 0:
             return  # an initial share: no command in it
+        # judged as the plant judges (deploy/nodes/plant.py): a command answers a sample already
+        # sent; the newest step wins and the first command for it stays; one reply per
+        # step, so the seq never runs past our step (a restarted agent counts from 0).
+        # A late one for an older step is still taken when it is the newest (the gate
+        # times it from its arrival, as before): the bridge keeps no table to bound
+        why = ("future step" if m.k > self.published_k else
+               "seq ahead of our clock" if m.seq > self.published_k + SEQ_SLACK else
+               "not newer than the newest command" if m.k <= self.command_k else None)
+        if why is not None:
+            self.node.refuse(why)
+            return
+        self.command_k = m.k
+        if exceeds(m.torques, m.plan, self.gate.max_torque_nm):
+            self.clipped += 1
+            self.node.refuse("torque beyond the bound (clipped)", dropped=False)
         arrived = time.monotonic()
         self.gate.command(m.torques, arrived, m.k, m.plan)
         if self.armed:  # torque on the bus now, not at the next period
@@ -220,6 +249,7 @@ class BridgeNode:
 
     def run_realtime(self, t0_mono: float, steps: int) -> None:
         dt = self.sc.dt
+        self.clock.t0_s = t0_mono
         ticker = Periodic(t0_mono, dt, self.timing, self.node.mailbox)
         last = getattr(self, "_pre_run_last", None)
         try:
@@ -278,6 +308,7 @@ class BridgeNode:
         pos[i], vel[i] = q[:2], qd[:2]
         robots, obstacles = sense(i, pos, vel, self.radii, self.sc.robot_ids, self.obstacles,
                                   self.sc.spec.behaviors.detection_range_m, self.shapes)
+        self.published_k = max(self.published_k, k)
         node.publish(keys.sample(self.rid), lambda seq, stamp: Sample(
             WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, q=tuple(q.tolist()),
             q_dot=tuple(qd.tolist()), robots=sensed_bodies(robots),
@@ -306,7 +337,8 @@ class BridgeNode:
         so it does not mistake the end of the run for a lost bridge."""
         publish_report(self.node, self.rid, self.steps_done, self.timing,
                        command_stops=self.command_stops[:1000],
-                       zero_torque=self.zero_torque.close(self.steps_done * self.sc.dt))
+                       zero_torque=self.zero_torque.close(self.steps_done * self.sc.dt),
+                       torque_clipped={str(self.rid): self.clipped} if self.clipped else {})
         c = self.protocol.counters
         print(f"{self.node.role}: CAN frames sent {self.frames_sent}, axes re-armed "
               f"{self.rearms}; received decoded {c.decoded}, rejected {c.rejected}",

@@ -3,7 +3,8 @@
 The same command works on one machine (the launcher starts it with loopback
 endpoints) and across machines (``--listen``/``--connect`` or
 ``--zenoh-config``). Every node of a run must be given the same scenario, fleet
-name, clock, and --duration/--control-rate if any.
+name, clock, and --duration/--control-rate/--step-deadline if any (a lockstep agent
+judges how far ahead the plant can be by the plant's step deadline: step_guard.py).
 """
 
 from __future__ import annotations
@@ -151,7 +152,8 @@ def _cmd_agent(args: argparse.Namespace) -> int:
     def build(sc, node, stop):
         node.required, node.on_lost = {args.plant_role}, _lost(stop, node, args.lost_peer_grace)
         return AgentNode(sc, args.robot, node, stop, _waits_for_recorder(args),
-                         args.plant_role, plan, realtime=args.clock == "realtime")
+                         args.plant_role, plan, realtime=args.clock == "realtime",
+                         step_deadline_s=args.step_deadline)
 
     def realtime(obj, sc):
         if args.rejoin:  # the start was announced long ago: t = 0 comes from the plant

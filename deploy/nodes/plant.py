@@ -57,13 +57,16 @@ from deploy.runtime.node_runtime import (
     publish_report,
 )
 from deploy.runtime.plants import contact_log, make_plant, sensor_for
+from deploy.runtime.step_guard import SEQ_SLACK
 from deploy.runtime.transport import Node
 from plant.command import (
     ZeroTorqueSpans,
     applied_command,
     command_for_step,
+    exceeds,
     held_step,
-    implausible,
+    torque_bound,
+    velocity_exceeds,
 )
 
 SENT_STAMPS_KEPT = 64  # samples per robot whose answers still count for the latency
@@ -110,6 +113,10 @@ class PlantNode:
         self.window_steps = max(self.keep_steps, int(command_timeout_s / sc.dt) + 2)
         self.gate = FaultGate(self.faults, node.mailbox) if realtime and faults else None
         self.unpowered: set[int] = set()  # realtime: robots whose commands stopped coming
+        # the largest wheel torque ever applied (plant/command.py), and per robot the
+        # commands that asked for more (clipped to it; in metrics.json)
+        self.bound = torque_bound(sc.spec.limits)
+        self.clipped: dict[int, int] = {}
         self.command_stops: list[tuple[int, float, float]] = []  # (robot, command age, t)
         self.zero_torque = ZeroTorqueSpans()  # how long each stop lasted
         for rid in self.ids:
@@ -128,16 +135,29 @@ class PlantNode:
         if m.k > self.published_k:
             self.node.refuse("future step")
             return
+        if m.seq > self.published_k + SEQ_SLACK:
+            # one reply per step: an agent's seq never runs past our step (one restarted
+            # after a crash numbers from 0 again and is heard); nothing orders by seq
+            self.node.refuse("seq ahead of our clock")
+            return
         if m.k < self.published_k - self.window_steps:
             self.node.refuse("stale step")
             return
-        if implausible(m.torques, m.plan):
-            self.node.refuse("implausible torque (clamped)", dropped=False)
+        if (m.robot, m.k) in self.commands:
+            # the first command for a step is the one (a second, forged or replayed,
+            # can no longer replace it: it costs only itself)
+            self.node.refuse("second command for a step")
+            return
+        if exceeds(m.torques, m.plan, self.bound):
+            self.clipped[m.robot] = self.clipped.get(m.robot, 0) + 1
+            self.node.refuse("torque beyond the bound (clipped)", dropped=False)
+        if velocity_exceeds(m.v_cmd, self.sc.spec.limits):  # what a kinematic plant moves at
+            self.node.refuse("velocity beyond the bound (clipped)", dropped=False)
         self.commands[(m.robot, m.k)] = m
         old = self.newest.get(m.robot)
-        # newer by step, then by sequence (an agent restarted after a crash
-        # numbers its messages from 0 again, but answers the current step)
-        if old is None or (m.k, m.seq) > (old.k, old.seq):
+        # newer by step (an agent restarted after a crash numbers its messages from 0
+        # again, but answers the current step); the same step: the first one stays
+        if old is None or m.k > old.k:
             self.newest[m.robot] = m
             self.newest_at[m.robot] = time.monotonic()
             sent = self.sent_stamps.get(m.robot, {}).pop(m.state_seq, None)
@@ -319,6 +339,7 @@ class PlantNode:
         publish_report(self.node, -1, self.steps_done, self.timing, contacts=contacts,
                        contacts_total=0 if log is None else len(log),
                        faults=self.faults.report(), command_stops=self.command_stops[:1000],
-                       zero_torque=self.zero_torque.close(self.steps_done * self.sc.dt))
+                       zero_torque=self.zero_torque.close(self.steps_done * self.sc.dt),
+                       torque_clipped={str(r): n for r, n in self.clipped.items()})
         others = set(self.peers) - {LAUNCHER_ROLE}
         self.node.mailbox.wait_until(lambda: not (others & self.node.peers_alive), linger_s)

@@ -4,8 +4,9 @@ PASS when every robot settles (|e| stays below ``settle_threshold``) before
 sqrt(2) T_p, nothing ever touches (no contact, every surface-to-surface gap > 0) and
 nothing is non-finite (no NaN/Inf in the states, and the control law never
 gave one), no robot ran on zero torque (its agent silent) for longer than the command
-timeout, the run was not interrupted and its recording did not fail. A run whose
-states become non-finite or absurd (a robot
+timeout, the run was not interrupted, its recording did not fail, and it went to its
+end: a run ended early by a genuine ``ctl/stop`` or ``ctl/estop`` (``stopped_by`` in
+metrics.json) is never PASS. A run whose states become non-finite or absurd (a robot
 ``DIVERGED_DISTANCE_M`` from its formation target, or faster than
 ``DIVERGED_SPEED_MPS``) has **diverged**; the verdict says when and which robot.
 
@@ -86,13 +87,19 @@ def judge(metrics: dict[str, Any], diverged: dict[str, Any] | None = None) -> di
     if recording.get("error"):
         reasons.append(f"the recording failed: {recording['error']}")
     complete = not metrics.get("interrupted") and not recording.get("error")
-    return {"pass": bool(settled) and no_contact and finite and not unpowered and complete,
-            "settled": settled, "no_contact": no_contact, "finite": finite,
-            "powered": not unpowered, "complete": complete, "diverged": diverged,
-            "settling_bound_s": bound, "reasons": reasons}
     if diverged is not None:
         reasons.append(f"DIVERGED: robot {diverged['robot']} {diverged['what']} "
                        f"at t = {diverged['t_s']:.3f} s")
+    stopped = metrics.get("stopped_by")
+    if stopped:  # a genuine ctl/stop or ctl/estop ended the run early (issue 21)
+        at = stopped.get("t_s")
+        reasons.append(f"STOPPED by ctl/{stopped['command']}"
+                       + ("" if at is None else f" at t = {at:.3f} s"))
+    return {"pass": (bool(settled) and no_contact and finite and not unpowered and complete
+                     and not stopped),
+            "settled": settled, "no_contact": no_contact, "finite": finite,
+            "powered": not unpowered, "complete": complete, "stopped": bool(stopped),
+            "diverged": diverged, "settling_bound_s": bound, "reasons": reasons}
 
 
 def verdict_line(v: dict[str, Any]) -> str:

@@ -6,11 +6,17 @@ the agents' :class:`Telemetry` rows the agent columns, all indexed by the step k
 the plant stamped. Lockstep runs fill every (k, robot) exactly once; a
 realtime run may miss some, which are filled forward from the previous step
 (and counted).
+
+Every cell is written once: the first row for a (step, robot) stays, a second one
+(forged or replayed) is refused and counted; and a row for a step the run cannot
+have reached yet on the launcher's clock (``horizon``) is refused and counted, so a
+forged message costs at most its own cells.
 """
 
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 
 import numpy as np
 
@@ -37,6 +43,13 @@ class Collector:
         self.out_of_range = 0  # messages stamped with a step outside the run
         self.filled = 0  # cells filled forward (realtime)
         self.lock = threading.Lock()
+        # the newest step the run can have reached now (None: no bound known), set by the
+        # launcher from its own clock; rows past it and second rows for a cell: refused
+        self.horizon: Callable[[], int | None] = lambda: None
+        self.refused: dict[str, int] = {}
+
+    def _refuse(self, why: str) -> None:
+        self.refused[why] = self.refused.get(why, 0) + 1
 
     def add(self, msg: object) -> None:
         ts = self.ts
@@ -44,12 +57,19 @@ class Collector:
             if isinstance(msg, NodeReport):
                 self.reports[msg.role] = msg
                 return
+            horizon = self.horizon()
             if isinstance(msg, StateLog):
                 cols = [self.row[r] for r in msg.robots]
                 for row in msg.rows:
                     k = row.k
                     if not 0 <= k < self.steps:
                         self.out_of_range += 1
+                        continue
+                    if horizon is not None and k > horizon:
+                        self._refuse("state row ahead of the run")
+                        continue
+                    if self.have_state[k, cols].any():
+                        self._refuse("second state row for a step")
                         continue
                     ts.q[k, cols], ts.q_dot[k, cols] = row.q, row.q_dot
                     self.have_state[k, cols] = True
@@ -61,6 +81,12 @@ class Collector:
                     if not 0 <= row.k < self.steps:
                         self.out_of_range += 1
                         continue
+                    if horizon is not None and row.k > horizon:
+                        self._refuse("telemetry row ahead of the run")
+                        continue
+                    if self.have_telemetry[row.k, i]:
+                        self._refuse("second telemetry row for a step")
+                        continue
                     record_telemetry(ts, row.k, i, row)
                     self.have_telemetry[row.k, i] = True
             elif isinstance(msg, LeaderState):
@@ -69,6 +95,8 @@ class Collector:
                     if not 0 <= k < self.steps:
                         self.out_of_range += 1
                         continue
+                    if self.have_leader[k]:
+                        continue  # lockstep batches overlap: the first stays
                     ts.leader_q[k], ts.leader_v[k] = q, qd
                     self.have_leader[k] = True
             # samples, replies, control: recorded, not part of the series

@@ -36,7 +36,7 @@ from deploy.contract.options import (
     DEFAULT_STARTUP_TIMEOUT_S,
     DEFAULT_STEP_DEADLINE_S,
 )
-from deploy.contract.run_secret import RUN_SECRET_ENV, control_is_genuine, new_secret
+from deploy.contract.run_secret import RUN_SECRET_ENV, control_is_genuine, new_secret, report_is_genuine
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import (
     LAUNCHER_ROLE,
@@ -50,12 +50,15 @@ from deploy.contract.wire import (
     agent_role,
     bridge_role,
     control,
+    run_roles,
 )
+from deploy.nodes.leader import TICK_EVERY
 from deploy.run.collector import Collector
 from deploy.run.kill_schedule import PAUSE, RESUME, KillSchedule
 from deploy.runtime.fault_model import fault_metrics, merge_reports
 from deploy.runtime.node_runtime import START_LEAD_S, StopFlag, peak_rss_kb
 from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
+from deploy.runtime.step_guard import CLOCK_SKEW_S
 from deploy.runtime.transport import Node, zenoh_config
 
 STOP_GRACE_S = 3.0
@@ -202,6 +205,11 @@ class Launcher:
         self.launcher_zid = ""  # our zenoh id (links in metrics.json name it "launcher")
         self.secret = new_secret()  # the run's: only its own nodes can sign ctl/* (run_secret.py)
         self.control_refused = 0  # control messages heard whose signature did not check
+        self.stopped_by: dict[str, Any] | None = None  # a genuine ctl/stop or ctl/estop
+        self.misfiled = 0  # reports and state logs whose key is not their sender's
+        self.forged_reports = 0  # reports of no role of the run, or not signed by its nodes
+        self.tick_k = -1  # lockstep: the newest signed ctl/tick (the plant's step)
+        self.collector.horizon = self._horizon
 
     # -- children -------------------------------------------------------------------
     def _common_args(self, endpoint: str) -> list[str]:
@@ -418,18 +426,67 @@ class Launcher:
                 self.run_t0 = time.monotonic() + (msg.start_unix_ns - time.time_ns()) * 1e-9
             elif msg.command == "tick":
                 self.progress_k = max(self.progress_k, msg.k)
+                self.tick_k = max(self.tick_k, msg.k)
             elif msg.command == "end":
                 self.ended = True
+            elif msg.command in ("stop", "estop") and self.stopped_by is None:
+                # signed by a holder of the run's secret: the run ends early, and says so
+                self.stopped_by = {"command": msg.command, "sender": msg.sender,
+                                   "k": self.progress_k, "t_s": self._run_time()}
             return
         if isinstance(msg, NodeReport) and key != self.keys.report(msg.role):
             # a report is filed under the role of the key it came on, never the role its
             # body claims (a "plant" report on report/agent-2 put a fake contact in
             # metrics.json); across hosts the ACL lets each role put only its own key
             self.invalid += 1
+            self.misfiled += 1
+            return
+        if isinstance(msg, NodeReport) and (msg.role not in self._report_roles()
+                                            or not report_is_genuine(self.secret, msg)):
+            # only the run's roles (the table of reports stays bounded), signed with the
+            # run's secret (a report on report/plant with a fake contact is refused)
+            self.invalid += 1
+            self.forged_reports += 1
+            return
+        if isinstance(msg, StateLog) and not self._state_source(key, msg):
+            self.invalid += 1  # robot states from a node that does not hold them
+            self.misfiled += 1
             return
         if isinstance(msg, StateLog) and self.opts.clock == "realtime":
             self.progress_k = max(self.progress_k, msg.rows[-1].k)
         self.collector.add(msg)
+
+    def _report_roles(self) -> set[str]:
+        """The roles whose reports a run files: its nodes (a plant or bridges)."""
+        ids = self.sc.robot_ids
+        return {*run_roles(ids), *(bridge_role(r) for r in ids)}
+
+    def _state_source(self, key: str, msg: StateLog) -> bool:
+        """Whether ``msg`` came on the key of a node that holds those robots' states:
+        the plant (any robots), or robot i's CAN bridge (robot i only)."""
+        if key == self.keys.state_log(PLANT_ROLE):
+            return self.opts.plant != CAN_EMULATED
+        return self.opts.plant == CAN_EMULATED and len(msg.robots) == 1 and (
+            key == self.keys.state_log(bridge_role(msg.robots[0])))
+
+    def _horizon(self) -> int | None:
+        """The newest step the run can have reached now, on our clock: realtime from
+        t = 0 (no node runs ahead of the wall clock), lockstep from the plant's newest
+        signed tick (rows follow it by less than a batch: agents answer its samples)."""
+        t0 = self.run_t0 if self.run_t0 is not None else self.t0_mono
+        if self.opts.clock == "realtime":
+            if t0 is None:
+                return None
+            return int((time.monotonic() - t0 + CLOCK_SKEW_S) / self.sc.dt) + 1
+        return max(self.tick_k, 0) + 3 * TICK_EVERY
+
+    def _run_time(self) -> float | None:
+        """Run time now: realtime from ``ctl/start``; lockstep from the plant's ticks."""
+        if self.run_t0 is not None:
+            return time.monotonic() - self.run_t0
+        if self.t0_mono is not None:
+            return time.monotonic() - self.t0_mono
+        return None if self.progress_k < 0 else self.progress_k * self.sc.dt
 
     # -- the run --------------------------------------------------------------------
     def run(self, progress=None) -> dict[str, Any]:
@@ -640,6 +697,12 @@ class Launcher:
         agents = [reports.get(agent_role(r)) for r in self.sc.robot_ids]
         if self.control_refused:
             refused["launcher: forged control"] = self.control_refused
+        if self.misfiled:
+            refused["launcher: report or state log on another node's key"] = self.misfiled
+        if self.forged_reports:
+            refused["launcher: report not from a node of the run"] = self.forged_reports
+        for why, n in self.collector.refused.items():
+            refused[f"launcher: {why}"] = n
         if refused:  # counted in "dropped" too; here by node and reason
             messages["refused"] = refused
         # who had a link with whom, from each node's zenoh session (ids -> roles)
@@ -663,6 +726,15 @@ class Launcher:
         # per robot, in the scenario's order (None: its agent's report never came); a
         # restarted agent reports for its second life too (the collector keeps the last)
         out |= agent_figures(agents)
+        # commands that asked for more torque than the bound, clipped, per robot
+        clipped = {str(r): 0 for r in self.sc.robot_ids}
+        for rep in reports.values():
+            for rid, n in rep.torque_clipped.items():
+                if rid in clipped:
+                    clipped[rid] += n
+        out["torque_clipped"] = clipped
+        if self.stopped_by is not None:
+            out["stopped_by"] = self.stopped_by
         plant = reports.get(PLANT_ROLE)
         bridges = [reports[bridge_role(r)] for r in self.sc.robot_ids if bridge_role(r) in reports]
         out |= zero_torque_figures([r for r in [plant, *bridges] if r is not None],

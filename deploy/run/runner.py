@@ -25,7 +25,14 @@ from deploy.report.timeseries import COLUMNS, TimeSeries
 from deploy.runtime.fault_model import FaultModel
 from deploy.runtime.lockstep_inputs import AgentLinks, HeldInput
 from deploy.runtime.plants import contact_log, make_plant, sensor_for
-from plant.command import applied_command, clamped_plan, command_for_step, held_step
+from plant.command import (
+    applied_command,
+    clamped_plan,
+    command_for_step,
+    exceeds,
+    held_step,
+    torque_bound,
+)
 
 __all__ = ["PLANT_KINDS", "RunResult", "contact_log", "make_plant", "run_in_process"]
 
@@ -41,6 +48,9 @@ class RunResult:
     step_unix_ns: np.ndarray | None = None  # wall clock as each step began (the recording)
     law_resets: list[int] | None = None  # per robot: the law restarted from a non-finite state
     interrupted: str | None = None  # "SIGINT": stopped early, the series holds the steps done
+    # per robot id, the commands that asked for more torque than the bound (clipped), as
+    # the plant node counts them (plant/command.py); the agents' own: none on a bounded law
+    torque_clipped: dict[int, int] | None = None
 
 
 def make_agents(sc: Scenario) -> list[AgentCore]:
@@ -111,6 +121,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     look_ahead = [LookAhead(a, horizon) for a in agents] if horizon else None
     law_resets = [0] * sc.n
 
+    bound, clipped = torque_bound(sc.spec.limits), dict.fromkeys(ids, 0)
     start = time.perf_counter()
     done, interrupted = 0, None
     try:  # Ctrl-C: what was measured so far is still the run's (deploy/cli.py)
@@ -129,6 +140,8 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                 out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
                 plan = [] if look_ahead is None else look_ahead[i].plan(
                     agent, out, t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
+                if exceeds(out.torques, plan, bound):
+                    clipped[rid] += 1
                 commands[(rid, k)] = (*applied_command(out.torques, out.v_cmd, sc.spec.limits),
                                       clamped_plan(plan, sc.spec.limits))
                 shares[(rid, k)] = out.share
@@ -159,7 +172,8 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
         step_unix_ns = step_unix_ns[:done]
     wall = time.perf_counter() - start
     return RunResult(sc, plant_kind, series, wall, contact_log(plant), model.report()
-                     if model.plan is not None else None, step_unix_ns, law_resets, interrupted)
+                     if model.plan is not None else None, step_unix_ns, law_resets, interrupted,
+                     clipped)
 
 
 def _forget(before: int, by_step: dict, leaders: dict, *by_robot_step: dict) -> None:

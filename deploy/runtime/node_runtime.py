@@ -15,7 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from deploy.contract.run_secret import control_is_genuine, run_secret
+from deploy.contract.run_secret import control_is_genuine, run_secret, sign_report
 from deploy.contract.wire import MAX_REPORT_SAMPLES, WIRE_VERSION, Control, NodeReport
 from deploy.runtime.fault_model import FaultModel
 from deploy.runtime.transport import Mailbox, Node
@@ -127,11 +127,15 @@ class ControlInbox:
     (lockstep clock of the leader), end/stop/estop (leave the loop). Subscribe
     before declaring the node alive."""
 
-    def __init__(self, node: Node, stop: StopFlag) -> None:
+    def __init__(self, node: Node, stop: StopFlag,
+                 on_genuine: Callable[[Control], None] | None = None) -> None:
+        """``on_genuine``: called with every control message whose signature checks
+        (a CAN bridge e-stops its drives on ``estop``); nothing else sees ``ctl/*``."""
         self.node, self.stop = node, stop
         self.start: Control | None = None
         self.tick = -1
         self.secret = run_secret()  # set by `omnifleet run`: control must be signed with it
+        self.on_genuine = on_genuine
         node.subscribe(node.keys.ctl_all, Control, self._on)
 
     def _on(self, msg: Control) -> None:  # on the node's thread
@@ -141,6 +145,8 @@ class ControlInbox:
                 print(f"{self.node.role}: refused an unsigned or forged ctl/{msg.command}",
                       file=sys.stderr, flush=True)
             return
+        if self.on_genuine is not None:
+            self.on_genuine(msg)
         if msg.command == "start" and self.start is None:
             self.start = msg
         elif msg.command == "tick":
@@ -241,11 +247,12 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
     """The node's :class:`NodeReport`; ``extra``: further NodeReport fields."""
     c = node.counters
     timing = timing or Timing()
-    node.publish(node.keys.report(node.role), lambda seq, stamp: NodeReport(
+    secret = run_secret()  # signed like control: the launcher files only its nodes' reports
+    node.publish(node.keys.report(node.role), lambda seq, stamp: sign_report(secret, NodeReport(
         WIRE_VERSION, node.sender, seq, stamp, role=node.role, robot=robot, sent=c.sent,
         dropped=c.dropped, late=c.late, invalid=c.invalid, steps=steps, nonfinite=c.nonfinite,
         latency_ns=timing.latency_ns, jitter_ns=timing.jitter_ns,
         deadline_misses=timing.deadline_misses, peak_rss_kb=peak_rss_kb(),
         received=dict(node.received), refused=dict(node.refused), zid=node.zid,
         peers=node.linked_peers(), **extra,
-    ))
+    )))

@@ -79,3 +79,69 @@ class StepGuard:
         """Whether ``k`` is at most ``ahead`` steps past the newest (nothing accepted
         yet: anything is)."""
         return self.newest is None or k <= self.newest + ahead
+
+
+# -- the receiver's own clock: how far ahead any step or seq can possibly be -----------
+
+SEQ_SLACK = 2  # a stream's seq may run this far past its step (an initial share: seq 0 at k = -1)
+# realtime: how far a sender's clock may run ahead of ours (hosts share wall time by NTP,
+# within milliseconds on a LAN; t = 0 is ``ctl/start``'s wall-clock instant). A host whose
+# clock is further ahead has its real messages refused: the agent says so on stderr
+CLOCK_SKEW_S = 0.1
+DEADLINE_MARGIN = 0.9  # lockstep: a plant's deadline wait measured on our clock, with room
+
+
+@dataclass
+class OwnClock:
+    """The newest step any sender of this run can have reached, judged on the
+    receiver's own clock (issue 21: a message is judged against the receiver's
+    clock, not only against the sender's history, which a forger writes).
+
+    - lockstep (``deadline_s`` set): the plant publishes step k + 1 only once every
+      command of step k is in or its step deadline has passed. So once we answered
+      step ``answered`` at ``answered_at`` (our monotonic clock), the plant can be at
+      most at ``answered + 1``, plus one step per deadline since: a sample (and a
+      neighbour's share of it) for a later step cannot be real yet.
+    - realtime (``t0_s`` set: t = 0 of the run on our clock, from ``ctl/start`` or a
+      rejoin): no sender runs ahead of the wall clock by more than the hosts'
+      skew, ``CLOCK_SKEW_S``.
+    - neither known yet (a realtime agent rejoining before its first sample): no
+      bound (:class:`StepGuard` still holds far jumps for confirmation).
+
+    ``seq``: every stream of the control path sends at most one message per step,
+    so a sender's seq (from 0 at its start) is at most its step + ``SEQ_SLACK``;
+    a restarted sender numbers from 0 again and is heard, a seq far ahead is
+    refused. Nothing orders messages by seq (the step does): this only counts.
+    """
+
+    dt: float
+    deadline_s: float | None = None
+    answered: int = -1
+    answered_at: float = 0.0
+    t0_s: float | None = None
+
+    def answer(self, k: int, now: float) -> None:
+        """Lockstep: we answered step ``k`` at ``now`` (the initial share: k = -1)."""
+        self.answered, self.answered_at = k, now
+
+    def latest(self, now: float) -> int | None:
+        """The newest step a sender can be at now (None: no bound known)."""
+        if self.deadline_s is not None:
+            waited = max(0.0, now - self.answered_at)
+            return self.answered + 1 + int(waited / (self.deadline_s * DEADLINE_MARGIN))
+        if self.t0_s is not None:
+            return int((now - self.t0_s + CLOCK_SKEW_S) / self.dt) + 1
+        return None
+
+    def refusal(self, k: int, seq: int, now: float, ahead: int = 0) -> str | None:
+        """Why a message for step ``k`` with ``seq`` cannot be real now (None: it can).
+        ``ahead``: steps a stream legitimately runs ahead of the plant (the leader's
+        batches)."""
+        latest = self.latest(now)
+        if latest is None:
+            return None
+        if k > latest + ahead:
+            return "step ahead of our clock"
+        if seq > latest + ahead + SEQ_SLACK:
+            return "seq ahead of our clock"
+        return None

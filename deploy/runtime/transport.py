@@ -30,9 +30,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from deploy.contract.wire import WIRE_VERSION, Codec, Keys, Message, encode
+from deploy.contract.wire import MAX_REPORT_KEYS, WIRE_VERSION, Codec, Keys, Message, encode
 
 MAX_PEER_EVENTS = 10_000
+# distinct keys counted in Node.received: a wildcard subscription (ctl/*) hears any key a
+# peer makes up, and a report with more than MAX_REPORT_KEYS entries does not decode
+MAX_RECEIVED_KEYS = MAX_REPORT_KEYS // 2
 
 
 class TransportError(RuntimeError):
@@ -300,6 +303,8 @@ class Node:
                 counters.invalid += 1
                 self._warn_version()
                 return
+            if on not in received and len(received) >= MAX_RECEIVED_KEYS:
+                on = key  # made-up keys under a wildcard: counted under the wildcard
             received[on] = received.get(on, 0) + 1
             on_message(msg)
 

@@ -26,6 +26,8 @@ EXPECTED = {
     "cost.pybullet_step_us_per_robot", "cost.model_step_us_per_robot",
     "cost.zenoh_hop_runtime_us", "cost.zenoh_hop_lowlatency_us", "cost.zenoh_hop_indirect_us",
     "cost.udp_hop_us",
+    "cost.defence_guard_message_us", "cost.defence_guards_per_agent_step_us",
+    "cost.defence_control_mac_us",
     "run.paper_wall_s", "run.paper_no_record_wall_s", "run.recording_cost_ratio",
     "realtime.paper_1khz_latency_p99_ms", "realtime.paper_1khz_latency_p50_ms",
     "realtime.paper_1khz_contacts", "realtime.paper_1khz_unsettled_robots",

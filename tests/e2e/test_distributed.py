@@ -247,9 +247,12 @@ def test_realtime_run_reports_latency_jitter_and_misses(tmp_path):
     assert m["contacts"] == 0
 
 
-def test_a_bad_fleet_name_is_refused_before_anything_starts():
-    rc, _, err = finish(start("run", "paper", "--fleet", "a/b", "--duration", "0.1"), timeout=60)
+def test_a_bad_fleet_name_is_refused_before_anything_starts(tmp_path):
+    out = tmp_path / "run"
+    rc, _, err = finish(start("run", "paper", "--fleet", "a/b", "--duration", "0.1",
+                              "--out", str(out)), timeout=60)
     assert rc == 2 and "fleet name 'a/b'" in err
+    assert not out.exists()  # refused before anything was written (an empty recording was)
 
 
 def test_plant_exiting_cleanly_ends_the_run_even_before_end_is_read(tmp_path):

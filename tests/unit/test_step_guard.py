@@ -60,6 +60,8 @@ def test_an_agent_never_takes_a_forged_sample_as_its_newest():
     import pytest
 
     pytest.importorskip("zenoh")
+    import time
+
     from fuzz_fakes import FakeNode
 
     from deploy.contract.scenario import load_scenario
@@ -73,13 +75,17 @@ def test_an_agent_never_takes_a_forged_sample_as_its_newest():
         a.node.deliver(key, _sample(0, 0))
         a.node.deliver(key, _sample(2**62, 2**62))  # forged: a far step, a huge seq
         for k in range(1, 6):
+            a.clock.answer(k - 1, time.monotonic())  # lockstep: we answered the last step
             a.node.deliver(key, _sample(k, k))
             assert a.inputs.newest_state.k == k
         for k in range(10**6, 10**6 + 500):  # a flood of far steps, each alone
             a.node.deliver(key, _sample(k * 7, 1))
         assert a.inputs.newest_state.k == 5
         assert max(a.inputs.states) == 5 and len(a.inputs.states) <= 6  # bounded
-        assert a.node.refused["sample step"] == 501
+        if realtime:  # t = 0 not known yet (no start): the guard holds them
+            assert a.node.refused == {"sample step": 501}
+        else:  # lockstep: the plant cannot be past our last answer + 1 (step_guard.OwnClock)
+            assert a.node.refused == {"sample: step ahead of our clock": 501}
 
 
 
@@ -109,3 +115,34 @@ def test_on_the_realtime_clock_a_forged_far_step_is_still_held():
     assert g.newest == 108 and g.held == 1
     assert not g.admit(150, 0.109)  # 42 steps in 0.5 ms: held, not adopted
     assert g.newest == 108 and g.admit(109, 0.1095)
+
+
+# --- OwnClock: the newest step a sender can be at, on the receiver's own clock ------------
+def test_lockstep_the_plant_is_at_most_one_step_past_our_answer_plus_one_per_deadline():
+    from deploy.runtime.step_guard import DEADLINE_MARGIN, OwnClock
+
+    c = OwnClock(dt=0.005, deadline_s=2.0, answered_at=100.0)  # the initial share at t = 100
+    assert c.latest(100.0) == 0 and c.refusal(0, 0, 100.0) is None
+    assert c.refusal(1, 0, 100.5) == "step ahead of our clock"  # before we answered step 0
+    c.answer(41, 101.0)
+    assert c.refusal(42, 42, 101.0) is None and c.refusal(43, 0, 101.0) is not None
+    assert c.refusal(42, 45, 101.0) == "seq ahead of our clock"  # seq <= step + SEQ_SLACK
+    # stalled: the plant moves on one step per deadline, and is believed to
+    later = 101.0 + 3 * 2.0 * DEADLINE_MARGIN + 1e-6
+    assert c.latest(later) == 45 and c.refusal(45, 45, later) is None
+    # a restarted sender numbers from 0: heard
+    assert c.refusal(42, 0, 101.0) is None
+    # the leader's batches run ahead of the plant by design
+    assert c.refusal(42 + 100, 3, 101.0, ahead=100) is None
+
+
+def test_realtime_no_sender_is_past_the_wall_clock():
+    from deploy.runtime.step_guard import CLOCK_SKEW_S, OwnClock
+
+    c = OwnClock(dt=0.001)
+    assert c.latest(5.0) is None and c.refusal(2**62, 2**62, 5.0) is None  # t = 0 unknown
+    c.t0_s = 5.0
+    assert c.refusal(1000, 1000, 6.0) is None  # 1 s after t = 0
+    assert c.refusal(1000 + int(CLOCK_SKEW_S / 0.001), 0, 6.0) is None  # within the skew
+    assert c.refusal(1200, 0, 6.0) == "step ahead of our clock"
+    assert c.refusal(900, 2**62, 6.0) == "seq ahead of our clock"

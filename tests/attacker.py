@@ -1,0 +1,214 @@
+"""An outside peer that forges messages into a running fleet (issue 21).
+
+What a hostile or faulty local process can do: read the run's
+``logs/endpoints.json``, connect a zenoh peer of its own to the nodes' endpoints,
+listen to the fleet's traffic and publish well-formed messages with the project's
+own wire codec. It holds no run secret. The tests of tests/test_forged.py use it
+to probe a run from outside and judge what the run did about each message.
+
+:func:`fleet_under_attack` starts ``omnifleet run`` and yields once every node is
+ready; every process it started is ended by pid on the way out.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from procs import pids_with, start
+
+from deploy.contract.wire import (
+    WIRE_VERSION,
+    Codec,
+    Control,
+    Keys,
+    NodeReport,
+    Reply,
+    Sample,
+    ShareData,
+    StateLog,
+    StateRow,
+    Telemetry,
+    TelemetryRow,
+    encode,
+)
+
+ZERO3 = (0.0, 0.0, 0.0)
+READY_TIMEOUT_S = 60.0
+
+
+@dataclass
+class Attacker:
+    """A zenoh session linked to every node of a run, and the forgeries it can send."""
+
+    fleet: str
+    session: object
+    keys: Keys = field(init=False)
+    codec: Codec = field(init=False)
+    newest_sample: dict[int, Sample] = field(default_factory=dict)
+    endpoints: dict[str, str] = field(default_factory=dict)  # role -> where it listens
+
+    def __post_init__(self) -> None:
+        self.keys = Keys(self.fleet)
+        self.codec = Codec(list(range(1, 65)))
+        self._subs: list[object] = []
+        self._watched: set[int] = set()
+
+    # -- listening: what step the fleet is at --------------------------------------
+    def watch_samples(self, robot: int) -> None:
+        """Keep the newest sample of ``robot`` (the fleet's step, as a forger learns it)."""
+        if robot in self._watched:
+            return
+        self._watched.add(robot)
+
+        def arrived(s) -> None:  # zenoh's thread
+            m = self.codec.decode(Sample, s.payload.to_bytes(), robot)
+            if m is not None:
+                old = self.newest_sample.get(robot)
+                if old is None or m.k > old.k:
+                    self.newest_sample[robot] = m
+        self._subs.append(self.session.declare_subscriber(self.keys.sample(robot), arrived))
+
+    def step_of(self, robot: int, after: int = 0, timeout_s: float = 30.0) -> int:
+        """The newest step of ``robot``'s samples, once it is past ``after``."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            m = self.newest_sample.get(robot)
+            if m is not None and m.k > after:
+                return m.k
+            time.sleep(0.005)  # polling what another thread writes; not a sync stand-in
+        raise TimeoutError(f"no sample of robot {robot} past step {after}")
+
+    # -- forgeries --------------------------------------------------------------------
+    def put(self, key: str, msg) -> None:
+        self.raw(key, encode(msg))
+
+    def sample(self, robot: int, k: int, seq: int = 0, q=(50.0, 50.0, 0.0)) -> Sample:
+        """A well-formed sample of ``robot`` for step ``k`` (a robot far from where it is)."""
+        m = Sample(WIRE_VERSION, 0, seq, time.monotonic_ns(), robot=robot, k=k, t=k * 1e-3,
+                   q=q, q_dot=ZERO3, robots=[], obstacles=[])
+        self.put(self.keys.sample(robot), m)
+        return m
+
+    def cmd(self, robot: int, k: int, seq: int = 0, torque: float = 1.0,
+            plan_steps: int = 0) -> Reply:
+        """A well-formed command (and share) of ``robot``'s agent for step ``k``."""
+        share = ShareData(ZERO3, ZERO3, ZERO3, ZERO3, ZERO3, ZERO3)
+        u = (torque,) * 4
+        m = Reply(WIRE_VERSION, robot, seq, time.monotonic_ns(), robot=robot, k=k, t=0.0,
+                  torques=u, v_cmd=ZERO3, state_seq=0, state_stamp_ns=0, share=share,
+                  plan=[u] * plan_steps)
+        self.put(self.keys.cmd(robot), m)
+        return m
+
+    def control(self, command: str, seq: int = 0, k: int = 0, mac: str = "") -> None:
+        """A control message without the run's secret (a guessed or empty MAC)."""
+        self.put(self.keys.ctl(command), Control(WIRE_VERSION, 0, seq, time.monotonic_ns(),
+                                                 command=command, k=k, mac=mac))
+
+    def report(self, on_role: str, body_role: str, **fields) -> None:
+        """A report on ``report/<on_role>`` whose body says ``body_role``; ``fields`` may
+        hold what the type refuses (a negative count): it is written field by field."""
+        import msgspec
+
+        m = NodeReport(WIRE_VERSION, 0, 0, 0, role=body_role, robot=-1, sent=1, dropped=0,
+                       late=0, invalid=0, steps=1)
+        names = NodeReport.__struct_fields__
+        row = list(msgspec.structs.astuple(m))
+        for name, value in fields.items():
+            row[names.index(name)] = value
+        self.raw(self.keys.report(on_role), msgspec.msgpack.encode(row))
+
+    def state_log(self, role: str, robots: list[int], steps: list[int],
+                  q=(50.0, 50.0, 0.0)) -> None:
+        """Robot states for observers on ``log/<role>``, every robot at ``q``."""
+        rows = [StateRow(k, k * 1e-3, [q] * len(robots), [ZERO3] * len(robots),
+                         [False] * len(robots)) for k in steps]
+        self.put(self.keys.state_log(role), StateLog(WIRE_VERSION, 0, 0, 0, robots=robots,
+                                                     rows=rows))
+
+    def telemetry(self, robot: int, steps: list[int], nonfinite: bool = True) -> None:
+        """Telemetry rows of ``robot`` that say its law diverged."""
+        rows = [TelemetryRow(k=k, t=k * 1e-3, q_d=ZERO3, e=(9.0, 9.0, 0.0), s=ZERO3,
+                             v_cmd=ZERO3, torques=(0.0,) * 4, q0_hat=ZERO3, q_fd=ZERO3,
+                             fdb_error=None, order="", nonfinite=nonfinite) for k in steps]
+        self.put(self.keys.telemetry(robot), Telemetry(WIRE_VERSION, robot, 0, 0, robot=robot,
+                                                       rows=rows))
+
+    def raw(self, key: str, data: bytes) -> None:
+        """Put ``data`` on ``key``, blocking rather than dropping when a link is busy
+        (zenoh's default drops: a flood would lose the forgeries sent after it)."""
+        import zenoh
+
+        self.session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK)
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+        self.session.close()
+
+
+def _wait_ready(attacker: Attacker, roles: set[str], proc: subprocess.Popen,
+                timeout_s: float) -> None:
+    """Until every role is ready, or the fleet is already stepping (its samples reach
+    us: a short realtime run can be under way before a query sees every token)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and proc.poll() is None:
+        if attacker.newest_sample:
+            return
+        replies = attacker.session.liveliness().get(f"omr/{attacker.fleet}/ready/*", timeout=0.5)
+        seen = {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok is not None}
+        if roles <= seen:
+            return
+        time.sleep(0.02)
+    raise TimeoutError(f"fleet {attacker.fleet} not ready"
+                       + ("" if proc.poll() is None else f" (the run exited {proc.returncode})"))
+
+
+@contextlib.contextmanager
+def fleet_under_attack(scenario: str, out: Path, *args: str, robots: int = 3
+                       ) -> Iterator[tuple[subprocess.Popen, Attacker]]:
+    """``omnifleet run SCENARIO --out OUT ARGS`` on its default (private) endpoints; yields
+    (launcher process, an :class:`Attacker` linked to every node) once all are ready."""
+    import zenoh
+
+    from deploy.runtime.transport import zenoh_config
+
+    fleet = f"t-attack-{os.getpid()}-{out.name}"
+    proc = start("run", scenario, "--no-figures", "--fleet", fleet, "--out", str(out), *args)
+    attacker = None
+    try:
+        where = out / "logs" / "endpoints.json"
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while not where.exists() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.05)  # polling for a file another process writes
+        endpoints = json.loads(where.read_text())
+        # connect once every node listens: a connect to a socket not there yet is retried
+        # by zenoh with a growing back-off, and a short run could end meanwhile
+        socks = [Path(e.removeprefix("unixsock-stream/")) for e in endpoints.values()
+                 if e.startswith("unixsock-stream/")]
+        while (not all(x.exists() for x in socks) and time.monotonic() < deadline
+               and proc.poll() is None):
+            time.sleep(0.02)  # polling for files other processes create
+        session = zenoh.open(zenoh_config(connect=list(endpoints.values()), gossip=False))
+        attacker = Attacker(fleet, session, endpoints=endpoints)
+        for r in range(1, robots + 1):  # declared before the fleet starts stepping
+            attacker.watch_samples(r)
+        roles = {"plant", "leader", *(f"agent-{r}" for r in range(1, robots + 1))}
+        _wait_ready(attacker, roles, proc, READY_TIMEOUT_S)
+        yield proc, attacker
+    finally:
+        if attacker is not None:
+            attacker.close()
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        for pid in pids_with(fleet):
+            os.kill(pid, signal.SIGKILL)
