@@ -19,6 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent / "e2e"))
+sys.path.insert(0, str(Path(__file__).resolve().parent / "e2e"))
 
 from netns import machines, netns_problem, stop  # noqa: E402
 from test_netns import MACHINES, _logs, _run_fleet, _wait_all  # noqa: E402
