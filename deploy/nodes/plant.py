@@ -62,10 +62,9 @@ from deploy.runtime.transport import Node
 from plant.command import (
     ZeroTorqueSpans,
     applied_command,
-    command_for_step,
     exceeds,
-    held_step,
     torque_bound,
+    torques_at,
     velocity_exceeds,
 )
 
@@ -253,8 +252,8 @@ class PlantNode:
                 if cmd is None:
                     continue
                 k_cmd = k - age
-                planned = command_for_step(k_cmd, cmd.torques, cmd.plan,
-                                           k if zero_missed else held_step(k_cmd, cmd.plan, k))
+                planned = torques_at(k_cmd, cmd.torques, cmd.plan, k,
+                                     "zero" if zero_missed else "hold")
                 if planned is None:  # "zero": past the newest command's plan
                     self.torques[i], self.v_cmd[i] = 0.0, 0.0
                 else:  # its own command, its look-ahead for step k, or held past it
@@ -323,8 +322,7 @@ class PlantNode:
                 cmd = self.newest.get(rid)
                 if cmd is None or rid in self.unpowered or cmd.k >= k:
                     continue
-                planned = command_for_step(cmd.k, cmd.torques, cmd.plan,
-                                           held_step(cmd.k, cmd.plan, k))
+                planned = torques_at(cmd.k, cmd.torques, cmd.plan, k)
                 self.torques[i], self.v_cmd[i] = applied_command(planned, cmd.v_cmd,
                                                                  self.sc.spec.limits)
 

@@ -28,10 +28,9 @@ from deploy.runtime.plants import contact_log, make_plant, sensor_for
 from plant.command import (
     applied_command,
     clamped_plan,
-    command_for_step,
     exceeds,
-    held_step,
     torque_bound,
+    torques_at,
 )
 
 __all__ = ["PLANT_KINDS", "RunResult", "contact_log", "make_plant", "run_in_process"]
@@ -154,8 +153,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                 cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get((rid, idx)))
                 if cmd is None:
                     continue
-                planned = command_for_step(k - age, cmd[0], cmd[2],
-                                           k if zero_missed else held_step(k - age, cmd[2], k))
+                planned = torques_at(k - age, cmd[0], cmd[2], k, "zero" if zero_missed else "hold")
                 if planned is None:  # "zero": past the newest command's plan
                     torques[i], v_cmd[i] = 0.0, 0.0
                 else:  # its own command, its look-ahead for step k, or held past it
