@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from deploy.contract.fault_plan import FaultPlanError
-from deploy.contract.options import OptionError, add_option
+from deploy.contract.options import EXIT_BAD_INPUT, OptionError, add_option
 from deploy.contract.scenario import PLANT_KINDS, ScenarioError
 from deploy.contract.wire import FleetNameError, Keys
 from deploy.nodes.cli import CLOCKS, add_node_commands, fault_plan, gui_problem, run_scenario
@@ -24,7 +24,6 @@ from deploy.runtime.fault_model import fault_metrics
 from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
 from deploy.runtime.transport import TransportError
 
-EXIT_BAD_INPUT = 2
 RECORDING = "recording.mcap"
 
 

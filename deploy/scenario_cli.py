@@ -20,11 +20,10 @@ import shlex
 import sys
 from pathlib import Path
 
-from deploy.contract.options import add_option, check_duration
+from deploy.contract.options import EXIT_BAD_INPUT, add_option, check_duration
 from deploy.contract.scaled_scenarios import scale_scenario
 from deploy.contract.scenario import SCENARIO_DIR, Scenario, ScenarioError, load_scenario, parse_scenario
 
-EXIT_BAD_INPUT = 2
 STARTER = Path(__file__).resolve().parent / "scenario_starter.toml"
 
 

@@ -26,7 +26,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from deploy.contract.options import add_option
+from deploy.contract.options import EXIT_BAD_INPUT, add_option
 from deploy.contract.scaled_scenarios import scale_scenario
 
 BENCH_VERSION = 2  # 2: wire v2 codec figures, README command 1, realtime paper, largest N
@@ -429,7 +429,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if unknown:
         print(f"omnifleet bench: no group {', '.join(unknown)}; the groups are "
               f"{', '.join(bench.groups())}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     interrupted = False
     try:
         bench.run_all(only)

@@ -30,6 +30,13 @@ DEFAULT_STARTUP_TIMEOUT_S = 60.0
 DEFAULT_COMMAND_TIMEOUT_S = 0.1
 
 
+# The exit codes of every omnifleet command (one place): 0 done (and PASS where judged),
+# 1 failed (a FAIL verdict with --check, a node or the recorder failed), 2 bad input
+# (refused before anything ran: an option out of range, a scenario error, a used --out).
+EXIT_FAILED = 1
+EXIT_BAD_INPUT = 2
+
+
 class OptionError(ValueError):
     """An option's value that cannot be run; the message names the flag (exit code 2)."""
 

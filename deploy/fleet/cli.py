@@ -9,10 +9,8 @@ import sys
 from pathlib import Path
 
 from deploy.contract.hosts import Hosts, HostsError, load_hosts
-from deploy.contract.options import OPTIONS, add_option, check_duration
+from deploy.contract.options import EXIT_BAD_INPUT, OPTIONS, add_option, check_duration
 from deploy.fleet.certs import CA_NAME, make_ca, make_role_cert
-
-EXIT_BAD_INPUT = 2
 
 
 def _load(args: argparse.Namespace):

@@ -14,6 +14,7 @@ import signal
 import sys
 import threading
 
+from deploy.contract.options import EXIT_BAD_INPUT
 from deploy.runtime.transport import TransportError, zenoh_config
 
 
@@ -31,7 +32,7 @@ def _cmd_router(args: argparse.Namespace) -> int:
 
     if not args.zenoh_config and not args.listen:
         print("omnifleet router: give --zenoh-config FILE or --listen ENDPOINT", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     cfg = router_config(args.zenoh_config, args.listen, args.connect)
     try:
         session = zenoh.open(cfg)

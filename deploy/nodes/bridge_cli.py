@@ -8,11 +8,9 @@ import sys
 import time
 
 from bridges.drivers import DEFAULT_DRIVER, DRIVERS
-from deploy.contract.options import add_option
+from deploy.contract.options import EXIT_BAD_INPUT, add_option
 from deploy.nodes.can_options import CanBusError, add_can_options, open_bus
 from deploy.nodes.cli import add_node_options, run_node, steps_of
-
-EXIT_BAD_INPUT = 2
 
 
 def _cmd_bridge(args: argparse.Namespace) -> int:

@@ -30,6 +30,7 @@ from bridges.protocol import (
     SetControllerMode,
     SetInputTorque,
 )
+from deploy.contract.options import EXIT_BAD_INPUT
 from deploy.nodes.can_options import MAX_SPIN_TORQUE_NM
 
 
@@ -94,13 +95,13 @@ def _cmd_can_check(args: argparse.Namespace) -> int:
     if args.spin and not 0 < abs(args.spin_torque) <= MAX_SPIN_TORQUE_NM:
         print(f"omnifleet can-check: --spin-torque must be within (0, {MAX_SPIN_TORQUE_NM}] N m",
               file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     protocol = OdriveCanSimple(list(range(64)))
     try:
         bus = open_bus(args)
     except CanBusError as exc:
         print(f"omnifleet can-check: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     seen: dict[int, DriverSeen] = {}
     try:
         listen(bus, protocol, args.listen, seen)

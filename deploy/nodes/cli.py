@@ -15,7 +15,7 @@ import sys
 import threading
 
 from deploy.contract.fault_plan import FaultPlan
-from deploy.contract.options import add_option, check_duration
+from deploy.contract.options import EXIT_BAD_INPUT, add_option, check_duration
 from deploy.contract.scenario import PLANT_KINDS, Scenario, load_scenario
 from deploy.contract.wire import LEADER_ROLE, PLANT_ROLE, Codec, Keys, agent_role
 from deploy.runtime.node_runtime import (
@@ -146,7 +146,7 @@ def _cmd_agent(args: argparse.Namespace) -> int:
     if args.rejoin and args.clock != "realtime":
         print("omnifleet agent: --rejoin joins a running realtime fleet (--clock realtime)",
               file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     plan = fault_plan(args, sc)
 
     def build(sc, node, stop):
@@ -173,7 +173,7 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     problem = gui_problem(args.plant or run_scenario(args).spec.plant.kind, args.gui)
     if problem:
         print(f"omnifleet plant: {problem}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
 
     plan = fault_plan(args, run_scenario(args))
 

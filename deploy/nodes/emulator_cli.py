@@ -19,11 +19,10 @@ import signal
 import sys
 from pathlib import Path
 
-from deploy.contract.options import add_option
+from deploy.contract.options import EXIT_BAD_INPUT, add_option
 from deploy.nodes.can_options import CanBusError, add_can_options, open_buses
 from deploy.runtime.priority import add_priority_argument, raise_priority
 
-EXIT_BAD_INPUT = 2
 _SIGNAL_EXIT = {"SIGINT": 130, "SIGTERM": 143}
 PROG = "omnifleet emulate"
 

@@ -8,7 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from deploy.contract.options import add_option
+from deploy.contract.options import EXIT_BAD_INPUT, add_option
 from deploy.report.ws_address import DEFAULT_PORT, LiveAddressError, parse_address, url
 
 RECORDING = "recording.mcap"
@@ -21,12 +21,12 @@ def _cmd_view(args: argparse.Namespace) -> int:
     if not path.is_file():
         print(f"omnifleet view: no recording at {path} (was the run made with --no-record?)",
               file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     try:
         host, port = parse_address(args.listen)
     except LiveAddressError as exc:
         print(f"omnifleet view: --listen: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
 
     from deploy.report.recording_player import serve_recording
 
@@ -39,7 +39,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
         serve_recording(path, host, port, args.speed, args.play, args.loop, on_ready=ready)
     except (ValueError, RuntimeError, OSError) as exc:
         print(f"omnifleet view: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     return 0
 
 

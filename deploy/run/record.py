@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from deploy.contract.options import add_option
+from deploy.contract.options import EXIT_BAD_INPUT, add_option
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, run_roles
 from deploy.nodes.cli import run_scenario
@@ -148,7 +148,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
         removed = prepare(Path(args.out), args.overwrite)
     except RunFolderError as exc:
         print(f"omnifleet record: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     if removed:
         print(f"omnifleet record: --overwrite: removed the previous run's {', '.join(removed)}",
               file=sys.stderr)

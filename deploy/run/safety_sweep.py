@@ -20,8 +20,6 @@ from pathlib import Path
 
 from deploy.contract.options import add_option, check_duration
 
-EXIT_BAD_INPUT = 2
-
 
 @dataclass(frozen=True)
 class SweepRow:
