@@ -286,7 +286,7 @@ def test_a_diverging_run_says_so(in_process_run):
 def test_the_summary_ends_with_the_verdict(in_process_run, capsys):
     m = json.loads((in_process_run / "metrics.json").read_text())
     assert m["verdict"]["pass"] is True
-    from deploy.cli import _summary
+    from deploy.report.summary import summary as _summary
 
     assert _summary(m, in_process_run).splitlines()[-1].startswith("verdict: PASS")
 
