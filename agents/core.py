@@ -133,7 +133,7 @@ class AgentCore:
 
     The step works on floats: its vectors have 2 to 4 components, where a numpy
     call costs more than the arithmetic. The numpy functions of the other modules
-    are the reference form of each equation; tests/test_hot_path.py checks the
+    are the reference form of each equation; tests/unit/test_hot_path.py checks the
     float forms used here against them, and this step against their composition.
     """
 

@@ -87,7 +87,7 @@ def saturate_velocity(v: np.ndarray, max_speed: float, max_yaw_rate: float) -> n
     return out
 
 
-# --- hot path: the same fusion on reduced tasks (behaviors.Task); tests/test_hot_path.py
+# --- hot path: the same fusion on reduced tasks (behaviors.Task); tests/unit/test_hot_path.py
 # checks it against supervise, fuse and saturate_velocity above --------------------------
 
 

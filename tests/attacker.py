@@ -3,7 +3,7 @@
 What a hostile or faulty local process can do: read the run's
 ``logs/endpoints.json``, connect a zenoh peer of its own to the nodes' endpoints,
 listen to the fleet's traffic and publish well-formed messages with the project's
-own wire codec. It holds no run secret. The tests of tests/test_forged.py use it
+own wire codec. It holds no run secret. The tests of tests/e2e/test_forged.py use it
 to probe a run from outside and judge what the run did about each message.
 
 :func:`fleet_under_attack` starts ``omnifleet run`` and yields once every node is

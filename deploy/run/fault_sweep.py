@@ -4,7 +4,7 @@ One run per (drop rate, seed): every edge of the run's graph loses each
 message with probability ``drop`` (deploy/fault_plan.uniform_drop_plan). By
 default the runs are the in-process lockstep reference, as many at once as the
 machine has cores (a lockstep run with a fault plan equals its distributed run
-bit for bit; tests/test_faults.py checks it); ``--distributed`` runs each
+bit for bit; tests/integration/test_faults.py checks it); ``--distributed`` runs each
 through ``omnifleet run`` instead, one at a time.
 
 Writes, under --out: ``sweep.csv`` (one row per run), ``sweep.md`` (per drop

@@ -121,7 +121,7 @@ def test_bridge_sends_only_finite_torques_within_the_limit(
     b, bus = bridge
     bus.sent.clear()
     # every step counts as sent and newer than the last: the fuzzing reaches the gate
-    # behind the bridge's step checks (tested on their own in tests/test_forged.py)
+    # behind the bridge's step checks (tested on their own in tests/e2e/test_forged.py)
     b.published_k, b.command_k = 2**63, -(2**63)
     cmd = fuzz_decoder("bridge cmd", lambda x: b.node.deliver(b.node.keys.cmd(b.rid), x), raw)
     drive = OdriveCanSimple(NODE_IDS, role="drive", max_abs_torque_nm=3.4e38)

@@ -17,7 +17,7 @@ from deploy.contract.scenario import load_scenario
 from deploy.report.metrics import compute_metrics, leader_estimate_error
 from tests.conftest import cached_run
 
-SECONDS = 7.0  # the paper run of tests/test_closed_loop.py (cached): past the 5 s mark
+SECONDS = 7.0  # the paper run of tests/integration/test_closed_loop.py (cached): past the 5 s mark
 PRINTED, CONSISTENT = "paper", "paper-consistent"
 
 
