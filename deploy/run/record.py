@@ -27,7 +27,16 @@ from deploy.runtime.transport import Node, zenoh_config
 
 
 class Recorder(Launcher):
-    """A :class:`Launcher` that starts no process: the nodes run elsewhere."""
+    """A :class:`Launcher` that starts no process: the nodes run elsewhere, and this
+    peer joins them through ``listen``/``connect`` endpoints or a zenoh configuration
+    file (TLS and access control across hosts, deploy/fleet/)."""
+
+    def __init__(self, sc: Scenario, opts: LaunchOptions, zenoh_file: str | None = None,
+                 listen: list[str] | None = None, connect: list[str] | None = None) -> None:
+        super().__init__(sc, opts)
+        self.zenoh_file, self.listen, self.connect = zenoh_file, listen, connect
+        self.reported_ns: dict[str, int] = {}  # role -> when its report arrived (wall, ns)
+        self.end_ns: int | None = None  # when the plant's ``end`` was heard
 
     def _on_sample(self, arrived: tuple[str, bytes]) -> None:
         super()._on_sample(arrived)
@@ -49,8 +58,6 @@ class Recorder(Launcher):
 
         o = self.opts
         o.out.mkdir(parents=True, exist_ok=True)
-        self.reported_ns: dict[str, int] = {}
-        self.end_ns: int | None = None  # when the plant's ``end`` was heard
         node = Node(LAUNCHER_ROLE, self.keys, self.codec,
                     zenoh_config(self.zenoh_file, self.listen, self.connect))
         self.node = node
@@ -165,8 +172,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
         recording = McapRecorder(Path(args.out) / "recording.mcap",
                                  sim_dt=sc.dt if args.clock == "lockstep" else None)
         opts.recorder = recording
-    rec = Recorder(sc, opts)
-    rec.zenoh_file, rec.listen, rec.connect = args.zenoh_config, args.listen, args.connect
+    rec = Recorder(sc, opts, args.zenoh_config, args.listen, args.connect)
     try:
         extra = rec.run(terminal_progress(f"{sc.name} ({plant}, {args.clock})")
                         or log_progress())
