@@ -10,13 +10,13 @@ import math
 
 import numpy as np
 import pytest
+from scenario_edits import WALL_GAP, refused
 
 from agents.leader import LeaderGenerator
 from agents.waypoint_path import SpeedProfile, waypoint_path
 from deploy.contract.scenario import SCENARIO_DIR, ScenarioError, load_scenario, parse_scenario
 from deploy.report.targets import FormationTargets
 
-WALL_GAP = (SCENARIO_DIR / "wall-gap.toml").read_text()
 POINTS = [[-3.0, 0.0], [0.0, 0.5], [3.0, 0.0], [6.0, 1.0], [6.5, 3.0]]
 
 
@@ -75,13 +75,6 @@ def test_the_leader_generator_follows_the_waypoint_path():
 
 
 POINTS_WALL_GAP_START = [1.4, 0.0]
-
-
-def refused(old: str, new: str) -> str:
-    assert old in WALL_GAP, old
-    with pytest.raises(ScenarioError) as info:
-        parse_scenario(WALL_GAP.replace(old, new, 1), "mine.toml")
-    return str(info.value)
 
 
 @pytest.mark.parametrize("old, new, key, words", [

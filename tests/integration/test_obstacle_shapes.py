@@ -9,14 +9,14 @@ import math
 
 import numpy as np
 import pytest
+from scenario_edits import WALL_GAP, refused
 
 from deploy.cli import main
-from deploy.contract.scenario import SCENARIO_DIR, ScenarioError, load_scenario, parse_scenario
+from deploy.contract.scenario import load_scenario, parse_scenario
 from deploy.contract.scenario_variants import perturbed
 from plant.perception import sense
 from plant.shapes import Polygon, convex_ccw, offset_outline, signed_distances, wall_vertices
 
-WALL_GAP = (SCENARIO_DIR / "wall-gap.toml").read_text()
 SQUARE = Polygon(-1, convex_ccw([[0, 0], [1, 0], [1, 1], [0, 1]]), "polygons[0]")
 
 
@@ -75,13 +75,6 @@ def test_wall_gap_loads_walls_and_polygons_with_idents_after_the_discs():
                                                 "radius_m = 0.1\n\n[[walls]]"), "x.toml")
     assert [p.ident for p in with_disc.obstacle_shapes()] == [-2, -3]
     assert with_disc.obstacle_names()[-1] == "obstacles[0]"
-
-
-def refused(old: str, new: str) -> str:
-    assert old in WALL_GAP, old
-    with pytest.raises(ScenarioError) as info:
-        parse_scenario(WALL_GAP.replace(old, new, 1), "mine.toml")
-    return str(info.value)
 
 
 @pytest.mark.parametrize("old, new, key, words", [
