@@ -152,7 +152,7 @@ def avoidance_behavior(
     return BehaviorOutput(name, True, pinv_task_jacobian(J) @ rate, J, safe_distance - rho, body)
 
 
-# --- hot path: the same behaviors on floats (tests/test_hot_path.py checks them
+# --- hot path: the same behaviors on floats (tests/unit/test_hot_path.py checks them
 # against formation_behavior and avoidance_behavior above) ----------------------------
 
 

@@ -112,7 +112,7 @@ def saturate_torques(u: np.ndarray, limit: float) -> np.ndarray:
     return u
 
 
-# --- hot path: the same law on floats (tests/test_hot_path.py checks it against
+# --- hot path: the same law on floats (tests/unit/test_hot_path.py checks it against
 # control_term, allocate, saturate_torques and the model's A0, A1 above) -----------------
 
 

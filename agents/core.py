@@ -41,9 +41,11 @@ from agents.degradation import (
 from agents.eso import EsoGains, eso_advance_vec
 from agents.estimator import EstimatorGains, estimator_step_vec
 from agents.formation import ScaleChange, desired_formation_vec, offsets_vec, scale_at_vec
-from agents.fusion import DEFAULT_PRIORITY, saturate_velocity_vec, supervise_tasks
+from agents.fusion import DEFAULT_PRIORITY, supervise_tasks
 from agents.safety_filter import Guarded, SafetyLimits, SafetyResult, safety_filter, stopping_distance
 from agents.signals import Vec2, Vec3
+from plant.bodies import Body
+from plant.limits import saturate_velocity_vec
 from plant.mecanum import MecanumModel
 
 
@@ -58,16 +60,6 @@ class Share:
     zeta: np.ndarray
     zeta_dot: np.ndarray
     info_age_s: float = 0.0  # how old the sender's leader information is (degradation.py)
-
-
-@dataclass(frozen=True)
-class Body:
-    """A sensed body: another robot or an obstacle."""
-
-    ident: int
-    position: np.ndarray  # (2,)
-    velocity: np.ndarray  # (2,)
-    radius: float
 
 
 @dataclass(frozen=True)
@@ -141,7 +133,7 @@ class AgentCore:
 
     The step works on floats: its vectors have 2 to 4 components, where a numpy
     call costs more than the arithmetic. The numpy functions of the other modules
-    are the reference form of each equation; tests/test_hot_path.py checks the
+    are the reference form of each equation; tests/unit/test_hot_path.py checks the
     float forms used here against them, and this step against their composition.
     """
 

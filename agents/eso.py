@@ -11,7 +11,7 @@ paper starts both at 0; then eps1(0) = e_dot(0) = -v_d(0), which in the paper
 scenario is tens to hundreds of m/s, and with the paper's slow gains
 (mu2 = 0.2) that mismatch integrates into a bias on z2_hat of several m/s^2
 that takes tens of seconds to decay and drives the tracking error away
-(measured in tests/test_eso.py). Starting at the measurement removes it.
+(measured in tests/unit/test_eso.py). Starting at the measurement removes it.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def eso_step(
     return z1_hat + dt * z1_rate, z2_hat + dt * z2_rate
 
 
-# --- hot path: the same step on float triples (tests/test_hot_path.py checks it
+# --- hot path: the same step on float triples (tests/unit/test_hot_path.py checks it
 # against eso_step above) -------------------------------------------------------------
 
 
@@ -96,7 +96,7 @@ def eso_advance_vec(
     A realtime agent whose state arrives late integrates the whole gap. One Euler
     step across it multiplies the fractional powers' discrete chatter by the long dt:
     with mu = (6, 20) a 100 ms step kicked a converged disturbance estimate by 78 %
-    (tests/test_eso.py), sub-steps by 22 %."""
+    (tests/unit/test_eso.py), sub-steps by 22 %."""
     n = max(1, ceil(dt / max_step - 1e-9)) if max_step > 0 else 1
     h = dt / n
     for _ in range(n):

@@ -102,7 +102,7 @@ def estimator_step(
     return q_hat + dt * q_rate, v_hat + dt * v_rate
 
 
-# --- hot path: the same step on float triples (tests/test_hot_path.py checks it
+# --- hot path: the same step on float triples (tests/unit/test_hot_path.py checks it
 # against estimator_step above) ------------------------------------------------------
 
 

@@ -118,7 +118,7 @@ def desired_formation(
     return pos / denom, vel / denom
 
 
-# --- hot path: the same maps on floats (tests/test_hot_path.py checks them against
+# --- hot path: the same maps on floats (tests/unit/test_hot_path.py checks them against
 # scale_at, offsets and desired_formation above) ------------------------------------
 
 

@@ -21,7 +21,6 @@ When an avoidance behavior (FOCB, FRCB) takes part is the scenario's choice:
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from math import hypot
 
 import numpy as np
 
@@ -88,7 +87,7 @@ def saturate_velocity(v: np.ndarray, max_speed: float, max_yaw_rate: float) -> n
     return out
 
 
-# --- hot path: the same fusion on reduced tasks (behaviors.Task); tests/test_hot_path.py
+# --- hot path: the same fusion on reduced tasks (behaviors.Task); tests/unit/test_hot_path.py
 # checks it against supervise, fuse and saturate_velocity above --------------------------
 
 
@@ -138,14 +137,3 @@ def supervise_tasks(ordered: Sequence[Task], engage: str,
         if now == engaged:
             return chain, v
         engaged = now
-
-
-def saturate_velocity_vec(v: Vec3, max_speed: float, max_yaw_rate: float) -> Vec3:
-    """:func:`saturate_velocity` on floats."""
-    vx, vy, w = v
-    speed = hypot(vx, vy)
-    if speed > max_speed:
-        k = max_speed / speed
-        vx, vy = vx * k, vy * k
-    w = -max_yaw_rate if w < -max_yaw_rate else max_yaw_rate if w > max_yaw_rate else w
-    return vx, vy, w

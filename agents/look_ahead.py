@@ -34,9 +34,10 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from agents.controller import ModelTerms, acceleration_vec
-from agents.core import AgentCore, AgentOutput, Body, Share
+from agents.core import AgentCore, AgentOutput, Share
 from agents.degradation import InputAges
 from agents.signals import Vec3, Vec4
+from plant.bodies import Body
 
 Torques = Vec4
 

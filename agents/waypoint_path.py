@@ -25,7 +25,7 @@ with N = T rotated by +90 degrees. u(s), the inverse of s(u) = int_0^u |c'(w)| d
 is a cubic Hermite interpolant on a table of (s, u) with its exact slope du/ds =
 1/|c'(u)|; s(u) is integrated with 8-point Gauss-Legendre on each of ``SUBDIVISIONS``
 pieces per spline segment (error ~1e-12 m on the bundled paths, checked in
-tests/test_leader_paths.py against a finite difference of p0).
+tests/integration/test_leader_paths.py against a finite difference of p0).
 """
 
 from __future__ import annotations

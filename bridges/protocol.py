@@ -197,7 +197,8 @@ class DriverProtocol(Protocol):
     """A motor-driver protocol: typed frames <-> ``can.Message``, no bus I/O.
 
     ``decode`` never raises (``None`` + a counter for a frame it cannot use).
-    The arming helpers let a bridge drive any protocol the same way.
+    The bridge sends nothing but the frames of these helpers, so it drives any
+    protocol the same way; :mod:`bridges.drivers` names the implemented ones.
     """
 
     name: str
@@ -213,6 +214,10 @@ class DriverProtocol(Protocol):
     def disarm_frames(self, node: int) -> list[can.Message]: ...
 
     def torque_frame(self, node: int, torque_nm: float) -> can.Message: ...
+
+    def estop_frames(self, node: int) -> list[can.Message]: ...
+
+    def clear_errors_frames(self, node: int) -> list[can.Message]: ...
 
 
 # --- ODrive CANSimple ----------------------------------------------------------------
@@ -547,3 +552,10 @@ class OdriveCanSimple:
 
     def torque_frame(self, node: int, torque_nm: float) -> can.Message:
         return self.encode(SetInputTorque(node, float(torque_nm)))
+
+    def estop_frames(self, node: int) -> list[can.Message]:
+        """Estop: the drive latches AXIS_ERROR_ESTOP_REQUESTED and disarms."""
+        return [self.encode(Estop(node))]
+
+    def clear_errors_frames(self, node: int) -> list[can.Message]:
+        return [self.encode(ClearErrors(node))]

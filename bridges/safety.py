@@ -18,7 +18,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from plant.command import command_for_step, held_step
+from plant.command import torques_at
 
 ZERO = (0.0, 0.0, 0.0, 0.0)
 
@@ -73,8 +73,7 @@ class CommandGate:
         torques, reason = self._torques, "command"
         if due_step is not None:
             # past the plan its last entry is held, as a plant holds it
-            planned = command_for_step(self._k, torques, self._plan,
-                                       held_step(self._k, self._plan, due_step))
+            planned = torques_at(self._k, torques, self._plan, due_step)
             if planned is not None and planned is not torques:
                 torques, reason = planned, "look-ahead"
         if not all(math.isfinite(x) for x in torques):

@@ -6,7 +6,7 @@
 - ``new FILE [--from NAME]``: a commented starting scenario (``deploy/scenario_starter.toml``)
   or a copy of a bundled one, named after FILE, validated before it is written;
 - ``generate --robots N --control-rate HZ [--duration S] [--seed K] --out FILE``: the
-  scale benchmark's scenario (``deploy/bench_scenarios.py``: N lab robots in a
+  scale benchmark's scenario (``deploy/contract/scaled_scenarios.py``: N lab robots in a
   5-wide grid behind a straight leader, a binary-tree graph from robot 1), written
   only after it validates, so anyone can reproduce ``omnifleet bench``'s scale
   figures or start a new fleet from it.
@@ -20,11 +20,10 @@ import shlex
 import sys
 from pathlib import Path
 
-from deploy.bench_scenarios import scale_scenario
-from deploy.options import add_option, check_duration
-from deploy.scenario import SCENARIO_DIR, Scenario, ScenarioError, load_scenario, parse_scenario
+from deploy.contract.options import EXIT_BAD_INPUT, add_option, check_duration
+from deploy.contract.scaled_scenarios import scale_scenario
+from deploy.contract.scenario import SCENARIO_DIR, Scenario, ScenarioError, load_scenario, parse_scenario
 
-EXIT_BAD_INPUT = 2
 STARTER = Path(__file__).resolve().parent / "scenario_starter.toml"
 
 
@@ -110,7 +109,7 @@ def _write(out: Path, text: str, force: bool, command: str) -> int:
 
 
 def _cmd_perturb(args: argparse.Namespace) -> int:
-    from deploy.scenario_variants import perturbed, scenario_toml
+    from deploy.contract.scenario_variants import perturbed, scenario_toml
 
     out = Path(args.out)
     if out.exists() and not args.force:

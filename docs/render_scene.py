@@ -24,8 +24,8 @@ from mcap.reader import make_reader  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from foxglove_decode import decode  # noqa: E402
 
-from deploy.figures import SNAPSHOT_TIMES_S  # noqa: E402
-from deploy.foxglove_topics import SCENE_BEHAVIORS, SCENE_OBSTACLES, SCENE_ROBOTS, SCENE_TRACES  # noqa: E402
+from deploy.report.figures import SNAPSHOT_TIMES_S  # noqa: E402
+from deploy.report.foxglove_topics import SCENE_BEHAVIORS, SCENE_OBSTACLES, SCENE_ROBOTS, SCENE_TRACES  # noqa: E402
 
 TOPICS = (SCENE_OBSTACLES, SCENE_TRACES, SCENE_BEHAVIORS, SCENE_ROBOTS)
 

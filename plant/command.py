@@ -12,9 +12,9 @@ holds for any bytes that decode as a command, look-ahead torques included.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Literal
 
-from agents.fusion import saturate_velocity_vec
+from plant.limits import saturate_velocity_vec
 
 # No wheel torque beyond this is ever applied, whatever the scenario's limit (none on
 # `paper`): the paper's own unconstrained law peaks at 4.6e5 N m on its scenario (the
@@ -99,7 +99,7 @@ class ZeroTorqueSpans:
     """Realtime: each stretch a robot ran on zero torque for want of a fresh command
     (its agent silent past the command timeout), as (robot, begin, seconds) on the run
     clock. The verdict fails a run in which one lasted longer than the command timeout
-    (deploy/verdict.py): that robot was not under control."""
+    (deploy/report/verdict.py): that robot was not under control."""
 
     MAX = 1000  # spans kept (the report's bound)
 
@@ -120,3 +120,17 @@ class ZeroTorqueSpans:
         for robot in list(self._open):
             self.end(robot, t)
         return self.spans
+
+
+MissedCommand = Literal["hold", "zero"]
+
+
+def torques_at(k_cmd: int, torques: Sequence[float], plan: Sequence[Sequence[float]], k: int,
+               missed: MissedCommand = "hold") -> Sequence[float] | None:
+    """The one policy for which torques a command answering step ``k_cmd`` puts on the
+    wheels at step ``k`` (the in-process runner, the plant node and the CAN bridge's gate
+    all ask here): its own torques up to k_cmd, its look-ahead plan's entry after, and
+    past the plan the last of them held (``missed="hold"``, as a drive holds its setpoint)
+    or None (``"zero"``: the caller applies zero torque for that step)."""
+    return command_for_step(k_cmd, torques, plan,
+                            k if missed == "zero" else held_step(k_cmd, plan, k))

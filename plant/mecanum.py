@@ -27,7 +27,7 @@ as the paper's R^2 factor implies, as a viscous force coefficient at the rim
 (wheel torque C_theta R^2 theta_dot); C_f as a rolling-resistance coefficient on
 a quarter of the weight per wheel (wheel torque C_f m g R / 4 sign(theta_dot)).
 
-Where the paper differs (checked in ``tests/test_mecanum.py``):
+Where the paper differs (checked in ``tests/unit/test_mecanum.py``):
 * A0 contains T(phi) d/dt T^-1(phi) = phi_dot [[0,1,0],[-1,0,0],[0,0,0]]. That
   term does not exist in the world frame for an isotropic M_q (momentum of a
   free robot is conserved); it is dropped here.

@@ -12,15 +12,11 @@ polygons"); as the robot moves the point slides along the wall.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from agents.core import Body
+from plant.bodies import Body
 from plant.shapes import Polygon
-
-if TYPE_CHECKING:
-    from deploy.scenario import Scenario
 
 Sensor = Callable[[int], tuple[list[Body], list[Body]]]
 
@@ -61,15 +57,3 @@ def shape_bodies(x: float, y: float, shapes: Sequence[Polygon],
         if d <= detection_range_m:
             out.append(Body(poly.ident, np.array([px, py]), np.zeros(2), 0.0))
     return out
-
-
-def sensor_for(plant, sc: Scenario) -> Sensor:
-    """i -> (robots, obstacles) robot i senses now: the plant's own world query when
-    it has one (pybullet), else :func:`sense` on the plant's positions."""
-    det = sc.spec.behaviors.detection_range_m
-    if hasattr(plant, "perceive"):
-        return lambda i: plant.perceive(i, det)
-    radii = [sc.spec.robot.body_radius_m] * sc.n
-    ids, obstacles, shapes = sc.robot_ids, sc.obstacle_bodies(), sc.obstacle_shapes()
-    return lambda i: sense(i, plant.q[:, :2], plant.q_dot[:, :2], radii, ids, obstacles, det,
-                           shapes)

@@ -31,7 +31,7 @@ on the yaw axis, so Bullet's joint-space equation of motion is exactly
 
     M_q q_ddot = F + F_contact,   M_q = diag(m_t, m_t, I_t)              (P2)
 
-with no Coriolis term (checked in tests/test_pybullet_plant.py). Gravity is 0
+with no Coriolis term (checked in tests/integration/test_pybullet_plant.py). Gravity is 0
 (the joints are planar anyway); joint damping, link damping, the default
 velocity motors and the joint velocity cap are all disabled, so F (ours) and
 F_contact (Bullet's contact solver) are the only forces.
@@ -102,7 +102,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from agents.core import Body
+from plant.bodies import Body
 from plant.mecanum import MecanumModel, generalised_inertia
 from plant.perception import shape_bodies
 from plant.shapes import Polygon

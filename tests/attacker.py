@@ -3,7 +3,7 @@
 What a hostile or faulty local process can do: read the run's
 ``logs/endpoints.json``, connect a zenoh peer of its own to the nodes' endpoints,
 listen to the fleet's traffic and publish well-formed messages with the project's
-own wire codec. It holds no run secret. The tests of tests/test_forged.py use it
+own wire codec. It holds no run secret. The tests of tests/e2e/test_forged.py use it
 to probe a run from outside and judge what the run did about each message.
 
 :func:`fleet_under_attack` starts ``omnifleet run`` and yields once every node is
@@ -24,7 +24,7 @@ from pathlib import Path
 
 from procs import pids_with, start
 
-from deploy.wire import (
+from deploy.contract.wire import (
     WIRE_VERSION,
     Codec,
     Control,
@@ -179,7 +179,7 @@ def fleet_under_attack(scenario: str, out: Path, *args: str, robots: int = 3
     (launcher process, an :class:`Attacker` linked to every node) once all are ready."""
     import zenoh
 
-    from deploy.transport import zenoh_config
+    from deploy.runtime.transport import zenoh_config
 
     fleet = f"t-attack-{os.getpid()}-{out.name}"
     proc = start("run", scenario, "--no-figures", "--fleet", fleet, "--out", str(out), *args)

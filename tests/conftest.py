@@ -1,4 +1,12 @@
-"""Shared fixtures: bundled scenarios and short in-process runs, cached per session."""
+"""Shared fixtures (bundled scenarios and short in-process runs, cached per session) and
+the markers, applied here by where a test lives and what it needs (one place):
+
+- ``e2e``: tests/e2e/, whole fleets of processes (``pytest -m "not e2e"``: the rest);
+- ``realtime``: judged against the wall clock (tests/realtime_clock.py: retried once,
+  then skipped with the measured jitter on a starved machine);
+- ``root``: network namespaces (tests/netns.py; skipped without root);
+- ``slow``: integration modules whose runs take tens of seconds here.
+"""
 
 from __future__ import annotations
 
@@ -6,8 +14,8 @@ import functools
 
 import pytest
 
-from deploy.runner import run_in_process
-from deploy.scenario import load_scenario
+from deploy.contract.scenario import load_scenario
+from deploy.run.runner import run_in_process
 
 
 @functools.cache
@@ -29,3 +37,23 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
         terminalreporter.section("fuzz: inputs per decoder")
         for line in TALLY.lines():
             terminalreporter.write_line(line)
+
+
+SLOW_MODULES = {"test_safety_scenarios", "test_paper_consistent", "test_closed_loop",
+                "test_pybullet_plant", "test_look_ahead", "test_faults", "test_anti_windup"}
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        path = item.path
+        module = getattr(item, "module", None)
+        if path.parent.name == "e2e":
+            item.add_marker(pytest.mark.e2e)
+            item.add_marker(pytest.mark.slow)
+        if path.stem in SLOW_MODULES:
+            item.add_marker(pytest.mark.slow)
+        if "realtime" in item.name or (module is not None and (
+                hasattr(module, "judged") or hasattr(module, "starved"))):
+            item.add_marker(pytest.mark.realtime)
+        if path.stem == "test_netns" or (module is not None and hasattr(module, "netns_problem")):
+            item.add_marker(pytest.mark.root)

@@ -1,6 +1,6 @@
 """Stand-ins for zenoh and a CAN bus, so the fuzz tests can drive the real plant
 node and bridge with bytes: :class:`FakeNode` decodes and dispatches exactly as
-``deploy.transport.Node.subscribe`` does (the real :class:`Codec`, invalid ones
+``deploy.runtime.transport.Node.subscribe`` does (the real :class:`Codec`, invalid ones
 counted), :class:`RecordingBus` keeps what is sent and hands out queued frames."""
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from typing import Any
 
 import can
 
-from deploy.transport import Counters, Mailbox
-from deploy.wire import Codec, Keys, Message
+from deploy.contract.wire import Codec, Keys, Message
+from deploy.runtime.transport import Counters, Mailbox
 
 
 class FakeNode:

@@ -1,4 +1,4 @@
-"""Hypothesis strategies for wire messages (deploy/wire.py), by message type.
+"""Hypothesis strategies for wire messages (deploy/contract/wire.py), by message type.
 
 A message is a msgpack array of its fields (``array_like`` structs), so inputs
 are built as field lists from the type hints: ``sane`` lists are valid messages
@@ -16,7 +16,7 @@ import msgspec
 from fuzzing import any_float, any_int, any_msgpack, nasty_ints
 from hypothesis import strategies as st
 
-from deploy.wire import (
+from deploy.contract.wire import (
     CONTROL_COMMANDS,
     MAX_ORDER_CHARS,
     MAX_ROLE_CHARS,

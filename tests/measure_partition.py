@@ -16,10 +16,10 @@ import argparse
 
 import numpy as np
 
-from deploy.fault_plan import decode_plan
-from deploy.metrics import compute_metrics
-from deploy.runner import run_in_process
-from deploy.scenario import load_scenario
+from deploy.contract.fault_plan import decode_plan
+from deploy.contract.scenario import load_scenario
+from deploy.report.metrics import compute_metrics
+from deploy.run.runner import run_in_process
 
 
 def within_from(ok: np.ndarray, t: np.ndarray, start: float, hold_s: float) -> float | None:

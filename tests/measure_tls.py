@@ -18,11 +18,13 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent / "e2e"))
+sys.path.insert(0, str(Path(__file__).resolve().parent / "e2e"))
 
 from netns import machines, netns_problem, stop  # noqa: E402
 from test_netns import MACHINES, _logs, _run_fleet, _wait_all  # noqa: E402
 
-from deploy.deploy_plan import RunOptions  # noqa: E402
+from deploy.fleet.deploy_plan import RunOptions  # noqa: E402
 
 
 def one_run(ms, tmp: Path, tls: bool, seconds: float, i: int) -> dict:

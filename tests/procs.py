@@ -48,7 +48,7 @@ def assert_same_series(a, b, atol: float = 1e-9) -> None:
     NaN), everything else exactly."""
     import numpy as np
 
-    from deploy.timeseries import COLUMNS
+    from deploy.report.timeseries import COLUMNS
 
     assert a.steps == b.steps
     for name in COLUMNS:

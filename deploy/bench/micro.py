@@ -1,0 +1,206 @@
+"""In-process costs underneath every figure of ``omnifleet bench``: one agent's
+math per step, one plant step per robot (pybullet and model), and the wire
+codec (encode + validated decode) per message type.
+
+Each function returns samples (one per repeat), each sample the median over many
+calls, so a short hiccup of a shared machine moves one sample, not the figure.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from agents.core import AgentCore
+from deploy.contract.scenario import Scenario
+from deploy.contract.wire import (
+    WIRE_VERSION,
+    Codec,
+    LeaderState,
+    Reply,
+    Sample,
+    SensedBody,
+    ShareData,
+    StateLog,
+    StateRow,
+    Telemetry,
+    TelemetryRow,
+    encode,
+)
+from deploy.run.runner import run_in_process
+from deploy.runtime.plants import make_plant
+
+
+def agent_step_us(sc: Scenario, duration_s: float, repeats: int) -> list[float]:
+    """Median wall time of AgentCore.step (µs), in closed loop on the model plant."""
+    samples = []
+    original = AgentCore.step
+    for _ in range(repeats):
+        times: list[int] = []
+
+        def timed(self, *args, times=times, **kwargs):
+            t0 = time.perf_counter_ns()
+            out = original(self, *args, **kwargs)
+            times.append(time.perf_counter_ns() - t0)
+            return out
+
+        AgentCore.step = timed  # type: ignore[method-assign]
+        try:
+            run_in_process(sc, "model", duration_s)
+        finally:
+            AgentCore.step = original  # type: ignore[method-assign]
+        samples.append(statistics.median(times) / 1e3)
+    return samples
+
+
+def safety_filter_us(sc: Scenario, duration_s: float, repeats: int
+                     ) -> tuple[list[float], list[float]]:
+    """Median wall time (µs) of the safety filter per agent step (agents/safety_filter.py,
+    as AgentCore calls it), in closed loop on the model plant: over every step, and over
+    the steps where it changed the command (empty when it never did)."""
+    import agents.core as core
+
+    every, acting = [], []
+    original = core.safety_filter
+    for _ in range(repeats):
+        times: list[int] = []
+        active: list[int] = []
+
+        def timed(*args, times=times, active=active, **kwargs):
+            t0 = time.perf_counter_ns()
+            out = original(*args, **kwargs)
+            ns = time.perf_counter_ns() - t0
+            times.append(ns)
+            if out.active:
+                active.append(ns)
+            return out
+
+        core.safety_filter = timed  # type: ignore[assignment]
+        try:
+            run_in_process(sc, "model", duration_s)
+        finally:
+            core.safety_filter = original  # type: ignore[assignment]
+        every.append(statistics.median(times) / 1e3)
+        if active:
+            acting.append(statistics.median(active) / 1e3)
+    return every, acting
+
+
+def plant_step_us_per_robot(sc: Scenario, kind: str, steps: int, repeats: int) -> list[float]:
+    """Median wall time of one plant step divided by the number of robots (µs)."""
+    rng = np.random.default_rng(1)
+    torques = rng.uniform(-0.01, 0.01, size=(steps, sc.n, 4))
+    v_cmd = np.zeros((sc.n, 3))
+    samples = []
+    for _ in range(repeats):
+        plant = make_plant(sc, kind)
+        try:
+            times = []
+            for k in range(steps):
+                t0 = time.perf_counter_ns()
+                plant.step(k * sc.dt, sc.dt, torques[k], v_cmd)
+                times.append(time.perf_counter_ns() - t0)
+        finally:
+            getattr(plant, "close", lambda: None)()
+        samples.append(statistics.median(times) / 1e3 / sc.n)
+    return samples
+
+
+BATCH = 32  # rows of a batched message here (leader states, telemetry, state log)
+
+
+def sample_messages(sc: Scenario) -> dict[str, object]:
+    """One realistic message of each type of wire v2: the two the control loop sends
+    per robot and step (Sample, Reply), and the batched ones (``BATCH`` steps each)."""
+    rid = sc.robot_ids[0]
+    v3, v4 = (1.0, 2.0, 0.5), (0.1, -0.2, 0.3, -0.4)
+    body = SensedBody(sc.robot_ids[-1], (1.0, 2.0), (0.5, 0.5), 0.5)
+    obstacle = SensedBody(-1, (3.0, 1.0), (0.0, 0.0), 0.0)
+    row = TelemetryRow(k=7, t=0.007, q_d=v3, e=v3, s=v3, v_cmd=v3, torques=v4, q0_hat=v3,
+                       q_fd=v3, fdb_error=0.1, order="FOCB>FRCB>FDB", nonfinite=False)
+    n = sc.n
+    return {
+        "Sample": Sample(WIRE_VERSION, 0, 7, 123, robot=rid, k=7, t=0.007, q=v3, q_dot=v3,
+                         robots=[body, body], obstacles=[obstacle, obstacle]),
+        "Reply": Reply(WIRE_VERSION, rid, 7, 123, robot=rid, k=7, t=0.007, torques=v4,
+                       v_cmd=v3, state_seq=7, state_stamp_ns=123,
+                       share=ShareData(v3, v3, v3, v3, v3, v3)),
+        "LeaderState": LeaderState(WIRE_VERSION, 0, 7, 123, k=7, t=0.007, q=[v3] * BATCH,
+                                   q_dot=[v3] * BATCH),
+        "Telemetry": Telemetry(WIRE_VERSION, rid, 7, 123, robot=rid, rows=[row] * BATCH),
+        "StateLog": StateLog(WIRE_VERSION, 0, 7, 123, robots=list(sc.robot_ids), rows=[
+            StateRow(7, 0.007, [v3] * n, [v3] * n, [False] * n)] * BATCH),
+    }
+
+
+def codec_us(sc: Scenario, calls: int, repeats: int) -> dict[str, list[float]]:
+    """Median µs of encode + validated decode, per message type."""
+    codec = Codec(sc.robot_ids)
+    out: dict[str, list[float]] = {}
+    for name, msg in sample_messages(sc).items():
+        kind = type(msg)
+        robot = getattr(msg, "robot", None)
+        out[name] = [_median_us(lambda m=msg, k=kind, r=robot: codec.decode(k, encode(m), r), calls)
+                     for _ in range(repeats)]
+        assert codec.decode(kind, encode(msg), robot) == msg  # a benchmark of a codec that works
+    return out
+
+
+def _median_us(fn: Callable[[], object], calls: int) -> float:
+    times = []
+    for _ in range(calls):
+        t0 = time.perf_counter_ns()
+        fn()
+        times.append(time.perf_counter_ns() - t0)
+    return statistics.median(times) / 1e3
+
+
+def defence_us(sc: Scenario, calls: int, repeats: int) -> dict[str, list[float]]:
+    """What the issue-21 defences cost (µs), in the form the nodes run them:
+
+    - ``guard_message``: one received control-path message judged against the
+      receiver's own clock and its stream (``OwnClock.refusal`` + ``StepGuard.admit``,
+      as an agent does for its sample and each neighbour's share);
+    - ``guards_per_agent_step``: every guard an agent of ``sc`` runs in one step (its
+      sample and the shares of its most-connected robot's neighbours);
+    - ``control_mac``: checking one control message's HMAC (control travels every 32
+      steps in lockstep, ``agents/leader_node.TICK_EVERY``; start and end once a run)."""
+    from deploy.contract.run_secret import control_is_genuine, new_secret
+    from deploy.contract.wire import control
+    from deploy.runtime.step_guard import OwnClock, StepGuard
+
+    neighbours = max(len(sc.agent_config(i).neighbours) for i in range(sc.n))
+    out: dict[str, list[float]] = {"guard_message": [], "guards_per_agent_step": [],
+                                   "control_mac": []}
+    secret = new_secret()
+    msg = control("tick", 7, 123, secret, k=64)
+    assert control_is_genuine(secret, msg)  # a benchmark of a check that passes
+    for _ in range(repeats):
+        own = OwnClock(sc.dt, deadline_s=2.0, answered_at=time.monotonic())
+        streams = [StepGuard(newest=-1) for _ in range(1 + neighbours)]
+        k = [0]
+
+        def one(streams=streams, own=own, k=k) -> None:
+            now = time.monotonic()
+            own.answer(k[0] - 1, now)
+            for g in streams:
+                if own.refusal(k[0], k[0], now) is None:
+                    g.admit(k[0])
+            k[0] += 1
+
+        out["guards_per_agent_step"].append(_median_us(one, calls))
+        single = StepGuard(newest=-1)
+        k1 = [0]
+
+        def message(g=single, own=own, k=k1) -> None:
+            own.answer(k[0] - 1, 0.0)
+            if own.refusal(k[0], k[0], time.monotonic()) is None:
+                g.admit(k[0])
+            k[0] += 1
+
+        out["guard_message"].append(_median_us(message, calls))
+        out["control_mac"].append(_median_us(lambda: control_is_genuine(secret, msg), calls))
+    return out

@@ -1,0 +1,471 @@
+"""``omnifleet bench``: what users care about, measured side by side in one sitting.
+
+Writes ``bench.json`` and ``bench.md`` to --out. Every figure is the median of
+its repeats with the spread (min, max); targets (issue: benchmarks) are stated
+next to the figures and judged met or not, never asserted by a test. Fleet
+figures come from real ``omnifleet run`` processes (no recording, no figures);
+the costs underneath from :mod:`deploy.bench.micro` and
+:mod:`deploy.bench.transport`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from deploy.contract.options import EXIT_BAD_INPUT, add_option
+from deploy.contract.scaled_scenarios import scale_scenario
+
+BENCH_VERSION = 2  # 2: wire v2 codec figures, README command 1, realtime paper, largest N
+SCALE_SIZES = (3, 10, 20, 30)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """How long and how often; --quick is a smoke run that still writes every figure."""
+
+    repeats: int
+    paper_s: float  # simulated seconds of the paper scenario (lockstep overhead)
+    paper_run_s: float | None  # of README command 1 (None: the scenario's 24 s)
+    realtime_s: float  # of the 500 Hz realtime loop
+    realtime_paper_s: float  # of the paper scenario at 1 kHz on the realtime clock
+    scale_lockstep_s: float
+    scale_realtime_s: float
+    agent_math_s: float
+    plant_steps: int
+    codec_calls: int
+    hops: int
+
+    @classmethod
+    def of(cls, quick: bool, repeats: int | None) -> Settings:
+        if quick:
+            return cls(repeats or 1, 0.5, 1.0, 3.0, 2.0, 1.0, 3.0, 0.2, 200, 2000, 500)
+        return cls(repeats or 3, 8.0, None, 20.0, 10.0, 10.0, 20.0, 2.0, 2000, 20000, 5000)
+
+
+@dataclass
+class Figure:
+    name: str
+    unit: str
+    what: str
+    samples: list[float] = field(default_factory=list)
+    target: tuple[str, float] | None = None  # ("<=", 1.5) or (">=", 10)
+    error: str | None = None
+
+    def add(self, value: float | None, why: str = "not measured") -> None:
+        """One sample; a run that could not measure it (None) is noted, never a crash."""
+        if value is None:
+            self.error = why
+        else:
+            self.samples.append(float(value))
+
+    @property
+    def median(self) -> float | None:
+        return statistics.median(self.samples) if self.samples else None
+
+    @property
+    def met(self) -> bool | None:
+        if self.target is None or self.median is None:
+            return None
+        op, bound = self.target
+        return self.median <= bound if op == "<=" else self.median >= bound
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "unit": self.unit, "what": self.what, "median": self.median,
+            "min": min(self.samples) if self.samples else None,
+            "max": max(self.samples) if self.samples else None,
+            "samples": self.samples,
+            "target": None if self.target is None else f"{self.target[0]} {self.target[1]:g}",
+            "met": self.met, "error": self.error,
+        }
+
+
+class FleetRunFailed(RuntimeError):
+    pass
+
+
+class Bench:
+    def __init__(self, out: Path, settings: Settings, log: Callable[[str], None]) -> None:
+        self.out, self.s, self.log = out, settings, log
+        self.figures: dict[str, Figure] = {}
+        self.work = Path(tempfile.mkdtemp(prefix="runs-", dir=out))
+        self.agent_rss_mb: list[float] = []
+
+    def figure(self, name: str, unit: str, what: str,
+               target: tuple[str, float] | None = None) -> Figure:
+        return self.figures.setdefault(name, Figure(name, unit, what, target=target))
+
+    # -- fleet runs -------------------------------------------------------------------
+    def run_fleet(self, scenario: str, *args: str, timeout_s: float = 900.0,
+                  record: bool = False) -> dict[str, Any]:
+        """One ``omnifleet run``; its metrics.json. Ended by pid whatever happens."""
+        out = self.work / f"run-{len(list(self.work.iterdir()))}"
+        cmd = [sys.executable, "-m", "deploy.cli", "run", scenario, "--out", str(out),
+               "--no-figures", *([] if record else ["--no-record"]), *args]
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        try:
+            _, err = proc.communicate(timeout=timeout_s)
+        finally:
+            if proc.poll() is None:  # Ctrl-C or timeout: let its launcher stop its nodes
+                proc.send_signal(signal.SIGTERM)
+                try:
+                    proc.wait(15.0)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+        if proc.returncode != 0:
+            raise FleetRunFailed(f"`omnifleet run {scenario} {' '.join(args)}` exited "
+                                 f"{proc.returncode}: {err.strip()[-600:]}")
+        metrics = json.loads((out / "metrics.json").read_text())
+        if "--in-process" not in args:
+            self.agent_rss_mb += [p["peak_rss_mb"] for p in metrics["processes"]
+                                  if p["role"].startswith("agent-") and p["peak_rss_mb"]]
+        return metrics
+
+    def measure(self, label: str, body: Callable[[], None], *names: str) -> None:
+        """Run one benchmark; a failure is written into its figures, the others go on."""
+        self.log(label)
+        try:
+            body()
+        except FleetRunFailed as exc:
+            for n in names:
+                self.figures[n].error = str(exc)
+            self.log(f"  FAILED: {exc}")
+
+    # -- the benchmarks -----------------------------------------------------------------
+    def lockstep_overhead(self) -> None:
+        wall_in = self.figure("lockstep.in_process_wall_s", "s",
+                              f"paper, model plant, {self.s.paper_s:g} s simulated, one process")
+        wall_dist = self.figure("lockstep.distributed_wall_s", "s",
+                                "the same, one process per node over zenoh (lockstep)")
+        ratio = self.figure("lockstep.overhead_ratio", "x",
+                            "distributed / in-process wall time, measured back to back",
+                            ("<=", 1.5))
+        dur = ("--duration", str(self.s.paper_s), "--plant", "model")
+
+        def body() -> None:
+            for _ in range(self.s.repeats):
+                a = self.run_fleet("paper", "--in-process", *dur)["wall_time_s"]
+                b = self.run_fleet("paper", *dur)["wall_time_s"]
+                wall_in.samples.append(a)
+                wall_dist.samples.append(b)
+                ratio.samples.append(b / a)
+
+        self.measure("lockstep overhead (paper, model plant)", body, wall_in.name, wall_dist.name,
+                     ratio.name)
+
+    def paper_run(self) -> None:
+        """README command 1 as a user runs it (pybullet, lockstep, recording on), and
+        the same without recording, back to back: what the recording costs."""
+        what = "the scenario's 24 s" if self.s.paper_run_s is None else f"{self.s.paper_run_s:g} s"
+        rec = self.figure("run.paper_wall_s", "s", f"`omnifleet run paper` (README command 1: "
+                          f"pybullet, lockstep, recording on), {what} simulated",
+                          ("<=", 15.0) if self.s.paper_run_s is None else None)
+        bare = self.figure("run.paper_no_record_wall_s", "s", "the same with --no-record")
+        cost = self.figure("run.recording_cost_ratio", "x",
+                           "with / without recording, measured back to back")
+        dur = () if self.s.paper_run_s is None else ("--duration", str(self.s.paper_run_s))
+
+        def body() -> None:
+            for _ in range(self.s.repeats):
+                a = self.run_fleet("paper", *dur, record=True)["wall_time_s"]
+                b = self.run_fleet("paper", *dur)["wall_time_s"]
+                rec.samples.append(a)
+                bare.samples.append(b)
+                cost.samples.append(a / b)
+
+        self.measure("README command 1 (paper, pybullet, recording on and off)", body,
+                     rec.name, bare.name, cost.name)
+
+    def realtime_paper(self) -> None:
+        """The paper's own rate on the wall clock: 1 kHz, pybullet."""
+        p99 = self.figure("realtime.paper_1khz_latency_p99_ms", "ms",
+                          "paper at 1 kHz, realtime, pybullet: state-to-command latency p99",
+                          ("<=", 1.0))
+        p50 = self.figure("realtime.paper_1khz_latency_p50_ms", "ms", "the same, p50")
+        contacts = self.figure("realtime.paper_1khz_contacts", "count",
+                               "the same: physical contacts", ("<=", 0.0))
+        late = self.figure("realtime.paper_1khz_unsettled_robots", "count",
+                           "the same: robots not settled before sqrt(2) T_p", ("<=", 0.0))
+
+        def body() -> None:
+            for _ in range(self.s.repeats):
+                m = self.run_fleet("paper", "--clock", "realtime",
+                                   "--duration", str(self.s.realtime_paper_s))
+                p50.add(m["latency_ms"]["p50"], "the plant reported no latency (its report did not arrive)")
+                p99.add(m["latency_ms"]["p99"], "the plant reported no latency (its report did not arrive)")
+                contacts.samples.append(float(m["contacts"]))
+                late.samples.append(float(sum(
+                    s is None or s > m["settling_bound_s"] for s in m["settling_time_s"])))
+
+        self.measure("realtime paper at 1 kHz (pybullet)", body, p99.name, p50.name,
+                     contacts.name, late.name)
+
+    def lockstep_rtf_500(self) -> None:
+        rtf = self.figure("lockstep.real_time_factor_500hz", "x",
+                          "paper at 500 Hz control, distributed lockstep, model plant: "
+                          "simulated / wall time", (">=", 10.0))
+
+        def body() -> None:
+            for _ in range(self.s.repeats):
+                m = self.run_fleet("paper", "--control-rate", "500", "--plant", "model",
+                                   "--duration", str(self.s.paper_s))
+                rtf.samples.append(m["real_time_factor"])
+
+        self.measure("lockstep real-time factor at 500 Hz", body, rtf.name)
+
+    def realtime_loop(self) -> None:
+        p50 = self.figure("realtime.latency_p50_ms", "ms",
+                          "lab scenario at 500 Hz, realtime, 3 agents: state-to-command latency")
+        p99 = self.figure("realtime.latency_p99_ms", "ms", "the same, p99", ("<=", 1.0))
+        jit = self.figure("realtime.jitter_p99_ms", "ms", "loop jitter p99, every node",
+                          ("<=", 0.5))
+        miss = self.figure("realtime.deadline_misses_500hz", "count",
+                           "deadline misses, every node, over the run")
+
+        def body() -> None:
+            for _ in range(self.s.repeats):
+                m = self.run_fleet("lab", "--clock", "realtime", "--control-rate", "500",
+                                   "--duration", str(self.s.realtime_s))
+                p50.add(m["latency_ms"]["p50"], "the plant reported no latency (its report did not arrive)")
+                p99.add(m["latency_ms"]["p99"], "the plant reported no latency (its report did not arrive)")
+                jit.add(m["jitter_ms"]["p99"])
+                miss.samples.append(float(m["deadline_misses"]))
+
+        self.measure("realtime loop at 500 Hz (lab)", body, p50.name, p99.name, jit.name, miss.name)
+
+    def scale(self) -> None:
+        for n in SCALE_SIZES:
+            path = self.work / f"scale-{n}.toml"
+            path.write_text(scale_scenario(n, rate_hz=100.0))
+            rtf = self.figure(f"scale.n{n}.lockstep_real_time_factor", "x",
+                              f"{n} robots at 100 Hz, distributed lockstep, pybullet")
+            miss = self.figure(f"scale.n{n}.realtime_deadline_misses", "count",
+                               f"{n} robots at 100 Hz, realtime: deadline misses, every node",
+                               ("<=", 0.0) if n == 30 else None)
+
+            touch = self.figure(f"scale.n{n}.realtime_contacts", "count",
+                                f"{n} robots at 100 Hz, realtime: physical contacts",
+                                ("<=", 0.0) if n == 30 else None)
+
+            def body(path: Path = path, rtf: Figure = rtf, miss: Figure = miss,
+                     touch: Figure = touch) -> None:
+                for _ in range(self.s.repeats):
+                    m = self.run_fleet(str(path), "--duration", str(self.s.scale_lockstep_s),
+                                       "--startup-timeout", "180")
+                    rtf.samples.append(m["real_time_factor"])
+                    m = self.run_fleet(str(path), "--clock", "realtime", "--duration",
+                                       str(self.s.scale_realtime_s), "--startup-timeout", "180")
+                    miss.samples.append(float(m["deadline_misses"]))
+                    touch.samples.append(float(m["contacts"]))
+
+            self.measure(f"scale N={n} (lockstep, realtime)", body, rtf.name, miss.name,
+                         touch.name)
+        largest = self.figure("scale.largest_n_zero_misses", "robots",
+                              "the largest N of " + ", ".join(map(str, SCALE_SIZES))
+                              + " whose realtime runs at 100 Hz all missed no deadline (0: none)")
+        clean = [n for n in SCALE_SIZES
+                 if self.figures[f"scale.n{n}.realtime_deadline_misses"].samples
+                 and max(self.figures[f"scale.n{n}.realtime_deadline_misses"].samples) == 0]
+        largest.samples.append(float(max(clean, default=0)))
+
+    def memory(self) -> None:
+        rss = self.figure("memory.agent_peak_rss_mb", "MB",
+                          "peak RSS (VmHWM) of the largest agent process of every fleet run above",
+                          ("<=", 60.0))
+        if self.agent_rss_mb:
+            rss.samples.append(max(self.agent_rss_mb))
+        else:
+            rss.error = "no agent process reported its memory"
+
+    def costs(self) -> None:
+        from deploy.bench.micro import (
+            agent_step_us,
+            codec_us,
+            defence_us,
+            plant_step_us_per_robot,
+            safety_filter_us,
+        )
+        from deploy.bench.transport import udp_hop_us, zenoh_hop_us
+        from deploy.contract.scenario import load_scenario
+
+        paper = load_scenario("paper")
+        self.log("costs underneath (agent math, plant step, codec, transport floor)")
+        self.figure("cost.agent_step_us", "µs", "AgentCore.step, paper, per robot per step"
+                    ).samples += agent_step_us(paper, self.s.agent_math_s, self.s.repeats)
+        # the safety filter inside that step (issue 17): checking every perceived body on
+        # paper (it never acts there), and solving its QP where it acts (gap at 1.05x)
+        every, _ = safety_filter_us(paper, self.s.agent_math_s, self.s.repeats)
+        self.figure("cost.safety_filter_check_us", "µs", "safety filter per agent step, paper "
+                    "(5 obstacles and 2 robots guarded; it never acts)").samples += every
+        from deploy.contract.scenario_variants import with_obstacle_pair
+
+        gap = with_obstacle_pair(load_scenario("gap"), 1.05, 0.12)
+        _, acting = safety_filter_us(gap, 4.0, self.s.repeats)
+        self.figure("cost.safety_filter_active_us", "µs", "safety filter on a step where it "
+                    "changes the command (its 2-D QP), gap at 1.05x the robot width"
+                    ).add(statistics.median(acting) if acting else None,
+                          "the filter never acted on the gap scenario")
+        for kind in ("pybullet", "model"):
+            self.figure(f"cost.{kind}_step_us_per_robot", "µs",
+                        f"{kind} plant step (1 ms, 4 sub-steps), paper, per robot"
+                        ).samples += plant_step_us_per_robot(paper, kind, self.s.plant_steps,
+                                                             self.s.repeats)
+        for name, samples in codec_us(paper, self.s.codec_calls, self.s.repeats).items():
+            self.figure(f"cost.codec_{name}_us", "µs",
+                        f"{name}: encode + validated decode").samples += samples
+        # the issue-21 defences (docs/hardening.md): per message, per agent step, per
+        # control message
+        what = {"guard_message": "one received message judged against the receiver's own "
+                "clock and its stream (OwnClock + StepGuard)",
+                "guards_per_agent_step": "every such judgement of one agent step, paper "
+                "(its sample and its neighbours' shares)",
+                "control_mac": "the HMAC check of one control message (every 32 steps)"}
+        for name, samples in defence_us(paper, self.s.codec_calls, self.s.repeats).items():
+            self.figure(f"cost.defence_{name}_us", "µs", what[name]).samples += samples
+        hops = {path: self.figure(f"cost.zenoh_hop_{path}_us", "µs", what) for path, what in (
+            ("runtime", "one zenoh hop between two processes as the nodes use it (ping-pong / "
+             "2, 200 B, unix socket): direct callback -> SimpleQueue -> the working thread"),
+            ("lowlatency", "the same on zenoh's lowlatency transport (--zenoh-transport)"),
+            ("indirect", "the same through the old path: zenoh's indirect callback (a Python "
+             "thread) and a Condition hand-off, default transport"))}
+        udp = self.figure("cost.udp_hop_us", "µs", "one raw UDP hop between two processes "
+                          "(ping-pong / 2, 200 B): this machine's floor")
+        for _ in range(self.s.repeats):
+            for path, fig in hops.items():
+                fig.samples.append(zenoh_hop_us(self.s.hops, path))
+            udp.samples.append(udp_hop_us(self.s.hops))
+
+    def groups(self) -> dict[str, Callable[[], None]]:
+        """The benchmarks by name, in the order a full run takes them."""
+        return {"costs": self.costs, "lockstep": self.lockstep_overhead,
+                "paper-run": self.paper_run, "rtf500": self.lockstep_rtf_500,
+                "realtime": self.realtime_loop, "realtime-paper": self.realtime_paper,
+                "scale": self.scale}
+
+    def run_all(self, only: list[str] | None = None) -> None:
+        for name, run in self.groups().items():
+            if only is None or name in only:
+                run()
+        self.memory()
+
+    # -- outputs --------------------------------------------------------------------------
+    def report(self, quick: bool, started: float) -> dict[str, Any]:
+        return {
+            "version": BENCH_VERSION,
+            "date": datetime.now(UTC).isoformat(timespec="seconds"),
+            "quick": quick,
+            "repeats": self.s.repeats,
+            "bench_wall_s": round(time.monotonic() - started, 1),
+            "machine": machine(),
+            "figures": {name: f.as_json() for name, f in self.figures.items()},
+        }
+
+
+def machine() -> dict[str, Any]:
+    model = ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpus": os.cpu_count(), "cpu": model, "python": platform.python_version(),
+            "platform": platform.platform()}
+
+
+def markdown(report: dict[str, Any]) -> str:
+    lines = [f"# omnifleet bench — {report['date']}",
+             "",
+             f"{report['machine']['cpus']} CPUs ({report['machine']['cpu'] or 'unknown CPU'}), "
+             f"Python {report['machine']['python']}; "
+             f"{'quick (smoke) run' if report['quick'] else 'full run'}, "
+             f"{report['repeats']} repeat(s), medians with (min-max).",
+             "",
+             "| figure | median | spread | unit | target | met | what |",
+             "|---|---|---|---|---|---|---|"]
+    for name, f in report["figures"].items():
+        if f["median"] is None:
+            lines.append(f"| {name} | — | — | {f['unit']} | {f['target'] or ''} | — | "
+                         f"{f['what']}; FAILED: {(f['error'] or '')[:200]} |")
+            continue
+        met = {True: "yes", False: "**no**", None: ""}[f["met"]]
+        lines.append(f"| {name} | {_num(f['median'])} | {_num(f['min'])}-{_num(f['max'])} | "
+                     f"{f['unit']} | {f['target'] or ''} | {met} | {f['what']} |")
+    return "\n".join(lines) + "\n"
+
+
+def _num(x: float) -> str:
+    return f"{x:.3g}" if abs(x) < 1000 else f"{x:.0f}"
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    settings = Settings.of(args.quick, args.repeats)
+    started = time.monotonic()
+
+    def log(msg: str) -> None:
+        print(f"[bench {time.monotonic() - started:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    bench = Bench(out, settings, log)
+    only = None if args.only is None else [g.strip() for g in args.only.split(",") if g.strip()]
+    unknown = sorted(set(only or ()) - set(bench.groups()))
+    if unknown:
+        print(f"omnifleet bench: no group {', '.join(unknown)}; the groups are "
+              f"{', '.join(bench.groups())}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    interrupted = False
+    try:
+        bench.run_all(only)
+    except KeyboardInterrupt:
+        interrupted = True
+        log("interrupted: writing what was measured")
+    report = bench.report(args.quick, started)
+    (out / "bench.json").write_text(json.dumps(report, indent=2) + "\n")
+    (out / "bench.md").write_text(markdown(report))
+    failed = [n for n, f in report["figures"].items() if f["median"] is None]
+    log(f"wrote {out / 'bench.json'} and {out / 'bench.md'}"
+        + (f"; no figure for {', '.join(failed)}" if failed else ""))
+    if not args.keep_runs:
+        import shutil
+
+        shutil.rmtree(bench.work, ignore_errors=True)
+    if interrupted:
+        return 130
+    return 1 if failed else 0
+
+
+def add_bench_command(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "bench", help="measure speed and memory against the targets; writes bench.json",
+        description="Benchmarks, side by side in one sitting: lockstep overhead vs in-process, "
+        "README command 1 with and without recording, the realtime loop (lab at 500 Hz, paper "
+        "at 1 kHz), scale to 3/10/20/30 robots, agent memory, and the costs underneath (agent "
+        "math, plant step, codec, one zenoh hop by the runtime's path and the old one vs one "
+        "UDP hop). Writes bench.json and bench.md to --out. Takes ~30 min; --quick ~3 min.")
+    p.add_argument("--quick", action="store_true",
+                   help="short runs, one repeat: a smoke run that still writes every figure")
+    p.add_argument("--out", default="runs/bench", help="output folder (default: runs/bench)")
+    add_option(p, "--repeats")
+    p.add_argument("--only", metavar="GROUP[,GROUP]",
+                   help="run only these groups: costs, lockstep, paper-run, rtf500, realtime, "
+                   "realtime-paper, scale (memory is always judged on the fleet runs made)")
+    p.add_argument("--keep-runs", action="store_true",
+                   help="keep the fleet runs' folders (metrics.json, logs) under --out")
+    p.set_defaults(func=cmd_bench)

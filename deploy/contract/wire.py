@@ -1,0 +1,577 @@
+"""The wire contract (DESIGN §3): key expressions and message types, in one place.
+
+Every node imports this module; nobody re-types a key string. Messages are
+msgspec Structs encoded as msgpack arrays (``array_like``: field order is the
+layout, no field names on the wire). Every message starts with the same header
+(version, sender, seq, stamp_ns) and is validated at decode: wrong version,
+wrong sizes or types, NaN/Inf, an id out of range or a robot field that does not
+match its key -> :class:`Codec.decode` returns ``None`` and the caller counts
+the message in ``messages.invalid``. Decoding never raises.
+
+``stamp_ns`` is the sender's ``time.monotonic_ns()`` at publication. It is only
+ever compared with the same process's clock (a command echoes the stamp of the
+state it answers, so the plant measures state-to-command latency on its own
+clock), so hosts need no clock synchronisation for it.
+
+The control path carries two messages per robot per step (version 2, DESIGN §3):
+the plant's :class:`Sample` (state + perception; in lockstep its arrival is the
+tick) and the agent's :class:`Reply` (command + look-ahead plan + the share its
+neighbours read from the same key). The leader's states travel in batches ahead
+of need; telemetry and the robot states for observers travel in batches off the
+path (:class:`Telemetry`, :class:`StateLog`). A message of another wire version is
+refused and counted apart (``Codec.wrong_version``), so mixed installs say so.
+"""
+
+from __future__ import annotations
+
+import math
+import operator
+import typing
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import msgspec
+
+from agents.degradation import MAX_COMMAND_HORIZON
+
+WIRE_VERSION = 3  # 2: Sample, Reply, batched LeaderState/Telemetry, StateLog; 3: safety in Telemetry
+MAX_BODIES = 256  # bodies per perception message
+MAX_ORDER_CHARS = 32
+MAX_ROLE_CHARS = 32
+MAX_BATCH = 256  # steps per batched message (leader, telemetry, state log)
+MAX_CONTACTS = 10_000  # contact events carried by a plant's report (the count is exact)
+MAX_REPORT_SAMPLES = 200_000  # timing samples a report carries (node_runtime.MAX_SAMPLES)
+MAX_REPORT_KEYS = 1024  # entries of a report's per-key and per-reason tables
+# a report's encoded size, refused before it is decoded: two full timing tables (200 000
+# samples each, at most 9 bytes a sample in msgpack: 3.6 MB), contacts (10 000 x ~50 B)
+# and the tables (3 x 1024 entries of < 100 B) stay under it
+MAX_REPORT_BYTES = 5 * 1024 * 1024
+
+Vec2 = tuple[float, float]
+Vec3 = tuple[float, float, float]
+Vec4 = tuple[float, float, float, float]
+
+
+class Message(msgspec.Struct, array_like=True, frozen=True):
+    v: int  # WIRE_VERSION
+    sender: int  # robot id for robot-scoped messages, 0 for leader/plant/launcher
+    seq: int  # per publisher, from 0
+    stamp_ns: int  # sender's monotonic clock at publication
+
+    # subclasses set ROBOT_FIELD when the message is about one robot (checked
+    # against the key it arrived on)
+    ROBOT_FIELD: ClassVar[str | None] = None
+
+    def __post_init__(self) -> None:
+        if not _finite(self):
+            raise ValueError(f"{type(self).__name__}: a value is not finite")
+
+
+def _finite(value: Any) -> bool:
+    """No NaN, no Inf, nothing near the float limit, at any depth: the sum of every
+    number in it is finite (NaN or Inf anywhere makes it non-finite; so do values
+    near 1e308, which no physical quantity here comes close to). One plan per
+    struct type (:func:`_plan`), so a message costs a few C calls, not one Python
+    call per number (a Sample: 17 -> ~2 µs)."""
+    try:
+        return math.isfinite(_total(value))
+    except OverflowError:  # an int beyond float range
+        return False
+
+
+def _total(value: Any) -> float:
+    t = type(value)
+    if t is float or t is int:
+        return value
+    if t is tuple or t is list:
+        if not value:
+            return 0.0
+        t0 = type(value[0])
+        if t0 is float or t0 is int:
+            return sum(value)
+        return sum(map(_total, value))
+    if value is None or t is bool or t is str:
+        return 0.0
+    if isinstance(value, msgspec.Struct):
+        numbers, optional, vectors, deep = _plan(t)
+        total = sum(numbers(value)) + sum(map(sum, vectors(value)))
+        if optional is not None:
+            total += sum(x for x in optional(value) if x is not None)
+        if deep is not None:
+            total += sum(map(_total, deep(value)))
+        return total
+    if t is dict:
+        return sum(map(_total, value.values()))
+    return 0.0
+
+
+_PLANS: dict[type, tuple[Any, Any, Any, Any]] = {}
+
+
+def _getter(names: list[str]) -> Any:
+    """A C-level getter of these fields, always as a tuple (None: no field)."""
+    if not names:
+        return None
+    get = operator.attrgetter(*names)
+    return (lambda v: (get(v),)) if len(names) == 1 else get
+
+
+def _plan(cls: type) -> tuple[Any, Any, Any, Any]:
+    """How to sum a struct type's numbers: plain numbers, optional numbers, fixed
+    vectors of floats, and everything else (through :func:`_total`)."""
+    plan = _PLANS.get(cls)
+    if plan is None:
+        numbers, optional, vectors, deep = [], [], [], []
+        for f in msgspec.structs.fields(cls):
+            args = typing.get_args(f.type)
+            if f.type in (int, float, bool):
+                numbers.append(f.name)
+            elif f.type == float | None:
+                optional.append(f.name)
+            elif typing.get_origin(f.type) is tuple and args and all(a is float for a in args):
+                vectors.append(f.name)
+            elif f.type is not str:
+                deep.append(f.name)
+        plan = _PLANS[cls] = (_getter(numbers) or (lambda v: ()), _getter(optional),
+                              _getter(vectors) or (lambda v: ()), _getter(deep))
+    return plan
+
+
+class LeaderState(Message, frozen=True):
+    """The leader's states for steps k, k+1, ...: one entry on the realtime clock;
+    lockstep sends them in batches ahead of need (deploy/nodes/leader.py), so an agent
+    never waits a hop for the leader and hears one message per batch, not per step."""
+
+    k: int  # step of the first entry (lockstep) or of the only one (realtime)
+    t: float  # scenario time of the first entry, s
+    q: list[Vec3]  # leader pose [x, y, psi] per step
+    q_dot: list[Vec3]
+
+    def __post_init__(self) -> None:
+        if not 1 <= len(self.q) <= MAX_BATCH or len(self.q_dot) != len(self.q):
+            raise ValueError("bad leader batch")
+        super().__post_init__()
+
+
+class SensedBody(msgspec.Struct, array_like=True, frozen=True):
+    ident: int  # robot id, or -(obstacle index + 1)
+    position: Vec2
+    velocity: Vec2
+    radius: float
+
+
+def sensed_bodies(bodies) -> list[SensedBody]:
+    """Wire form of sensed bodies (anything with ident, position, velocity, radius)."""
+    return [SensedBody(b.ident, tuple(b.position.tolist()), tuple(b.velocity.tolist()),
+                       float(b.radius)) for b in bodies]
+
+
+class Sample(Message, frozen=True):
+    """What the plant (or robot i's CAN bridge) sends agent i each step, in one
+    message: the robot's state at t_k and what it perceives. In lockstep its arrival
+    is the tick of step k."""
+
+    ROBOT_FIELD: ClassVar[str | None] = "robot"
+    robot: int
+    k: int
+    t: float
+    q: Vec3
+    q_dot: Vec3
+    robots: list[SensedBody]
+    obstacles: list[SensedBody]
+    faulted: bool = False  # a bridge reports driver errors / lost heartbeats here
+
+    def __post_init__(self) -> None:
+        if len(self.robots) > MAX_BODIES or len(self.obstacles) > MAX_BODIES:
+            raise ValueError("too many bodies")
+        super().__post_init__()
+
+
+class ShareData(msgspec.Struct, array_like=True, frozen=True):
+    """What agent i tells the agents that listen to it (eqs. 14, 16)."""
+
+    q0_hat: Vec3
+    v0_hat: Vec3
+    q: Vec3
+    q_dot: Vec3
+    zeta: Vec3
+    zeta_dot: Vec3
+    info_age_s: float = 0.0  # how old the sender's leader information is (s)
+
+
+class Reply(Message, frozen=True):
+    """Agent i's one message per step, on ``robot/i/cmd``: its robot's wheel
+    command (and look-ahead plan) for the plant or bridge, and its share for the
+    neighbours that listen to it (they read the same key: one put, one message per
+    receiver). k = -1 is the initial share, before any command."""
+
+    ROBOT_FIELD: ClassVar[str | None] = "robot"
+    robot: int
+    k: int  # step answered (lockstep) or the sample's k (realtime); -1: initial share
+    t: float
+    torques: Vec4  # N m, wheel order of plant/mecanum.py
+    v_cmd: Vec3  # fused velocity command (a kinematic plant uses this)
+    state_seq: int  # seq of the Sample this command answers
+    state_stamp_ns: int  # its stamp_ns, echoed: latency measured on the plant's clock
+    share: ShareData
+    # torques predicted for steps k+1, k+2, ...: played if their own command is lost
+    # (agents/look_ahead.py); at most MAX_COMMAND_HORIZON entries
+    plan: list[Vec4] = []
+
+    def __post_init__(self) -> None:
+        if len(self.plan) > MAX_COMMAND_HORIZON:
+            raise ValueError("plan too long")
+        super().__post_init__()
+
+
+class TelemetryRow(msgspec.Struct, array_like=True, frozen=True):
+    """One step of one agent, for people and the run's series (never the control path)."""
+
+    k: int
+    t: float
+    q_d: Vec3
+    e: Vec3
+    s: Vec3
+    v_cmd: Vec3
+    torques: Vec4
+    q0_hat: Vec3
+    q_fd: Vec3
+    fdb_error: float | None  # None when FDB is not active
+    order: str  # active behaviors, highest priority first, joined by '>'
+    nonfinite: bool
+    stale_inputs: int = 0  # inputs older than in a fault-free run (held or delayed)
+    input_age_s: float = 0.0  # age of the freshest leader information, or the state (s)
+    speed_factor: float = 1.0  # degradation: 1 full speed, 0 down to the degraded speed
+    left_out: int = 0  # inputs too old for eq. (14) this step
+    safety_dv: float = 0.0  # how much the safety filter changed the command (m/s); 0: it did not
+    safety_infeasible: bool = False  # no command met every barrier within the limits
+
+    def __post_init__(self) -> None:
+        if len(self.order) > MAX_ORDER_CHARS:
+            raise ValueError("order too long")
+
+
+class Telemetry(Message, frozen=True):
+    """An agent's telemetry rows, batched (lockstep: every step; realtime:
+    decimated), off the control path: one message per ``TELEMETRY_BATCH`` rows."""
+
+    ROBOT_FIELD: ClassVar[str | None] = "robot"
+    robot: int
+    rows: list[TelemetryRow]
+
+    def __post_init__(self) -> None:
+        if not 1 <= len(self.rows) <= MAX_BATCH:
+            raise ValueError("bad telemetry batch")
+        super().__post_init__()
+
+
+class StateRow(msgspec.Struct, array_like=True, frozen=True):
+    """The states of a source's robots at one step."""
+
+    k: int
+    t: float
+    q: list[Vec3]
+    q_dot: list[Vec3]
+    faulted: list[bool]
+
+
+MAX_REGULAR_BYTES = 2400  # the regular traffic's messages stay under this (see StateLog)
+
+
+def log_rows_per_batch(robots: int) -> int:
+    """State rows per :class:`StateLog` so that a batch stays under
+    ``MAX_REGULAR_BYTES`` (~60 B per robot and row): zenoh 1.10 grows a process by
+    16-44 MB the first time it moves a message of more than ~3 kB (measured), which
+    alone broke the 60 MB budget of an agent."""
+    return max(1, min(32, MAX_REGULAR_BYTES // (60 * robots + 24)))
+
+
+class StateLog(Message, frozen=True):
+    """The plant's (or a bridge's) robot states, batched for observers (the run's
+    series, the recording, a live view), off the control path."""
+
+    robots: list[int]  # robot ids, in the order of each row
+    rows: list[StateRow]
+
+    def __post_init__(self) -> None:
+        n = len(self.robots)
+        if not 1 <= len(self.rows) <= MAX_BATCH or not 1 <= n <= MAX_BODIES:
+            raise ValueError("bad state log")
+        for r in self.rows:
+            if len(r.q) != n or len(r.q_dot) != n or len(r.faulted) != n:
+                raise ValueError("state row does not match its robots")
+        super().__post_init__()
+
+
+CONTROL_COMMANDS = ("start", "tick", "end", "stop", "estop")
+
+
+class Control(Message, frozen=True):
+    command: str  # one of CONTROL_COMMANDS
+    k: int = 0  # tick: the step the plant is publishing
+    t: float = 0.0
+    start_unix_ns: int = 0  # start (realtime): when t = 0 is, on the wall clock
+    mac: str = ""  # HMAC of the above with the run's secret (deploy/contract/run_secret.py)
+
+    def __post_init__(self) -> None:
+        if len(self.mac) > 64:
+            raise ValueError("mac too long")
+        if self.command not in CONTROL_COMMANDS:
+            raise ValueError(f"unknown command {self.command!r}")
+        super().__post_init__()
+
+
+def control(command: str, seq: int, stamp_ns: int, secret: str | None, k: int = 0,
+            t: float = 0.0, start_unix_ns: int = 0, sender: int = 0) -> Control:
+    """A control message, signed with the run's secret when this process has one."""
+    from deploy.contract.run_secret import control_mac
+
+    mac = "" if secret is None else control_mac(secret, command, k, t, start_unix_ns, seq,
+                                                stamp_ns)
+    return Control(WIRE_VERSION, sender, seq, stamp_ns, command=command, k=k, t=t,
+                   start_unix_ns=start_unix_ns, mac=mac)
+
+
+class ContactRecord(msgspec.Struct, array_like=True, frozen=True):
+    """One physical contact of two bodies (pybullet plant), for metrics.json."""
+
+    t_start: float
+    t_end: float | None  # None: still touching when the run ended
+    body_a: int  # robot id
+    body_b: int  # robot id, or -(obstacle index + 1)
+    max_depth_m: float
+
+
+class NodeReport(Message, frozen=True):
+    """A node's counters and timing, sent once as it ends."""
+
+    role: str
+    robot: int  # -1 for leader/plant
+    sent: int
+    dropped: int
+    late: int
+    invalid: int
+    steps: int
+    latency_ns: list[int] = []  # plant: state-to-command latency samples (realtime)
+    jitter_ns: list[int] = []  # loop jitter samples (realtime)
+    deadline_misses: int = 0
+    peak_rss_kb: int = 0  # VmHWM of the node's process (0: unknown)
+    received: dict[str, int] = {}  # valid messages received, per key expression
+    contacts: list[ContactRecord] | None = None  # plant: physical contacts (None: not simulated)
+    contacts_total: int = 0  # every contact event, also those beyond MAX_CONTACTS
+    faults: dict[str, dict[str, int]] = {}  # injected faults per edge this node received on
+    # plant (realtime) or CAN bridge: robots whose torques were zeroed for want of a
+    # fresh command, as (robot, age of its newest command then, s; run time, s)
+    command_stops: list[tuple[int, float, float]] = []
+    refused: dict[str, int] = {}  # messages refused on arrival, by reason (forged, implausible)
+    law_resets: int = 0  # agent: its law restarted from the robot (a long gap, a non-finite state)
+    nonfinite: int = 0  # values the node computed that were NaN or Inf (Node.note_nonfinite)
+    zid: str = ""  # this node's zenoh id
+    peers: list[str] = []  # the zenoh ids it had a link with as it ended (zenoh's own info)
+    nonfinite_commands: int = 0  # agent: steps whose law gave NaN/Inf (zero torques sent)
+    stale_samples: int = 0  # agent (realtime): samples too old on arrival, not answered
+    # plant (realtime) or CAN bridge: each stretch a robot ran on zero torque for want of a
+    # fresh command, as (robot, run time it began, s; how long it lasted, s)
+    zero_torque: list[tuple[int, float, float]] = []
+    # plant or CAN bridge: per robot id (as text, as in metrics.json), the commands that asked
+    # for more wheel torque than the bound (plant/command.py torque_bound): clipped to it
+    torque_clipped: dict[str, int] = {}
+    mac: str = ""  # HMAC of the report's encoding with the run's secret (deploy/contract/run_secret.py)
+
+    def __post_init__(self) -> None:
+        if len(self.mac) > 64:
+            raise ValueError("mac too long")
+        if min(self.sent, self.dropped, self.late, self.invalid, self.steps, self.nonfinite,
+               self.deadline_misses, self.law_resets, self.nonfinite_commands,
+               self.stale_samples, self.contacts_total) < 0:
+            raise ValueError("a negative count")  # a forged "invalid = -1000"
+        if (len(self.latency_ns) > MAX_REPORT_SAMPLES or len(self.jitter_ns) > MAX_REPORT_SAMPLES
+                or len(self.received) > MAX_REPORT_KEYS or len(self.faults) > MAX_REPORT_KEYS
+                or len(self.refused) > MAX_REPORT_KEYS or len(self.command_stops) > 1000
+                or len(self.zero_torque) > 1000 or len(self.torque_clipped) > MAX_BODIES):
+            raise ValueError("report too large")
+        if len(self.zid) > MAX_ROLE_CHARS or len(self.peers) > MAX_BODIES or any(
+                len(p) > MAX_ROLE_CHARS for p in self.peers):
+            raise ValueError("bad link report")
+        if len(self.role) > MAX_ROLE_CHARS:
+            raise ValueError("role too long")
+        if self.contacts is not None and len(self.contacts) > MAX_CONTACTS:
+            raise ValueError("too many contact records")
+        super().__post_init__()
+
+
+MESSAGE_TYPES = (LeaderState, Sample, Reply, Telemetry, StateLog, Control, NodeReport)
+
+_encoder = msgspec.msgpack.Encoder()
+# the header of any version: an array whose first element is the version
+_HEADER = msgspec.msgpack.Decoder(list)
+
+
+def encode(msg: Message) -> bytes:
+    return _encoder.encode(msg)
+
+
+class Codec:
+    """Decoders for every message type, validating ids against the scenario."""
+
+    def __init__(self, robot_ids: list[int] | tuple[int, ...]) -> None:
+        self.robot_ids = frozenset(robot_ids)
+        self._decoders = {t: msgspec.msgpack.Decoder(t) for t in MESSAGE_TYPES}
+        self.wrong_version = 0  # refused: a header of another wire version
+        self.versions_seen: set[int] = set()  # those versions (a mixed install)
+
+    def _note_version(self, data: bytes) -> None:
+        """Count a message whose header says another wire version."""
+        try:
+            head = _HEADER.decode(data)
+        except (msgspec.DecodeError, ValueError, TypeError):
+            return
+        if not head or not isinstance(head[0], int):
+            return
+        if head[0] != WIRE_VERSION and len(self.versions_seen) < 16:
+            self.wrong_version += 1
+            self.versions_seen.add(head[0])
+        elif head[0] != WIRE_VERSION:
+            self.wrong_version += 1
+
+    def decode(self, kind: type[Message], data: bytes, robot: int | None = None) -> Any:
+        """The message, or None when it is invalid (never raises). A report larger
+        than ``MAX_REPORT_BYTES`` is refused before it is decoded."""
+        if kind is NodeReport and len(data) > MAX_REPORT_BYTES:
+            return None
+        try:
+            msg = self._decoders[kind].decode(data)
+        except (msgspec.DecodeError, ValueError, TypeError):
+            self._note_version(data)
+            return None
+        if msg.v != WIRE_VERSION:
+            self._note_version(data)
+            return None
+        if msg.seq < 0:
+            return None
+        field = kind.ROBOT_FIELD
+        if field is not None:
+            rid = getattr(msg, field)
+            if rid not in self.robot_ids or (robot is not None and rid != robot):
+                return None
+        if kind is Sample and any(
+            b.ident >= 0 and b.ident not in self.robot_ids for b in msg.robots
+        ):
+            return None
+        if kind is StateLog and not self.robot_ids.issuperset(msg.robots):
+            return None
+        return msg
+
+
+class FleetNameError(ValueError):
+    """A fleet name that cannot be a key-expression chunk."""
+
+
+@dataclass(frozen=True)
+class Keys:
+    """Key expressions of one fleet: ``omr/<fleet>/...``."""
+
+    fleet: str
+
+    def __post_init__(self) -> None:
+        if not self.fleet or any(c in self.fleet for c in "/*$?#"):
+            raise FleetNameError(
+                f"fleet name {self.fleet!r} must be non-empty, without / * $ ? #")
+
+    @property
+    def root(self) -> str:
+        return f"omr/{self.fleet}"
+
+    @property
+    def everything(self) -> str:
+        return f"{self.root}/**"
+
+    @property
+    def leader_state(self) -> str:
+        return f"{self.root}/leader/state"
+
+    def sample(self, robot: int) -> str:
+        """Plant or bridge -> agent i: state + perception of step k (:class:`Sample`)."""
+        return f"{self.root}/robot/{robot}/sample"
+
+    def cmd(self, robot: int) -> str:
+        """Agent i -> plant or bridge, and its listening neighbours (:class:`Reply`)."""
+        return f"{self.root}/robot/{robot}/cmd"
+
+    def state_log(self, role: str) -> str:
+        """A state source's batched robot states, for observers (:class:`StateLog`)."""
+        return f"{self.root}/log/{role}"
+
+    @property
+    def state_log_all(self) -> str:
+        return f"{self.root}/log/*"
+
+    def telemetry(self, robot: int) -> str:
+        return f"{self.root}/agent/{robot}/telemetry"
+
+    def ctl(self, command: str) -> str:
+        return f"{self.root}/ctl/{command}"
+
+    @property
+    def ctl_all(self) -> str:
+        return f"{self.root}/ctl/*"
+
+    def report(self, role: str) -> str:
+        return f"{self.root}/report/{role}"
+
+    def alive(self, role: str) -> str:
+        return f"{self.root}/alive/{role}"
+
+    def ready(self, role: str) -> str:
+        return f"{self.root}/ready/{role}"
+
+    @property
+    def alive_all(self) -> str:
+        return f"{self.root}/alive/*"
+
+    @property
+    def ready_all(self) -> str:
+        return f"{self.root}/ready/*"
+
+    def role_of(self, key: str) -> str:
+        """The last chunk of an alive/ready key: the role name."""
+        return key.rsplit("/", 1)[-1]
+
+    def kind_of(self, key: str) -> tuple[type[Message], int | None] | None:
+        """Which message type a data key carries (and its robot), or None."""
+        parts = key[len(self.root) + 1:].split("/") if key.startswith(self.root + "/") else []
+        match parts:
+            case ["leader", "state"]:
+                return LeaderState, None
+            case ["robot", r, "sample"] if r.lstrip("-").isdigit():
+                return Sample, int(r)
+            case ["robot", r, "cmd"] if r.lstrip("-").isdigit():
+                return Reply, int(r)
+            case ["log", _]:
+                return StateLog, None
+            case ["agent", r, "telemetry"] if r.lstrip("-").isdigit():
+                return Telemetry, int(r)
+            case ["ctl", _]:
+                return Control, None
+            case ["report", _]:
+                return NodeReport, None
+        return None
+
+
+def agent_role(robot: int) -> str:
+    return f"agent-{robot}"
+
+
+def bridge_role(robot: int) -> str:
+    """The CAN bridge that plays the plant for one robot on hardware."""
+    return f"bridge-{robot}"
+
+
+LEADER_ROLE = "leader"
+PLANT_ROLE = "plant"
+LAUNCHER_ROLE = "launcher"
+
+
+def run_roles(robot_ids: list[int]) -> list[str]:
+    """Every node role of a run: leader, plant, one agent per robot."""
+    return [LEADER_ROLE, PLANT_ROLE, *(agent_role(r) for r in robot_ids)]

@@ -1,0 +1,582 @@
+"""One robot's agent as a process: a zenoh peer around :class:`AgentCore`.
+
+Hears only what the scenario's graph gives it (DESIGN §3): its robot's sample
+(state + perception), the replies of the j with a_ij != 0 (their shares), the
+leader iff b_i != 0, and ``ctl/*``. Publishes one reply per step (its robot's
+wheel command with the share its listeners read) and batched telemetry.
+
+lockstep: step k waits for sample k, the leader at k (sent in batches ahead of
+need) and the neighbours' shares of step k-1, so it computes exactly what the
+in-process reference computes. An input missing at the per-step deadline is
+counted as late and the step goes on with what it last had.
+
+realtime: a step runs as soon as a new sample arrives (or one and a half periods
+after the last step, with what it has); t is this process's clock since start.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+
+import msgspec
+import numpy as np
+
+from agents.core import AgentCore, AgentOutput, Share
+from agents.degradation import InputAges, predict
+from agents.look_ahead import LookAhead
+from deploy.contract.fault_plan import FaultPlan
+from deploy.contract.options import DEFAULT_STEP_DEADLINE_S
+from deploy.contract.scenario import Scenario
+from deploy.contract.wire import (
+    LAUNCHER_ROLE,
+    LEADER_ROLE,
+    PLANT_ROLE,
+    WIRE_VERSION,
+    LeaderState,
+    Reply,
+    Sample,
+    SensedBody,
+    ShareData,
+    Telemetry,
+    TelemetryRow,
+    Vec3,
+    Vec4,
+    agent_role,
+)
+from deploy.nodes.leader import LOOKAHEAD, TICK_EVERY
+from deploy.runtime.fault_model import FaultModel
+from deploy.runtime.lockstep_inputs import AgentLinks
+from deploy.runtime.node_runtime import ControlInbox, FaultGate, StopFlag, Timing, publish_report
+from deploy.runtime.step_guard import CLOCK_SKEW_S, JUMP_OK, OwnClock, StepGuard
+from deploy.runtime.transport import Node
+from plant.bodies import Body
+
+KEEP_STEPS = 4  # lockstep inputs kept behind the current step
+FORGET_EVERY = 32  # lockstep: older inputs are dropped every this many steps (a scan)
+# how far past the newest sample a stored input may be: the leader's batches run up to
+# LOOKAHEAD + TICK_EVERY steps ahead; a neighbour answers the samples we get too
+LEADER_AHEAD_STEPS = LOOKAHEAD + TICK_EVERY + JUMP_OK
+SHARE_AHEAD_STEPS = JUMP_OK + 1
+TELEMETRY_HZ = 100.0  # realtime telemetry rate (lockstep: every step)
+TELEMETRY_BATCH_S = 0.1  # telemetry rows go out in batches of this much run time (at most)
+# ... and at most this many rows (lockstep: 8 steps a message, ~2.1 kB): zenoh 1.10 grows a
+# process by 16-44 MB the first time it moves a message of more than ~3 kB (measured), so
+# no message of the regular traffic is that large
+TELEMETRY_BATCH_MAX = 8
+
+
+@dataclass(frozen=True)
+class LeaderPoint:
+    """The leader at one step, unpacked from a (batched) :class:`LeaderState`."""
+
+    k: int
+    t: float
+    q: Vec3
+    q_dot: Vec3
+
+
+def leader_points(m: LeaderState, dt: float) -> list[LeaderPoint]:
+    return [LeaderPoint(m.k + i, m.t + i * dt, q, qd)
+            for i, (q, qd) in enumerate(zip(m.q, m.q_dot, strict=True))]
+
+
+def share_from_msg(m: Reply) -> Share:
+    """The share as the core takes it: the wire's float tuples as they are (the
+    core works on floats; a numpy round trip cost ~3 µs per neighbour and step)."""
+    s = m.share
+    return Share(s.q0_hat, s.v0_hat, s.q, s.q_dot, s.zeta, s.zeta_dot,  # type: ignore[arg-type]
+                 s.info_age_s)
+
+
+def bodies_from_msg(bodies: list[SensedBody]) -> list[Body]:
+    return [Body(b.ident, np.array(b.position), np.array(b.velocity), b.radius) for b in bodies]
+
+
+def realtime_ages(state: Sample, leader: LeaderPoint | None,
+                  shares: dict[int, Reply], dt: float) -> InputAges:
+    """Realtime: how much older than one period each input is, by the step
+    indices the messages carry (the leader's and the plant's clocks tick
+    together from the same start)."""
+    leader_s = 0.0 if leader is None else max(0.0, state.t - leader.t - dt)
+    return InputAges(0.0, leader_s, {j: max(0.0, (state.k - 1 - m.k) * dt)
+                                     for j, m in shares.items()})
+
+
+def _safety_fields(out: AgentOutput) -> dict[str, float | bool]:
+    """The safety filter's telemetry (zero where it did not act)."""
+    f = out.safety
+    if f is None or not f.active:
+        return {}
+    return {"safety_dv": f.dv, "safety_infeasible": f.infeasible}
+
+
+def _no_clock() -> float:
+    """Lockstep streams are judged by step alone (StepGuard without a period)."""
+    return 0.0
+
+
+def _stale(ages: InputAges | None) -> int:
+    """Inputs older than in a fault-free run."""
+    if ages is None:
+        return 0
+    return int(ages.state_s > 0) + int(ages.leader_s > 0) + sum(a > 0 for a in ages.shares_s.values())
+
+
+def _t3(x: np.ndarray) -> tuple[float, float, float]:
+    return tuple(x.tolist())  # type: ignore[return-value]
+
+
+def _finite_row(r: TelemetryRow) -> TelemetryRow:
+    """The row with every non-finite number zeroed and ``nonfinite`` set (the wire
+    refuses NaN; the verdict must still see that the law diverged)."""
+    import math
+
+    def fix(v):
+        if isinstance(v, float):
+            return v if math.isfinite(v) else 0.0
+        if isinstance(v, tuple):
+            return tuple(fix(x) for x in v)
+        return v
+    bad = any(fix(getattr(r, f)) != getattr(r, f) for f in r.__struct_fields__
+              if isinstance(getattr(r, f), float | tuple))
+    fixed = {f: fix(getattr(r, f)) for f in r.__struct_fields__ if f != "nonfinite"}
+    return msgspec.structs.replace(r, **fixed, nonfinite=r.nonfinite or bad)
+
+
+@dataclass
+class AgentInputs:
+    """Everything received, keyed by step (lockstep) and the newest (realtime).
+    Written by the handlers on the node's thread as it waits."""
+
+    states: dict[int, Sample]
+    leaders: dict[int, LeaderPoint]
+    shares: dict[tuple[int, int], Reply]
+    newest_share: dict[int, Reply]  # per neighbour, by step
+    newest_state: Sample | None = None
+    newest_leader: LeaderPoint | None = None
+
+    @classmethod
+    def empty(cls) -> AgentInputs:
+        return cls({}, {}, {}, {})
+
+
+class AgentNode:
+    def __init__(self, sc: Scenario, robot_id: int, node: Node, stop: StopFlag,
+                 with_recorder: bool = False, plant_role: str = PLANT_ROLE,
+                 faults: FaultPlan | None = None, realtime: bool = False,
+                 step_deadline_s: float = DEFAULT_STEP_DEADLINE_S) -> None:
+        """``plant_role``: who publishes this robot's state (the plant, or a CAN bridge);
+        ``faults``: the run's fault plan (this agent applies the faults of the
+        edges it receives on: in lockstep when it picks a step's inputs, in
+        realtime as messages arrive); ``step_deadline_s``: the plant's (lockstep),
+        which bounds how far ahead of our last answer the plant can be."""
+        self.sc, self.node, self.stop = sc, node, stop
+        self.plant_role = plant_role
+        self.index = sc.index_of(robot_id)
+        self.rid = robot_id
+        q, qd = sc.initial_state()
+        q0h, v0h = sc.initial_estimates(self.index)
+        self.core = AgentCore(sc.agent_config(self.index), q[self.index], qd[self.index], q0h, v0h)
+        self.neighbours = [j for j, _ in self.core.cfg.neighbours]
+        self.hears_leader = self.core.cfg.leader_weight != 0.0
+        self.inputs = AgentInputs.empty()
+        self.last_shares: dict[int, Share] = {}
+        self.faults = FaultModel(faults, sc.dt)
+        self.links: AgentLinks = AgentLinks(self.faults, robot_id, self.neighbours,
+                                            self.hears_leader)
+        self.keep_steps = KEEP_STEPS + self.faults.max_lag_steps
+        self.gate = FaultGate(self.faults, node.mailbox) if realtime and faults else None
+        # commands can be lost or late only with a fault plan or on the realtime clock
+        horizon = sc.spec.degradation.command_horizon if (faults or realtime) else 0
+        self.look_ahead = LookAhead(self.core, horizon) if horizon else None
+        self.timing = Timing()
+        # the newest step of each input stream (lockstep starts before step 0; a
+        # realtime agent may join a running fleet: it takes the first step it hears)
+        period = sc.dt if realtime else None  # realtime streams may skip steps (step_guard.py)
+        self.guards: dict[str, StepGuard] = {
+            "sample": StepGuard(newest=None if realtime else -1, period_s=period),
+            "leader": StepGuard(period_s=period)}
+        # the newest step any sender can be at, on our own clock (step_guard.OwnClock):
+        # lockstep from our last answer and the plant's deadline, realtime from t = 0
+        self.clock = OwnClock(sc.dt, None if realtime else step_deadline_s,
+                              answered_at=time.monotonic())
+        # the law restarted from the robot: after a gap longer than the inputs stay fresh
+        # (realtime), or from a non-finite state (AgentCore.recover)
+        self.law_resets = 0
+        self.nonfinite_commands = 0  # steps whose law gave NaN/Inf: zero torques sent
+        self.stale_samples = 0  # realtime: samples older than stale_after_s, not answered
+        self.steps_done = 0
+        self.telemetry_every = 1  # realtime decimates (see run_realtime)
+        self.telemetry_batch = TELEMETRY_BATCH_MAX
+        self._rows: list[TelemetryRow] = []
+        self.peers = [plant_role, *(agent_role(j) for j in self.neighbours),
+                      *(agent_role(j) for j in sc.listeners(self.index))]
+        if self.hears_leader:
+            self.peers.append(LEADER_ROLE)
+        if with_recorder:
+            self.peers.append(LAUNCHER_ROLE)
+        self._subscribe()
+        self.control = ControlInbox(node, stop)
+        node.declare_alive()
+
+    # -- subscriptions: exactly the graph's ------------------------------------------
+    def _subscribe(self) -> None:
+        keys, inp, rid = self.node.keys, self.inputs, self.rid
+
+        dt, guards, own = self.sc.dt, self.guards, self.clock
+        refuse = self.node.refuse
+        warned: set[str] = set()
+
+        def refuse_ahead(what: str, why: str) -> None:
+            refuse(f"{what}: {why}")
+            if what not in warned:  # a real sender here means clocks that disagree
+                warned.add(what)
+                print(f"{self.node.role}: refused a {what} ({why}; counted): forged, or "
+                      "on the realtime clock a host whose wall clock is ahead of ours by "
+                      f"more than {CLOCK_SKEW_S * 1e3:.0f} ms (NTP)", file=sys.stderr,
+                      flush=True)
+        period = self.guards["sample"].period_s
+        share_guards = {j: StepGuard(period_s=period) for j in self.neighbours}  # one per neighbour
+        clock = time.monotonic if period is not None else _no_clock
+        now = time.monotonic
+        # lockstep stores inputs by step until they are used: those far ahead of our own
+        # sample stream are refused so the tables stay bounded. Realtime keeps only the
+        # newest of each stream (its own guard) and clears the tables every step, and a
+        # CAN bridge's or a late agent's steps are not ours: no cross-stream check there
+        lockstep = period is None
+
+        # What becomes the newest, and what is stored, is judged by the step a message
+        # carries against the stream so far (deploy/runtime/step_guard.py): a forged step far
+        # ahead is held until confirmed, never adopted by itself, so it cannot hang a
+        # lockstep agent or silence a realtime one; what is stored stays near the
+        # newest (bounded tables), and a step already stored is not overwritten.
+        def on_sample(m: Sample) -> None:
+            why = own.refusal(m.k, m.seq, now())
+            if why is not None:  # cannot be real yet: costs only itself
+                refuse_ahead("sample", why)
+                return
+            g = guards["sample"]
+            if g.admit(m.k, clock()):
+                inp.states[m.k] = m
+                inp.newest_state = m
+            elif g.newest is not None and g.newest - self.keep_steps < m.k <= g.newest:
+                inp.states.setdefault(m.k, m)  # late, but still of use (a delayed link)
+            else:
+                refuse("sample step")
+
+        def on_leader(m: LeaderState) -> None:
+            g, ahead, at = guards["leader"], guards["sample"], clock()
+            why = own.refusal(m.k + len(m.q) - 1, m.seq, now(), LEADER_AHEAD_STEPS)
+            if why is not None:
+                refuse_ahead("leader", why)
+                return
+            for p in leader_points(m, dt):
+                if lockstep and not ahead.within(p.k, LEADER_AHEAD_STEPS):
+                    refuse("leader step")
+                    continue
+                inp.leaders.setdefault(p.k, p)
+                if g.admit(p.k, at):
+                    inp.newest_leader = p
+
+        def on_share(m: Reply) -> None:
+            why = own.refusal(m.k, m.seq, now())
+            if why is not None:
+                refuse_ahead("share", why)
+                return
+            at = clock()
+            if lockstep and not guards["sample"].within(m.k, SHARE_AHEAD_STEPS):
+                refuse("share step")
+                return
+            inp.shares.setdefault((m.robot, m.k), m)
+            if share_guards[m.robot].admit(m.k, at):
+                inp.newest_share[m.robot] = m
+
+        me, gate = agent_role(rid), self._gated
+        self.node.subscribe(keys.sample(rid), Sample,
+                            gate(self.plant_role, me, on_sample), robot=rid)
+        if self.hears_leader:
+            self.node.subscribe(keys.leader_state, LeaderState, gate(LEADER_ROLE, me, on_leader))
+        for j in self.neighbours:
+            self.node.subscribe(keys.cmd(j), Reply, gate(agent_role(j), me, on_share), robot=j)
+
+    def _gated(self, src: str, dst: str, on_message):
+        """Realtime with a fault plan: the edge's faults act as messages arrive
+        (one decision per edge and step)."""
+        if self.gate is None:
+            return on_message
+        return self.gate.wrap(src, dst, on_message)
+
+    # -- start --------------------------------------------------------------------
+    def handshake(self, timeout_s: float) -> None:
+        """Wait for the peers we talk with, say ready, publish the initial share."""
+        missing = self.node.wait_for_roles(self.peers, "alive", timeout_s, self.stop)
+        if missing and not self.stop():
+            raise TimeoutError(f"{self.node.role}: no sign of {', '.join(sorted(missing))} "
+                               f"after {timeout_s:.0f} s")
+        self._publish_reply(-1, 0.0, None, None, self.core.initial_share, [])
+        self.node.declare_ready()
+
+    # -- publishing ---------------------------------------------------------------
+    def _publish_reply(self, k: int, t: float, state: Sample | None, out: AgentOutput | None,
+                       s: Share, plan: list[Vec4]) -> None:
+        """The step's one message: command (none before the first step: k = -1,
+        zero torques) and share."""
+        rid = self.rid
+        torques = (0.0, 0.0, 0.0, 0.0) if out is None else tuple(out.torques.tolist())
+        v_cmd = (0.0, 0.0, 0.0) if out is None else _t3(out.v_cmd)
+        share = ShareData(_t3(s.q0_hat), _t3(s.v0_hat), _t3(s.q), _t3(s.q_dot), _t3(s.zeta),
+                          _t3(s.zeta_dot), s.info_age_s)
+        self.clock.answer(k, time.monotonic())  # lockstep: the plant can be one step past it
+        self.node.publish(self.node.keys.cmd(rid), lambda seq, stamp: Reply(
+            WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, t=t, torques=torques, v_cmd=v_cmd,
+            state_seq=-1 if state is None else state.seq,
+            state_stamp_ns=0 if state is None else state.stamp_ns, share=share, plan=plan))
+
+    def _publish_step(self, k: int, t: float, state: Sample, out: AgentOutput,
+                      plan: list[Vec4], stale: int) -> None:
+        self._publish_reply(k, t, state, out, out.share, plan)
+        if out.nonfinite:  # the law gave NaN/Inf: zero torques went out instead
+            self.nonfinite_commands += 1
+            self.node.note_nonfinite(f"command at t = {t:.3f} s (step {k}): the control law "
+                                     "diverged, zero torques sent instead")
+        if out.reset:
+            self.law_resets += 1
+            if self.law_resets <= 3:
+                print(f"{self.node.role}: t = {t:.3f} s (step {k}): non-finite "
+                      f"{', '.join(out.reset)} restarted from the robot's state",
+                      file=sys.stderr, flush=True)
+        if k % self.telemetry_every:
+            return
+        fdb = out.task_errors.get("FDB")
+        self._rows.append(TelemetryRow(
+            k=k, t=t, q_d=_t3(out.q_d), e=_t3(out.tracking_error), s=_t3(out.sliding),
+            v_cmd=_t3(out.v_cmd), torques=tuple(out.torques.tolist()),
+            q0_hat=_t3(out.share.q0_hat), q_fd=_t3(out.q_fd),
+            fdb_error=None if fdb is None else float(fdb), order=">".join(out.order),
+            nonfinite=out.nonfinite, stale_inputs=stale, input_age_s=out.input_age_s,
+            speed_factor=out.speed_factor, left_out=out.left_out,
+            **_safety_fields(out)))
+        if len(self._rows) >= self.telemetry_batch:
+            self.flush_telemetry()
+
+    def flush_telemetry(self) -> None:
+        """Send the telemetry rows gathered so far, in one message. A row that is
+        not finite (a diverged law) is sent with its non-finite numbers zeroed and
+        ``nonfinite`` set, so the run's verdict sees it."""
+        rows, self._rows, rid = self._rows, [], self.rid
+        if not rows:
+            return
+        sent = self.node.publish(self.node.keys.telemetry(rid), lambda seq, stamp: Telemetry(
+            WIRE_VERSION, rid, seq, stamp, robot=rid, rows=rows))
+        if sent is None:  # a non-finite value: send the rows with it zeroed, flagged
+            self.node.note_nonfinite(f"telemetry row (steps {rows[0].k}-{rows[-1].k}), sent "
+                                     "with its non-finite numbers zeroed and flagged")
+            safe = [_finite_row(r) for r in rows]
+            self.node.publish(self.node.keys.telemetry(rid), lambda seq, stamp: Telemetry(
+                WIRE_VERSION, rid, seq, stamp, robot=rid, rows=safe))
+
+    def _compute(self, t: float, state: Sample, leader: LeaderPoint | None,
+                 dt: float | None = None, ages: InputAges | None = None
+                 ) -> tuple[AgentOutput, list[Vec4]]:
+        """The step's output and its look-ahead torques (empty when off)."""
+        robots = bodies_from_msg(state.robots)
+        obstacles = bodies_from_msg(state.obstacles)
+        lead = (leader.q, leader.q_dot) if leader is not None else None
+        if self.hears_leader and lead is None:  # never heard it yet: use own estimate
+            lead = (self.core.q0_hat.copy(), self.core.v0_hat.copy())
+        q, q_dot = np.array(state.q), np.array(state.q_dot)
+        out = self.core.step(t, q, q_dot, self.last_shares, lead, obstacles, robots, dt, ages)
+        plan = [] if self.look_ahead is None else self.look_ahead.plan(
+            self.core, out, t, q, q_dot, self.last_shares, lead, obstacles, robots, ages)
+        return out, plan
+
+    # -- lockstep -----------------------------------------------------------------
+    def _lockstep_ready(self, k: int) -> bool:
+        inp = self.inputs
+        return (self.stop() or (
+            k in inp.states
+            and (not self.hears_leader or k in inp.leaders)
+            and all((j, k - 1) in inp.shares for j in self.neighbours)
+        ))
+
+    def run_lockstep(self, step_deadline_s: float) -> None:
+        inp, box = self.inputs, self.node.mailbox
+        k = 0
+        while not self.stop():
+            # wait for the plant's step k or a later one (with no deadline: the plant
+            # may be slow to start or to step; it ends the run with ``end``). A later
+            # one: step k's state was lost (a cut link): catch up, counted late.
+            box.wait_until(lambda k=k: self.stop() or (
+                inp.newest_state is not None and inp.newest_state.k >= k), 3600.0)
+            if self.stop():
+                break
+            with box.lock:
+                newest = max(inp.states, default=k)
+            if newest > k:
+                self.node.counters.late += newest - k
+                k = newest
+            box.wait_until(lambda k=k: self._lockstep_ready(k), step_deadline_s)
+            with box.lock:
+                newest = max(inp.states)
+                if newest > k:  # we fell behind the plant: skip to its newest step
+                    self.node.counters.late += newest - k
+                    k = newest
+                # the arrival of step k's messages is the clock; the links pick
+                # the samples a faulty edge lets through (deploy/runtime/lockstep_inputs.py)
+                state, leader, shares, ages = self.links.take(
+                    k, inp.states.get, inp.leaders.get, lambda j, idx: inp.shares.get((j, idx)),
+                    self.sc.dt)
+                missing = int(
+                    self.hears_leader and k not in inp.leaders) + sum(
+                    (j, k - 1) not in inp.shares for j in self.neighbours)
+                if k % FORGET_EVERY == 0:
+                    self._forget_before(k - self.keep_steps)
+            self.node.counters.late += missing
+            for j, msg in shares.items():
+                if msg is not None:
+                    self.last_shares[j] = share_from_msg(msg)
+            unheard = [j for j in self.neighbours if j not in self.last_shares]
+            if unheard:  # never heard from a neighbour: cannot compute eq. (16)
+                print(f"{self.node.role}: no share ever received from {unheard}", file=sys.stderr)
+                continue
+            t = k * self.sc.dt
+            out, plan = self._compute(t, state, leader, ages=ages)
+            self._publish_step(k, t, state, out, plan, missing + _stale(ages))
+            self.steps_done += 1
+            k += 1
+
+    def _forget_before(self, k: int) -> None:
+        inp = self.inputs
+        for d in (inp.states, inp.leaders):
+            for kk in [kk for kk in d if kk < k]:
+                del d[kk]
+        for key in [key for key in inp.shares if key[1] < k]:
+            del inp.shares[key]
+
+    # -- realtime -----------------------------------------------------------------
+    def run_realtime(self, t0_mono: float | None, telemetry_hz: float = TELEMETRY_HZ) -> None:
+        """``t0_mono`` None: this agent rejoins a running fleet (restarted after a
+        crash): t = 0 is read from the plant's first state, and the leader
+        estimate and reference restart from what the leader or neighbours say
+        (:meth:`_resync`)."""
+        inp, box, dt = self.inputs, self.node.mailbox, self.sc.dt
+        # telemetry is for people and the recorder: at most telemetry_hz, so the
+        # control traffic keeps the CPU (the run's series fill the gaps forward)
+        self.telemetry_every = max(1, round(1.0 / (dt * telemetry_hz)))
+        self.telemetry_batch = max(1, min(TELEMETRY_BATCH_MAX,
+                                          round(TELEMETRY_BATCH_S * telemetry_hz)))
+        last_k = -1
+        last_step = None
+        stale_after = self.core.cfg.degradation.stale_after_s
+        last_t: float | None = None
+        share_msgs: dict[int, Reply] = {}
+        synced = t0_mono is not None
+        self.clock.t0_s = t0_mono  # no sender is past the wall clock (step_guard.OwnClock)
+        while not self.stop():
+            box.wait_until(
+                lambda seen=last_k: self.stop() or (inp.newest_state is not None
+                                                    and inp.newest_state.k > seen),
+                1.5 * dt,
+            )
+            if self.stop():
+                break
+            now = time.monotonic()
+            with box.lock:
+                state = inp.newest_state
+                if state is None:
+                    continue
+                fresh = state.k > last_k
+                leader = inp.newest_leader
+                share_msgs.update(inp.newest_share)
+                for by_step in (inp.states, inp.leaders, inp.shares):
+                    by_step.clear()  # realtime uses only the newest of each
+            if not fresh:
+                # no new state for 1.5 periods: stepping again on the old one would
+                # integrate the observer on stale data; wait (the plant zeroes our
+                # torques after its command timeout) and count the miss
+                self.timing.deadline_misses += 1
+                continue
+            if synced and (now - t0_mono) - state.t > stale_after:
+                # a sample older than the inputs stay fresh, by our clock: the backlog
+                # of a process that was off the CPU (SIGSTOP, a starved host). Answering
+                # it computed commands from where the robot was seconds ago (a paused
+                # lab agent stepped 3 backlog samples 0.3-0.8 s old, restarting its law
+                # on each); skip to a fresh one, which restarts the law once (below)
+                self.stale_samples += 1
+                last_k = state.k
+                continue
+            if last_step is not None:
+                self.timing.add_jitter(int(abs((now - last_step) - dt) * 1e9))
+            last_step = now
+            last_k = state.k
+            # the observer and the reference advance by the plant's own step
+            # between the states we answer (more than dt when we missed some)
+            h = dt if last_t is None or state.t <= last_t else state.t - last_t
+            last_t = state.t
+            if any(j not in share_msgs for j in self.neighbours):
+                continue
+            ages = realtime_ages(state, leader, share_msgs, dt)
+            if synced and h > stale_after:
+                # this process was off the CPU (paused, starved) longer than its inputs
+                # stay fresh: the plant has zeroed the robot meanwhile. Integrating the
+                # observer, the estimator and the reference across the gap left a
+                # paused lab agent 5 cm off for good (SIGSTOP 2 s): start them again from
+                # where the robot and the leader are now, as a restarted agent does
+                if self._resync(state, leader, share_msgs, ages):
+                    self.law_resets += 1
+                    h = dt
+            if not synced:
+                if not self._resync(state, leader, share_msgs, ages):
+                    continue
+                t0_mono, synced = now - state.t, True
+                self.clock.t0_s = t0_mono
+            for j, msg in share_msgs.items():
+                self.last_shares[j] = share_from_msg(msg)
+            t = now - t0_mono
+            out, plan = self._compute(t, state, leader, h, ages)
+            self._publish_step(state.k, t, state, out, plan, _stale(ages))
+            self.steps_done += 1
+
+    def _resync(self, state: Sample, leader: LeaderPoint | None,
+                shares: dict[int, Reply], ages: InputAges) -> bool:
+        """A restarted agent: the leader estimate from the leader (predicted to
+        now) or else the mean of the neighbours' estimates (predicted likewise),
+        the reference and observer from the robot where it stands. False while
+        none of them has been heard."""
+        if self.hears_leader and leader is not None:
+            q0 = predict(leader.q, leader.q_dot, ages.leader_s)
+            v0 = leader.q_dot
+        elif shares:
+            est = [predict(m.share.q0_hat, m.share.v0_hat, ages.shares_s.get(j, 0.0))
+                   for j, m in shares.items()]
+            q0 = tuple(np.mean(est, axis=0).tolist())
+            v0 = tuple(np.mean([m.share.v0_hat for m in shares.values()], axis=0).tolist())
+        else:
+            return False
+        self.core = AgentCore(self.core.cfg, np.array(state.q), np.array(state.q_dot),
+                              np.array(q0), np.array(v0))
+        print(f"{self.node.role}: rejoined at t = {state.t:.3f} s (plant step {state.k})",
+              file=sys.stderr)
+        return True
+
+    def finish(self) -> None:
+        self.flush_telemetry()
+        if self.gate is not None:
+            self.gate.close()
+        if self.law_resets:
+            print(f"{self.node.role}: law restarted from the robot's state {self.law_resets} "
+                  "time(s) (a gap longer than its inputs stay fresh, or a non-finite state)",
+                  file=sys.stderr)
+        if self.stale_samples:
+            print(f"{self.node.role}: {self.stale_samples} sample(s) older than "
+                  f"{self.core.cfg.degradation.stale_after_s * 1e3:.0f} ms on arrival left "
+                  "unanswered", file=sys.stderr)
+        held = self.guards["sample"].held
+        if held:
+            self.node.refused["unconfirmed jump"] = held
+        publish_report(self.node, self.rid, self.steps_done, self.timing,
+                       faults=self.faults.report(), law_resets=self.law_resets,
+                       nonfinite_commands=self.nonfinite_commands,
+                       stale_samples=self.stale_samples)

@@ -1,0 +1,347 @@
+"""One robot's CAN bridge as a process: a zenoh peer in place of the simulated
+plant for that robot (DESIGN §8). Realtime only: hardware has no lockstep.
+
+- ``robot/i/cmd`` -> torque frames, sent as the command arrives (the gate of
+  :mod:`bridges.safety` clamps them to the scenario's limit, or to the protocol's
+  torque bound when that is lower); a period in which no command came plays the
+  look-ahead torques the newest one predicted for the overdue step
+  (agents/look_ahead.py), then holds the last of them;
+- every period: frames from the drivers -> :class:`DriverMonitor`; wheel speeds
+  -> odometry (eq. 1) -> ``robot/i/sample`` (``faulted`` set on a driver error or
+  a missing heartbeat), with the perception from the scenario's obstacles (the
+  map) and the other robots' published samples; the states also go to observers
+  in batches (``log/bridge-i``);
+- a command older than the timeout, an e-stop or a fault -> zero torque frames
+  and idle axes; leaving (end, Ctrl-C, a lost peer) always zeroes and idles.
+"""
+
+from __future__ import annotations
+
+import queue
+import sys
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from bridges.monitor import RECOVERABLE_ERRORS, DriverMonitor
+from bridges.odometry import Odometry
+from bridges.protocol import (
+    AXIS_STATE_CLOSED_LOOP_CONTROL,
+)
+from bridges.safety import CommandGate, Decision
+from deploy.contract.options import DEFAULT_COMMAND_TIMEOUT_S
+from deploy.contract.scenario import Scenario
+from deploy.contract.wire import (
+    WIRE_VERSION,
+    Control,
+    Reply,
+    Sample,
+    StateLog,
+    StateRow,
+    agent_role,
+    sensed_bodies,
+)
+from deploy.runtime.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
+from deploy.runtime.step_guard import SEQ_SLACK, OwnClock
+from deploy.runtime.transport import Node
+from plant.command import ZeroTorqueSpans, exceeds, torque_bound
+from plant.perception import sense
+
+MAX_POSE_LEAD_S = 0.02  # longest the published pose is carried past the newest encoder data
+LOG_ROWS = 20  # states per batch to observers (0.1 s at the lab's 200 Hz; ~1.3 kB)
+REARM_AFTER_S = 0.25  # an axis still idle this long after arming (heartbeats at 10 Hz) is asked again
+
+
+class BridgeNode:
+    def __init__(self, sc: Scenario, robot_id: int, node: Node, stop: StopFlag, bus: Any,
+                 protocol: Any, node_ids: list[int], command_timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S,
+                 heartbeat_timeout_s: float = 0.35) -> None:
+        self.sc, self.rid, self.node, self.stop = sc, robot_id, node, stop
+        self.index = sc.index_of(robot_id)
+        self.bus, self.protocol, self.node_ids = bus, protocol, list(node_ids)
+        q0, _ = sc.initial_state()
+        self.odometry = Odometry(sc.model(), q0[self.index])
+        # the scenario's limit, and never beyond what the protocol can encode (paper.toml
+        # has no limit: a 1001 N m command made the frame encoder raise in the callback)
+        self.gate = CommandGate(command_timeout_s, min(torque_bound(sc.spec.limits),
+                                                       protocol.max_abs_torque_nm))
+        self.published_k = -1  # the newest step whose sample went out
+        self.command_k = -1  # the step of the newest command taken
+        self.clipped = 0  # commands that asked for more than the gate's bound (clipped)
+        self.other_k = [-1] * sc.n  # the step of each other robot's newest sample taken
+        self.clock = OwnClock(sc.dt)  # t = 0 set by run_realtime: nobody is past it
+        self.monitor = DriverMonitor(self.node_ids, heartbeat_timeout_s, time.monotonic())
+        self.timing = Timing()
+        self.steps_done = 0
+        self.armed = False
+        self.last_reason = ""
+        self.frames_sent = 0
+        self.torque_sent_at = -1.0
+        self.zeroed_at = -1.0
+        self.armed_at = -1.0
+        self.rearms = 0  # arming frames sent again to an axis that stayed idle
+        # zero torque for want of a fresh command (a dead or silent agent), as
+        # (robot, age of the newest command once the zero frames were sent, s; run time, s)
+        self.command_stops: list[tuple[int, float, float]] = []
+        self.zero_torque = ZeroTorqueSpans()  # how long each stale stop lasted
+        self._send_lock = threading.Lock()
+        self._frames: queue.SimpleQueue = queue.SimpleQueue()
+        self._closing = False
+        # the other robots, for perception: their published states (initially the scenario's)
+        self.positions, self.velocities = q0[:, :2].copy(), np.zeros((sc.n, 2))
+        self.radii = [sc.spec.robot.body_radius_m] * sc.n
+        self.obstacles = sc.obstacle_bodies()  # the map: discs,
+        self.shapes = sc.obstacle_shapes()  # walls and polygons
+        self.log_rows: list[StateRow] = []
+        node.subscribe(node.keys.cmd(robot_id), Reply, self._on_cmd, robot=robot_id)
+        for j, rid in enumerate(sc.robot_ids):
+            if rid != robot_id:
+                node.subscribe(node.keys.sample(rid), Sample,
+                               lambda m, j=j: self._on_other(j, m), robot=rid)
+        # only control signed with the run's secret reaches _on_ctl: a forged ctl/estop
+        # from any peer e-stopped the drives (it was subscribed apart, unchecked)
+        self.control = ControlInbox(node, stop, on_genuine=self._on_ctl)
+        self._reader = threading.Thread(target=self._read_bus, name="can-rx", daemon=True)
+        self._reader.start()
+        node.declare_alive()
+
+    # -- inputs -----------------------------------------------------------------------
+    def _read_bus(self) -> None:
+        while not self.stop() and not self._closing:
+            try:
+                frame = self.bus.recv(timeout=0.05)
+            except Exception as exc:  # a bus that failed: faulted by missing heartbeats
+                print(f"{self.node.role}: CAN receive failed: {exc}", file=sys.stderr)
+                time.sleep(0.05)
+                continue
+            if frame is not None:
+                self._frames.put((time.monotonic(), frame))
+
+    def _on_other(self, j: int, m: Sample) -> None:  # on the node's thread
+        # another bridge's sample: newer than the last one taken, and not past the wall
+        # clock (the bridges share t = 0; step_guard.OwnClock), so one forged sample moves
+        # that robot in our perception for its own step at most
+        if m.k <= self.other_k[j] or self.clock.refusal(m.k, m.seq, time.monotonic()):
+            self.node.refuse("other robot's sample step")
+            return
+        self.other_k[j] = m.k
+        self.positions[j] = m.q[:2]
+        self.velocities[j] = m.q_dot[:2]
+
+    def _on_ctl(self, m: Control) -> None:  # on the node's thread
+        if m.command == "estop":
+            self.gate.estop()
+            self._send_all(self.protocol.estop_frames)
+
+    def _on_cmd(self, m: Reply) -> None:  # on the node's thread, as it waits
+        if m.k < 0:
+            return  # an initial share: no command in it
+        # judged as the plant judges (deploy/nodes/plant.py): a command answers a sample already
+        # sent; the newest step wins and the first command for it stays; one reply per
+        # step, so the seq never runs past our step (a restarted agent counts from 0).
+        # A late one for an older step is still taken when it is the newest (the gate
+        # times it from its arrival, as before): the bridge keeps no table to bound
+        why = ("future step" if m.k > self.published_k else
+               "seq ahead of our clock" if m.seq > self.published_k + SEQ_SLACK else
+               "not newer than the newest command" if m.k <= self.command_k else None)
+        if why is not None:
+            self.node.refuse(why)
+            return
+        self.command_k = m.k
+        if exceeds(m.torques, m.plan, self.gate.max_torque_nm):
+            self.clipped += 1
+            self.node.refuse("torque beyond the bound (clipped)", dropped=False)
+        arrived = time.monotonic()
+        self.gate.command(m.torques, arrived, m.k, m.plan)
+        if self.armed:  # torque on the bus now, not at the next period
+            self._apply(self.gate.decide(arrived, self.monitor.faulted(arrived)))
+            self.timing.add_latency(time.monotonic_ns() - int(arrived * 1e9))
+
+    # -- outputs ----------------------------------------------------------------------
+    def _send(self, frames: list) -> None:
+        for frame in frames:
+            self._send_frame(frame)
+
+    def _send_frame(self, frame: Any) -> None:
+        with self._send_lock:
+            try:
+                self.bus.send(frame)
+                self.frames_sent += 1
+            except Exception as exc:
+                self.node.counters.dropped += 1
+                if self.node.counters.dropped <= 5:
+                    print(f"{self.node.role}: CAN send failed: {exc}", file=sys.stderr)
+
+    def _send_all(self, frames_of) -> None:
+        for n in self.node_ids:
+            self._send(frames_of(n))
+
+    def arm(self) -> None:
+        self._send_all(self.protocol.clear_errors_frames)
+        for n in self.node_ids:
+            self._arm_axis(n)
+        self.armed = True
+        self.armed_at = time.monotonic()
+
+    def _arm_axis(self, n: int) -> None:
+        self._send(self.protocol.arm_frames(n))
+
+    def _rearm_idle_axes(self, now: float) -> None:
+        """An axis whose heartbeat still says idle well after arming missed its arming
+        frames (a lost frame, a driver that rebooted) or was stopped by its watchdog
+        while this host was off the CPU: clear that and ask again. Other errors are
+        not cleared here: they fault the robot instead."""
+        since = self.armed_at + REARM_AFTER_S
+        for a in self.monitor.axes:
+            if (a.heartbeat_at is not None and a.heartbeat_at > since and now > since
+                    and a.axis_state != AXIS_STATE_CLOSED_LOOP_CONTROL
+                    and not a.axis_error & ~RECOVERABLE_ERRORS):
+                if a.axis_error:
+                    self._send(self.protocol.clear_errors_frames(a.node))
+                self._arm_axis(a.node)
+                self.rearms += 1
+                self.armed_at = now
+
+    def disarm(self) -> None:
+        self._send_all(lambda n: [self.protocol.torque_frame(n, 0.0)])
+        self.zeroed_at = time.monotonic()  # zero torque on the bus (the axes idle next)
+        self._send_all(self.protocol.disarm_frames)
+        self.armed = False
+
+    def _apply(self, d: Decision) -> None:
+        for n, tau in zip(self.node_ids, d.torques, strict=True):
+            self._send_frame(self.protocol.torque_frame(n, tau))
+        self.torque_sent_at = time.monotonic()
+        self.last_reason = d.reason
+
+    # -- the loop ---------------------------------------------------------------------
+    def _sample(self, now: float, dt: float) -> None:
+        """Apply the frames heard so far, then advance the odometry by dt."""
+        while True:
+            try:
+                at, frame = self._frames.get_nowait()
+            except queue.Empty:
+                break
+            msg = self.protocol.decode(frame)
+            if msg is not None:
+                self.monitor.feed(msg, at)
+        # the wheels' rotation from the drives' angle estimates: a lost or late encoder
+        # frame adds no drift (the next carries the whole rotation); see Odometry.follow
+        self.odometry.follow(self.monitor.wheel_positions_rev(), self.monitor.first_positions_rev(),
+                             self.monitor.wheel_speeds_radps(), dt)
+
+    def idle_until_start(self, timeout_s: float) -> float | None:
+        """Before the run: keep the odometry going (the robot may be pushed) and the
+        axes idle until ``ctl/start``; t = 0 on this clock, or None."""
+        deadline = time.monotonic() + timeout_s
+        last = time.monotonic()
+        while not self.stop() and time.monotonic() < deadline:
+            if self.node.mailbox.wait_until(lambda: self.control.start is not None,
+                                            self.sc.dt):
+                break
+            now = time.monotonic()
+            self._sample(now, now - last)
+            last = now
+        self._pre_run_last = last
+        return None if self.control.start is None else self.control.wait_for_start(0.0)
+
+    def run_realtime(self, t0_mono: float, steps: int) -> None:
+        dt = self.sc.dt
+        self.clock.t0_s = t0_mono
+        ticker = Periodic(t0_mono, dt, self.timing, self.node.mailbox)
+        last = getattr(self, "_pre_run_last", None)
+        try:
+            while not self.stop():
+                k = ticker.wait_next(self.stop)
+                if k is None or k >= steps:
+                    break
+                now = time.monotonic()
+                self._sample(now, dt if last is None else now - last)
+                last = now
+                faulted = self.monitor.faulted(now)
+                with self.node.mailbox.lock:
+                    d = self.gate.decide(now, faulted)
+                    if d.armed and not self.armed:
+                        self.zero_torque.end(self.rid, k * dt)
+                        self.arm()
+                        self._apply(d)
+                    elif not d.armed and self.armed:
+                        self.disarm()
+                        if d.reason == "stale":
+                            self._log_stop(k * dt)
+                    if d.armed and self.armed:
+                        self._rearm_idle_axes(now)
+                    if d.armed and now - self.torque_sent_at >= dt:
+                        # no command this period: the one answering our state of the
+                        # last period is overdue; play the newest command's look-ahead
+                        # torques for it, or hold them (which feeds the watchdog)
+                        self._apply(self.gate.decide(now, faulted, due_step=k - 1))
+                    elif not d.armed and self.last_reason != d.reason:
+                        self._apply(d)  # zeros, once per reason
+                self._publish(k, k * dt, faulted, now)
+                self.steps_done += 1
+        finally:
+            with self.node.mailbox.lock:
+                self.disarm()  # whatever ended the loop, the robot stops pushing
+            self.flush_log()
+
+    def _log_stop(self, t: float) -> None:
+        age = self.gate.command_age_s(self.zeroed_at)
+        self.command_stops.append((self.rid, age, t))
+        self.zero_torque.begin(self.rid, t)
+        print(f"{self.node.role}: t = {t:.3f} s: zero torque on the bus, the newest command "
+              f"{age * 1e3:.1f} ms old", file=sys.stderr, flush=True)
+
+    def _publish(self, k: int, t: float, faulted: bool, now: float | None = None) -> None:
+        node, keys, i = self.node, self.node.keys, self.index
+        q, qd = self.odometry.q, self.odometry.q_dot
+        # the pose is as of the newest encoder estimates (100 Hz from an ODrive, half
+        # our rate): carried to now at the velocity they gave, so the agent does not
+        # see a staircase (at most two encoder periods ahead: past that it is lost)
+        age = None if now is None else self.monitor.encoder_age_s(now)
+        if age is not None and 0.0 < age <= MAX_POSE_LEAD_S:
+            q = q + age * qd
+        with node.mailbox.lock:
+            pos, vel = self.positions.copy(), self.velocities.copy()
+        pos[i], vel[i] = q[:2], qd[:2]
+        robots, obstacles = sense(i, pos, vel, self.radii, self.sc.robot_ids, self.obstacles,
+                                  self.sc.spec.behaviors.detection_range_m, self.shapes)
+        self.published_k = max(self.published_k, k)
+        node.publish(keys.sample(self.rid), lambda seq, stamp: Sample(
+            WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, q=tuple(q.tolist()),
+            q_dot=tuple(qd.tolist()), robots=sensed_bodies(robots),
+            obstacles=sensed_bodies(obstacles), faulted=faulted))
+        self.log_rows.append(StateRow(k, t, [tuple(q.tolist())], [tuple(qd.tolist())], [faulted]))
+        if len(self.log_rows) >= LOG_ROWS:
+            self.flush_log()
+
+    def flush_log(self) -> None:
+        """This robot's states gathered so far, to observers, in one message."""
+        rows, self.log_rows = self.log_rows, []
+        if rows:
+            self.node.publish(self.node.keys.state_log(self.node.role), lambda seq, stamp: StateLog(
+                WIRE_VERSION, 0, seq, stamp, robots=[self.rid], rows=rows))
+
+    def handshake(self, timeout_s: float) -> None:
+        self.node.declare_ready()
+
+    def close(self) -> None:
+        """Stop reading the bus (before the bus is shut down)."""
+        self._closing = True
+        self._reader.join(1.0)
+
+    def finish(self, linger_s: float = 5.0) -> None:
+        """Report, then stay until this robot's agent has left (as the plant does),
+        so it does not mistake the end of the run for a lost bridge."""
+        publish_report(self.node, self.rid, self.steps_done, self.timing,
+                       command_stops=self.command_stops[:1000],
+                       zero_torque=self.zero_torque.close(self.steps_done * self.sc.dt),
+                       torque_clipped={str(self.rid): self.clipped} if self.clipped else {})
+        c = self.protocol.counters
+        print(f"{self.node.role}: CAN frames sent {self.frames_sent}, axes re-armed "
+              f"{self.rearms}; received decoded {c.decoded}, rejected {c.rejected}",
+              file=sys.stderr)
+        agent = agent_role(self.rid)
+        self.node.mailbox.wait_until(lambda: agent not in self.node.peers_alive, linger_s)

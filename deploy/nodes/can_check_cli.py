@@ -1,0 +1,31 @@
+"""``omnifleet can-check``'s command line. The check itself (deploy/nodes/can_check.py,
+python-can and the DBC) is imported only when it runs: every node process builds
+the whole parser, and importing python-can and cantools there cost each ~14 MB."""
+
+from __future__ import annotations
+
+import argparse
+
+from deploy.contract.options import add_option
+from deploy.nodes.can_options import add_can_options
+
+
+def _run(args: argparse.Namespace) -> int:
+    from deploy.nodes.can_check import _cmd_can_check
+
+    return _cmd_can_check(args)
+
+
+def add_can_check_command(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "can-check", help="bring-up: list the motor drivers that answer on a CAN bus",
+        description="Lists the drivers that answer (node id, axis state, errors, bus voltage, "
+        "encoder). With --spin, turns each wheel briefly at a small torque and reports its "
+        "direction and speed. Exit 1 when nobody answers.")
+    add_can_options(p)
+    add_option(p, "--listen")
+    p.add_argument("--spin", action="store_true",
+                   help="turn each answering wheel briefly (the robot must be on blocks)")
+    add_option(p, "--spin-torque")
+    add_option(p, "--spin-time")
+    p.set_defaults(func=_run)

@@ -1,0 +1,150 @@
+"""The CAN bus options every CAN command shares (bridge, emulate, can-check), and
+opening the bus they name with a clear error."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from deploy.contract.options import (  # noqa: F401 (can_check reads MAX_SPIN_TORQUE_NM here)
+    MAX_CAN_NODE_ID,
+    MAX_SPIN_TORQUE_NM,
+    add_option,
+)
+
+
+class CanBusError(RuntimeError):
+    """The bus the options name cannot be opened (exit code 2 at the CLI)."""
+
+
+def parse_node_ids(text: str) -> tuple[int, ...]:
+    try:
+        ids = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        ids = ()
+    if len(ids) != 4 or len(set(ids)) != 4 or not all(0 <= i <= MAX_CAN_NODE_ID for i in ids):
+        raise argparse.ArgumentTypeError(f"expected 4 distinct node ids in 0..{MAX_CAN_NODE_ID} (the wheel "
+                                         f"order of eq. 1), got {text!r}")
+    return ids
+
+
+def parse_can_arg(text: str) -> tuple[str, int | str]:
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"{text!r}: expected KEY=VALUE, e.g. port=43114")
+    return key, int(value) if value.lstrip("-").isdigit() else value
+
+
+class _Collect(argparse.Action):
+    def __call__(self, parser, namespace, value, option_string=None):
+        got = dict(getattr(namespace, self.dest, None) or {})
+        got.update([value])
+        setattr(namespace, self.dest, got)
+
+
+class _Append(argparse.Action):
+    def __call__(self, parser, namespace, value, option_string=None):
+        setattr(namespace, self.dest, [*(getattr(namespace, self.dest, None) or []), value])
+
+
+def add_can_options(p: argparse.ArgumentParser, per_robot: bool = False) -> None:
+    """The CAN options; ``per_robot``: one bus per ``--robot`` (``--can-channel`` once
+    per robot, in order; a ``--can-arg`` key given once applies to every bus, given
+    once per robot it is that robot's), opened with :func:`open_buses`."""
+    p.add_argument("--can-interface", required=True, metavar="IFACE",
+                   help="python-can interface: virtual (this process only), udp_multicast (across "
+                   "processes and machines, no kernel module), socketcan, pcan, kvaser, slcan, ...")
+    p.add_argument("--can-channel", required=True, metavar="CH",
+                   action="append" if per_robot else "store",
+                   help="the interface's channel: a name for virtual, a multicast group address "
+                   "for udp_multicast (e.g. 239.74.163.2), can0 for socketcan"
+                   + ("; once per --robot, in the same order" if per_robot else ""))
+    add_option(p, "--bitrate")
+    p.add_argument("--can-arg", type=parse_can_arg, action=_Append if per_robot else _Collect,
+                   metavar="KEY=VALUE",
+                   help="an interface-specific bus option, repeatable (e.g. port=43114 for "
+                   "udp_multicast: every group on one port is heard by every bus on that port)"
+                   + ("; a key given once applies to every robot's bus, given once per --robot "
+                      "each robot gets its own value, in order" if per_robot else ""))
+    p.add_argument("--node-ids", type=parse_node_ids, default=(0, 1, 2, 3), metavar="A,B,C,D",
+                   help="CAN node ids of the wheels' drives, in the wheel order of the model "
+                   "(default: 0,1,2,3)")
+
+
+def open_bus(args: argparse.Namespace) -> Any:
+    """The python-can bus the options name; CanBusError with the reason otherwise."""
+    return _open(args.can_interface, args.can_channel,
+                 dict(getattr(args, "can_arg", None) or {}), args.bitrate)
+
+
+def per_robot_buses(args: argparse.Namespace, n: int) -> list[tuple[str, dict[str, Any]]]:
+    """(channel, bus options) of each of ``n`` robots, from per-robot CAN options;
+    CanBusError if the counts do not match."""
+    channels = list(args.can_channel)
+    if len(channels) != n:
+        raise CanBusError(f"give --can-channel once per --robot: {n} robots, "
+                          f"{len(channels)} channels")
+    by_key: dict[str, list[Any]] = {}
+    for key, value in getattr(args, "can_arg", None) or []:
+        by_key.setdefault(key, []).append(value)
+    opts: list[dict[str, Any]] = [{} for _ in range(n)]
+    for key, values in by_key.items():
+        if len(values) not in (1, n):
+            raise CanBusError(f"--can-arg {key}=...: give it once (every bus) or once per "
+                              f"--robot ({n}), not {len(values)} times")
+        for i in range(n):
+            opts[i][key] = values[0] if len(values) == 1 else values[i]
+    return list(zip(channels, opts, strict=True))
+
+
+def open_buses(args: argparse.Namespace, n: int) -> list[Any]:
+    """The bus of each of ``n`` robots (see :func:`per_robot_buses`); on an error the
+    ones already open are shut down and CanBusError is raised."""
+    buses: list[Any] = []
+    try:
+        for channel, kwargs in per_robot_buses(args, n):
+            buses.append(_open(args.can_interface, channel, kwargs, args.bitrate))
+    except CanBusError:
+        for bus in buses:
+            bus.shutdown()
+        raise
+    return buses
+
+
+def _open(interface: str, channel: str, kwargs: dict[str, Any], bitrate: int | None) -> Any:
+    import can
+
+    if interface not in can.VALID_INTERFACES:
+        raise CanBusError(f"unknown --can-interface {interface!r}; python-can knows "
+                          f"{', '.join(sorted(can.VALID_INTERFACES))}")
+    if bitrate is not None:
+        kwargs = {**kwargs, "bitrate": bitrate}
+    try:
+        bus = can.Bus(interface=interface, channel=channel, **kwargs)
+    except Exception as exc:  # python-can raises many kinds for a bad channel or option
+        raise CanBusError(f"cannot open CAN bus {interface}:{channel}: {exc}") from None
+    if interface == "udp_multicast":
+        _grow_receive_buffer(bus)
+    return bus
+
+
+UDP_RECEIVE_BUFFER_BYTES = 4 << 20
+
+
+def _grow_receive_buffer(bus: Any) -> None:
+    """A loaded host can leave a process off the CPU for tens of ms: with the kernel's
+    default ~200 kB a busy udp_multicast bus then drops frames. Ask for 4 MB (root may
+    exceed net.core.rmem_max; others get what the kernel allows)."""
+    import socket
+
+    sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
+    if sock is None:
+        return
+    for opt in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        if opt is None:
+            continue
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, opt, UDP_RECEIVE_BUFFER_BYTES)
+            return
+        except OSError:
+            continue

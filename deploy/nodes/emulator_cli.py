@@ -1,0 +1,171 @@
+"""``omnifleet emulate``: robots' four motor drivers and dynamics, each robot on a
+CAN bus of its own.
+
+One process plays one or several robots (``--robot`` repeated, with one
+``--can-channel`` and ``--truth-out`` per robot): :class:`bridges.fleet_emulator.FleetEmulator`
+in real time until --duration, SIGINT or SIGTERM; then shuts the buses down, saves
+the ground truth (--truth-out) and prints a one-line summary of each robot's frame
+counters and of the lag behind the wall clock on stderr.
+
+Exit codes: 0 done (duration reached), 2 bad input (arguments, scenario, a bus
+that cannot be opened), 130 SIGINT, 143 SIGTERM. Also runnable alone:
+``python -m deploy.nodes.emulator_cli --help``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from pathlib import Path
+
+from deploy.contract.options import EXIT_BAD_INPUT, add_option
+from deploy.nodes.can_options import CanBusError, add_can_options, open_buses
+from deploy.runtime.priority import add_priority_argument, raise_priority
+
+_SIGNAL_EXIT = {"SIGINT": 130, "SIGTERM": 143}
+PROG = "omnifleet emulate"
+
+
+def _configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", required=True, metavar="S",
+                   help="scenario file or bundled scenario name (the robot's physics, initial "
+                   "state, torque limit and disturbance come from it)")
+    add_option(p, "--robot", required=True, action="append",
+               more_help="repeat it to emulate several robots in this process (each on its own "
+               "bus: one --can-channel per robot, in the same order)")
+    add_can_options(p, per_robot=True)
+    add_option(p, "--encoder-rate")
+    add_option(p, "--heartbeat-rate")
+    add_option(p, "--watchdog-timeout")
+    add_option(p, "--drop-rate")
+    add_option(p, "--corrupt-rate")
+    add_option(p, "--silent-node")
+    add_option(p, "--silent-after")
+    add_option(p, "--seed", default=0, help="fault random seed; the i-th --robot (from 0) "
+               "uses K + i")
+    add_option(p, "--physics-rate")
+    add_option(p, "--duration", help="stop after S seconds (default: run until SIGINT/SIGTERM)")
+    add_priority_argument(p, "the emulator plays the physics, which must not be starved by "
+                          "the software under test")
+    p.add_argument("--truth-out", metavar="FILE.npz", action="append",
+                   help="write the robot's true pose and velocity (t, q, q_dot at the encoder "
+                   "rate) here on exit; once per --robot, in the same order")
+
+
+def add_emulate_command(sub: argparse._SubParsersAction) -> None:
+    """Register ``emulate`` on an ``omnifleet`` sub-command parser."""
+    p = sub.add_parser(
+        "emulate", help="emulate robots' four ODrive drivers and dynamics, each on its CAN bus",
+        description="Play four ODrive CANSimple drives (arming, torque control, watchdog, Estop, "
+        "heartbeats, encoder estimates) and the robot's dynamics (eq. 4) on a python-can bus, so "
+        "a bridge runs without hardware; several robots in one process, each on its own bus. Runs "
+        "in real time until --duration or SIGINT/SIGTERM.",
+    )
+    _configure(p)
+    p.set_defaults(func=run_emulate)
+
+
+def run_emulate(args: argparse.Namespace) -> int:
+    """The ``emulate`` command; returns the exit code."""
+
+    from bridges.drive_emulator import EmulatorFaults
+    from bridges.fleet_emulator import FleetEmulator
+    from deploy.contract.scenario import ScenarioError, load_scenario
+
+    def bad(msg: str) -> int:
+        print(f"{PROG}: {msg}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+    robots: list[int] = list(args.robot)
+    if len(set(robots)) != len(robots):
+        return bad(f"--robot given twice for the same robot: {robots}")
+    if args.silent_after is not None and args.silent_node is None:
+        return bad("--silent-after needs --silent-node")
+    if args.silent_node is not None and args.silent_node not in args.node_ids:
+        return bad(f"--silent-node {args.silent_node} is not one of --node-ids "
+                   f"{','.join(map(str, args.node_ids))}")
+    truths = [Path(t) for t in args.truth_out or []]
+    if truths and len(truths) != len(robots):
+        return bad(f"give --truth-out once per --robot ({len(robots)}), or not at all")
+    for truth in truths:
+        if not truth.parent.is_dir():
+            return bad(f"--truth-out: no such directory {str(truth.parent)!r}")
+    try:
+        sc = load_scenario(args.scenario)
+        for r in robots:
+            sc.index_of(r)
+    except ScenarioError as exc:
+        return bad(f"bad scenario: {exc}")
+    faults = [EmulatorFaults(args.drop_rate, args.corrupt_rate, args.silent_node,
+                             args.silent_after or 0.0, args.seed + i) for i in range(len(robots))]
+    try:
+        buses = open_buses(args, len(robots))
+    except CanBusError as exc:
+        return bad(str(exc))
+    try:
+        fleet = FleetEmulator(sc, list(zip(robots, buses, strict=True)), args.node_ids,
+                              args.encoder_rate, args.heartbeat_rate, args.watchdog_timeout,
+                              args.physics_rate, faults=faults)
+    except ValueError as exc:
+        for bus in buses:
+            bus.shutdown()
+        return bad(str(exc))
+    stop_reason: list[str] = []
+    previous = _install_signal_handlers(stop_reason)
+    if args.priority:
+        print(f"{PROG}: {raise_priority(args.priority)}", file=sys.stderr, flush=True)
+    for r, ch in zip(robots, args.can_channel, strict=True):
+        print(f"{PROG}: robot {r} of {sc.name!r}, drives {','.join(map(str, args.node_ids))} "
+              f"on {args.can_interface}:{ch}", file=sys.stderr, flush=True)
+    try:
+        fleet.run(lambda: bool(stop_reason), args.duration)
+    finally:  # also when a bus fails: shut them down and keep what was simulated
+        for bus in buses:
+            bus.shutdown()
+        _restore_signal_handlers(previous)
+        if truths:
+            fleet.save_truth(truths)
+    reason = stop_reason[0] if stop_reason else "end"
+    lag = fleet.lag_stats()
+    for emu in fleet.emulators:
+        print(f"{PROG}: robot {emu.robot_id}: t = {emu.t:.3f} s ({reason}); "
+              f"{emu.counters.summary()}; axes "
+              + ", ".join(f"{a.node}: state {a.state} error 0x{a.axis_error:x}" for a in emu.axes),
+              file=sys.stderr)
+    print(f"{PROG}: lag behind the wall clock p50 {lag['p50'] * 1e3:.1f} ms, p99 "
+          f"{lag['p99'] * 1e3:.1f} ms, max {lag['max'] * 1e3:.1f} ms", file=sys.stderr)
+    return _SIGNAL_EXIT.get(reason, 0)
+
+
+def _install_signal_handlers(reasons: list[str]) -> dict:
+    def handler(signum: int, _frame: object) -> None:
+        if not reasons:
+            reasons.append(signal.Signals(signum).name)
+
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            previous[sig] = signal.signal(sig, handler)
+        except ValueError:  # not the main thread: the caller handles signals
+            pass
+    return previous
+
+
+def _restore_signal_handlers(previous: dict) -> None:
+    for sig, h in previous.items():
+        signal.signal(sig, h)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=PROG, description=(__doc__ or "").split("\n\n")[0])
+    _configure(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_emulate(build_parser().parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,83 @@
+"""The virtual leader (reference generator) as a process.
+
+lockstep: publishes the leader's states ahead of need, in batches of
+``TICK_EVERY`` steps, up to ``LOOKAHEAD`` steps past the newest ``ctl/tick`` (the
+plant ticks every ``TICK_EVERY`` steps), so agents never wait a hop for it and
+hear one message per batch. realtime: one state per period on its own clock.
+"""
+
+from __future__ import annotations
+
+import math
+
+from agents.leader import LeaderGenerator
+from deploy.contract.scenario import Scenario
+from deploy.contract.wire import LAUNCHER_ROLE, WIRE_VERSION, LeaderState, agent_role
+from deploy.runtime.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
+from deploy.runtime.transport import Node
+
+TICK_EVERY = 32  # lockstep: the plant's ctl/tick every this many steps; the leader's batch
+LOOKAHEAD = 2 * TICK_EVERY  # lockstep: states published this far past the newest tick
+
+
+class LeaderNode:
+    def __init__(self, sc: Scenario, node: Node, stop: StopFlag,
+                 with_recorder: bool = False) -> None:
+        self.sc, self.node, self.stop = sc, node, stop
+        self.generator = LeaderGenerator(sc.leader_spec(), sc.dt)
+        self.k_next = 0  # the step whose state the generator holds
+        self.timing = Timing()
+        self.peers = [agent_role(r) for r, b in zip(sc.robot_ids, sc.leader_weights) if b != 0]
+        if with_recorder:
+            self.peers.append(LAUNCHER_ROLE)
+        self.control = ControlInbox(node, stop)
+        node.declare_alive()
+
+    @property
+    def steps_done(self) -> int:
+        return self.k_next
+
+    def handshake(self, timeout_s: float) -> None:
+        missing = self.node.wait_for_roles(self.peers, "alive", timeout_s, self.stop)
+        if missing and not self.stop():
+            raise TimeoutError(f"leader: no sign of {', '.join(sorted(missing))} "
+                               f"after {timeout_s:.0f} s")
+        self.node.declare_ready()
+
+    def _publish_next(self, count: int = 1) -> None:
+        """The states of the next ``count`` steps, in one message."""
+        k = self.k_next
+        qs, vs = [], []
+        for _ in range(count):
+            q, v = self.generator.state()
+            qs.append(tuple(q.tolist()))
+            vs.append(tuple(v.tolist()))
+            self.generator.advance()
+        sent = self.node.publish(self.node.keys.leader_state, lambda seq, stamp: LeaderState(
+            WIRE_VERSION, 0, seq, stamp, k=k, t=k * self.sc.dt, q=qs, q_dot=vs))
+        if sent is None and not all(map(math.isfinite, (x for row in qs + vs for x in row))):
+            self.node.note_nonfinite(f"leader state at step {k} (not sent)")
+        self.k_next += count
+
+    def run_lockstep(self, steps: int) -> None:
+        box, ctl = self.node.mailbox, self.control
+        while not self.stop():
+            limit = min(ctl.tick + LOOKAHEAD, steps - 1)
+            while self.k_next <= limit:  # whole batches (the last one: to the end)
+                self._publish_next(min(TICK_EVERY, steps - self.k_next))
+            box.wait_until(lambda: self.stop() or (
+                ctl.tick + LOOKAHEAD >= self.k_next and self.k_next < steps), 3600.0)
+
+    def run_realtime(self, t0_mono: float, steps: int) -> None:
+        ticker = Periodic(t0_mono, self.sc.dt, self.timing, self.node.mailbox)
+        while not self.stop():
+            k = ticker.wait_next(self.stop)
+            if k is None or k >= steps:
+                break
+            while self.k_next < k:  # catch up after a late wake, publishing only step k
+                self.generator.advance()
+                self.k_next += 1
+            self._publish_next()
+
+    def finish(self) -> None:
+        publish_report(self.node, -1, self.k_next, self.timing)

@@ -1,0 +1,120 @@
+"""The run's verdict against the paper's criteria (DESIGN §6, §10).
+
+PASS when every robot settles (|e| stays below ``settle_threshold``) before
+sqrt(2) T_p, nothing ever touches (no contact, every surface-to-surface gap > 0) and
+nothing is non-finite (no NaN/Inf in the states, and the control law never
+gave one), no robot ran on zero torque (its agent silent) for longer than the command
+timeout, the run was not interrupted, its recording did not fail, and it went to its
+end: a run ended early by a genuine ``ctl/stop`` or ``ctl/estop`` (``stopped_by`` in
+metrics.json) is never PASS. A run whose states become non-finite or absurd (a robot
+``DIVERGED_DISTANCE_M`` from its formation target, or faster than
+``DIVERGED_SPEED_MPS``) has **diverged**; the verdict says when and which robot.
+
+Written to ``metrics.json`` as ``verdict`` by every run; ``--check`` turns it
+into the exit code.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from deploy.report.timeseries import TimeSeries
+
+DIVERGED_DISTANCE_M = 1_000.0  # from the robot's formation target (the paper's field is ~100 m)
+DIVERGED_SPEED_MPS = 1_000.0  # the paper's leader peaks near 50 m/s
+
+
+def divergence(series: TimeSeries, robot_ids: list[int]) -> dict[str, Any] | None:
+    """The first step where a robot's state is non-finite or absurd, or None.
+
+    Leading rows without a state (a realtime run before a robot's first
+    message, NaN in the series) do not count."""
+    q, qd = series.q, series.q_dot
+    if not len(series.t):
+        return None
+    seen = np.maximum.accumulate(np.isfinite(q).all(axis=2), axis=0)  # (k, n): state known since
+    bad_value = seen & ~(np.isfinite(q).all(axis=2) & np.isfinite(qd).all(axis=2))
+    with np.errstate(invalid="ignore"):
+        far = np.linalg.norm(q[:, :, :2] - series.target, axis=2) > DIVERGED_DISTANCE_M
+        fast = np.linalg.norm(qd[:, :, :2], axis=2) > DIVERGED_SPEED_MPS
+    bad = bad_value | (seen & (far | fast))
+    if not bad.any():
+        return None
+    k, i = np.argwhere(bad)[0]
+    what = ("non-finite state" if bad_value[k, i] else
+            f"{DIVERGED_DISTANCE_M:.0f} m from its formation target" if far[k, i] else
+            f"faster than {DIVERGED_SPEED_MPS:.0f} m/s")
+    return {"t_s": float(series.t[k]), "robot": int(robot_ids[i]), "what": what}
+
+
+def judge(metrics: dict[str, Any], diverged: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The verdict from metrics.json's figures (and :func:`divergence`)."""
+    bound = metrics["settling_bound_s"]
+    settling = metrics["settling_time_s"]
+    reasons = []
+    if metrics.get("plant") == "kinematic":
+        settled = None  # no dynamic level: the criterion does not apply; --check still fails it
+        reasons.append("settling does not apply to the kinematic plant")
+    else:
+        late = [(i, s) for i, s in enumerate(settling) if s is None or s >= bound]
+        settled = not late
+        for i, s in late:
+            reasons.append(f"robot #{i + 1} " + ("never settled" if s is None
+                                                   else f"settled at {s:.3f} s >= {bound:.3f} s"))
+    clear = [metrics["min_obstacle_gap_m"], metrics["min_robot_gap_m"]]
+    no_contact = metrics["contacts"] == 0 and all(c is None or c > 0 for c in clear)
+    if not no_contact:
+        reasons.append(f"{metrics['contacts']} contact(s)" if metrics["contacts"]
+                       else "a gap between surfaces reached 0")
+    nonfinite = metrics.get("nonfinite_commands", 0)
+    finite = nonfinite == 0 and diverged is None
+    if nonfinite:
+        reasons.append(f"{nonfinite} non-finite command(s)")
+    # a robot left on zero torque (its agent silent) longer than the command timeout was
+    # not under control for that long, whatever the settling figures say afterwards
+    timeout = metrics.get("command_timeout_s")
+    unpowered = [(i, d) for i, d in enumerate(metrics.get("zero_torque_longest_s") or [])
+                 if timeout is not None and d is not None and d > timeout]
+    for i, d in unpowered:
+        reasons.append(f"robot #{i + 1} ran on zero torque for {d:.3f} s "
+                       f"(> command timeout {timeout:.3f} s)")
+    if metrics.get("interrupted"):
+        reasons.append(f"interrupted ({metrics['interrupted_by']})" if metrics.get(
+            "interrupted_by") else "interrupted")
+    recording = metrics.get("recording") or {}
+    if recording.get("error"):
+        reasons.append(f"the recording failed: {recording['error']}")
+    complete = not metrics.get("interrupted") and not recording.get("error")
+    if diverged is not None:
+        reasons.append(f"DIVERGED: robot {diverged['robot']} {diverged['what']} "
+                       f"at t = {diverged['t_s']:.3f} s")
+    stopped = metrics.get("stopped_by")
+    if stopped:  # a genuine ctl/stop or ctl/estop ended the run early (issue 21)
+        at = stopped.get("t_s")
+        reasons.append(f"STOPPED by ctl/{stopped['command']}"
+                       + ("" if at is None else f" at t = {at:.3f} s"))
+    return {"pass": (bool(settled) and no_contact and finite and not unpowered and complete
+                     and not stopped),
+            "settled": settled, "no_contact": no_contact, "finite": finite,
+            "powered": not unpowered, "complete": complete, "stopped": bool(stopped),
+            "diverged": diverged, "settling_bound_s": bound, "reasons": reasons}
+
+
+def verdict_line(v: dict[str, Any]) -> str:
+    """The summary's last line."""
+    if v["pass"]:
+        return (f"verdict: PASS (every robot settled before {v['settling_bound_s']:.3f} s, "
+                "no contact, nothing non-finite, never unpowered)")
+    return "verdict: FAIL (" + "; ".join(v["reasons"]) + ")"
+
+
+def divergence_banner(v: dict[str, Any]) -> str | None:
+    d = v.get("diverged")
+    if not d:
+        return None
+    line = (f"!!! THE RUN DIVERGED: robot {d['robot']} {d['what']} at t = {d['t_s']:.3f} s; "
+            "figures and metrics after that are meaningless !!!")
+    bar = "!" * min(len(line), 100)
+    return f"{bar}\n{line}\n{bar}"

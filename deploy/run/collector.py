@@ -1,0 +1,158 @@
+"""Turn what a distributed run put on the wire into the run's time series.
+
+The launcher hears the fleet's batched logs, off the control path: the plant's
+(or bridges') :class:`StateLog` and the leader's states give the world columns,
+the agents' :class:`Telemetry` rows the agent columns, all indexed by the step k
+the plant stamped. Lockstep runs fill every (k, robot) exactly once; a
+realtime run may miss some, which are filled forward from the previous step
+(and counted).
+
+Every cell is written once: the first row for a (step, robot) stays, a second one
+(forged or replayed) is refused and counted; and a row for a step the run cannot
+have reached yet on the launcher's clock (``horizon``) is refused and counted, so a
+forged message costs at most its own cells.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+
+import numpy as np
+
+from deploy.contract.scenario import Scenario
+from deploy.contract.wire import LeaderState, NodeReport, StateLog, Telemetry, TelemetryRow
+from deploy.report.targets import FormationTargets
+from deploy.report.timeseries import BEHAVIOR_BITS, COLUMNS, TimeSeries
+
+
+class Collector:
+    """Writes each message straight into preallocated columns (memory does not
+    grow with the number of messages), remembering which cells were filled."""
+
+    def __init__(self, sc: Scenario, steps: int) -> None:
+        self.sc, self.steps = sc, steps
+        self.row = {r: i for i, r in enumerate(sc.robot_ids)}
+        self.ts = TimeSeries.allocate(steps, sc.n)
+        self.have_state = np.zeros((steps, sc.n), bool)
+        self.have_telemetry = np.zeros((steps, sc.n), bool)
+        self.have_leader = np.zeros(steps, bool)
+        self.faulted = np.zeros((steps, sc.n), bool)  # a bridge's state said faulted (CAN)
+        self.reports: dict[str, NodeReport] = {}
+        self.newest_k = -1
+        self.out_of_range = 0  # messages stamped with a step outside the run
+        self.filled = 0  # cells filled forward (realtime)
+        self.lock = threading.Lock()
+        # the newest step the run can have reached now (None: no bound known), set by the
+        # launcher from its own clock; rows past it and second rows for a cell: refused
+        self.horizon: Callable[[], int | None] = lambda: None
+        self.refused: dict[str, int] = {}
+
+    def _refuse(self, why: str) -> None:
+        self.refused[why] = self.refused.get(why, 0) + 1
+
+    def add(self, msg: object) -> None:
+        ts = self.ts
+        with self.lock:
+            if isinstance(msg, NodeReport):
+                self.reports[msg.role] = msg
+                return
+            horizon = self.horizon()
+            if isinstance(msg, StateLog):
+                cols = [self.row[r] for r in msg.robots]
+                for row in msg.rows:
+                    k = row.k
+                    if not 0 <= k < self.steps:
+                        self.out_of_range += 1
+                        continue
+                    if horizon is not None and k > horizon:
+                        self._refuse("state row ahead of the run")
+                        continue
+                    if self.have_state[k, cols].any():
+                        self._refuse("second state row for a step")
+                        continue
+                    ts.q[k, cols], ts.q_dot[k, cols] = row.q, row.q_dot
+                    self.have_state[k, cols] = True
+                    self.faulted[k, cols] = row.faulted
+                    self.newest_k = max(self.newest_k, k)
+            elif isinstance(msg, Telemetry):
+                i = self.row[msg.robot]
+                for row in msg.rows:
+                    if not 0 <= row.k < self.steps:
+                        self.out_of_range += 1
+                        continue
+                    if horizon is not None and row.k > horizon:
+                        self._refuse("telemetry row ahead of the run")
+                        continue
+                    if self.have_telemetry[row.k, i]:
+                        self._refuse("second telemetry row for a step")
+                        continue
+                    record_telemetry(ts, row.k, i, row)
+                    self.have_telemetry[row.k, i] = True
+            elif isinstance(msg, LeaderState):
+                for n, (q, qd) in enumerate(zip(msg.q, msg.q_dot, strict=True)):
+                    k = msg.k + n
+                    if not 0 <= k < self.steps:
+                        self.out_of_range += 1
+                        continue
+                    if self.have_leader[k]:
+                        continue  # lockstep batches overlap: the first stays
+                    ts.leader_q[k], ts.leader_v[k] = q, qd
+                    self.have_leader[k] = True
+            # samples, replies, control: recorded, not part of the series
+
+    def series(self, realtime: bool = False) -> TimeSeries:
+        """Lockstep: steps 0..K-1 where K is the first step some robot's state is
+        missing (a lockstep run has them all). Realtime: every step up to the
+        newest state, gaps filled forward from the previous step (and counted)."""
+        sc = self.sc
+        with self.lock:
+            if realtime:
+                steps = self.newest_k + 1
+            else:
+                complete = self.have_state.all(axis=1)
+                steps = self.steps if complete.all() else int(np.argmin(complete))
+            ts = TimeSeries(**{c: getattr(self.ts, c)[:steps].copy() for c in COLUMNS})
+            self._fill_forward(ts, steps)
+        targets = FormationTargets(sc)
+        for k in range(steps):
+            ts.t[k] = k * sc.dt
+            ts.target[k] = targets.at(ts.t[k], ts.leader_q[k], ts.leader_v[k])
+        return ts
+
+    def _fill_forward(self, ts: TimeSeries, steps: int) -> None:
+        world = ("q", "q_dot")
+        agent = [c for c in COLUMNS if c not in (*world, "t", "leader_q", "leader_v", "target")]
+        for k in range(steps):
+            if not self.have_leader[k]:
+                prev = (ts.leader_q[k - 1], ts.leader_v[k - 1]) if k else (np.nan, np.nan)
+                ts.leader_q[k], ts.leader_v[k] = prev
+            for i in range(self.sc.n):
+                for have, cols in ((self.have_state, world), (self.have_telemetry, agent)):
+                    if not have[k, i]:
+                        self.filled += 1
+                        for c in cols:
+                            col = getattr(ts, c)
+                            col[k, i] = col[k - 1, i] if k else (
+                                np.nan if col.dtype.kind == "f" else col[k, i])
+
+
+def record_telemetry(ts: TimeSeries, k: int, i: int, m: TelemetryRow) -> None:
+    """The same columns as TimeSeries.record_agent, from the wire."""
+    ts.q_d[k, i] = m.q_d
+    ts.e[k, i] = m.e
+    ts.s[k, i] = m.s
+    ts.v_cmd[k, i] = m.v_cmd
+    ts.torque[k, i] = m.torques
+    ts.q0_hat[k, i] = m.q0_hat
+    ts.q_fd[k, i] = m.q_fd
+    ts.fdb_error[k, i] = np.nan if m.fdb_error is None else m.fdb_error
+    names = m.order.split(">") if m.order else []
+    ts.active[k, i] = sum(BEHAVIOR_BITS.get(b, 0) for b in names)
+    ts.order[k, i] = m.order
+    ts.nonfinite[k, i] = int(m.nonfinite)
+    ts.input_age[k, i] = m.input_age_s
+    ts.speed_factor[k, i] = m.speed_factor
+    ts.safety_active[k, i] = int(m.safety_dv > 0.0 or m.safety_infeasible)
+    ts.safety_dv[k, i] = m.safety_dv
+    ts.safety_infeasible[k, i] = int(m.safety_infeasible)

@@ -1,0 +1,235 @@
+"""``omnifleet run``: a scenario in process or as a fleet of processes, its outputs
+written and judged."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from deploy.contract.options import EXIT_BAD_INPUT
+from deploy.contract.wire import Keys
+from deploy.nodes.cli import fault_plan, gui_problem, run_scenario
+from deploy.report.emulator_truth import can_fault_counts, emulator_lag_ms
+from deploy.report.run_folder import RunFolderError
+from deploy.report.run_folder import prepare as prepare_run_folder
+from deploy.report.summary import summary
+from deploy.report.verdict import divergence_banner, verdict_line
+from deploy.runtime.fault_model import fault_metrics
+
+RECORDING = "recording.mcap"
+
+
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    sc = run_scenario(args)  # the ranges were checked on parse (deploy/contract/options.py)
+    plant = args.plant or sc.spec.plant.kind
+    if plant == "can-emulated":  # hardware through emulated drivers runs on the wall clock
+        if args.in_process or args.clock == "lockstep":
+            print("omnifleet run: --plant can-emulated runs realtime, one process per node",
+                  file=sys.stderr)
+            return EXIT_BAD_INPUT
+        args.clock = "realtime"
+    args.clock = args.clock or "lockstep"
+    problem = gui_problem(plant, args.gui)
+    if problem:
+        print(f"omnifleet run: {problem}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if args.in_process and args.clock == "realtime":
+        print("omnifleet run: --in-process runs lockstep only", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    plan = fault_plan(args, sc)
+    if plan is not None and plan.kills and args.clock != "realtime":
+        print("omnifleet run: a fault plan that kills processes needs --clock realtime (in "
+              "lockstep the plant would wait for the dead agent's commands)", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    for note in sc.notes:
+        print(f"note: {note}", file=sys.stderr)
+    if not args.in_process:
+        Keys(args.fleet or sc.name)  # FleetNameError: exit 2 (main), before --out is touched
+    out = Path(args.out) if args.out else Path("runs") / sc.name
+    try:
+        removed = prepare_run_folder(out, args.overwrite)
+    except RunFolderError as exc:
+        print(f"omnifleet run: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if removed:
+        print(f"omnifleet run: --overwrite: removed the previous run's {', '.join(removed)} "
+              f"from {out}/", file=sys.stderr)
+    label = f"{sc.name} ({plant}, {'in-process' if args.in_process else args.clock})"
+    live = _start_live(args, sc)
+    if live is False:
+        return EXIT_BAD_INPUT
+    try:
+        if args.in_process:
+            metrics = _run_in_process(sc, args, plant, plan, out, label, live)
+        else:
+            metrics = _run_distributed(sc, args, plant, out, label, live)
+            if metrics is None:
+                return 1
+    finally:
+        if live is not None:
+            live.close()
+            print(f"live view: {live.published} messages served, {live.cpu_s:.2f} s CPU; stopped",
+                  file=sys.stderr)
+    banner = divergence_banner(metrics["verdict"])
+    if banner:
+        print(banner, file=sys.stderr)
+    print(summary(metrics, out))
+    broken = (metrics.get("recording") or {}).get("error")
+    if broken:  # never a run that looks complete with a recording that is not
+        print(f"omnifleet run: FAILED: the recording failed ({broken}); "
+              f"{metrics['recording']['lost']} message(s) not recorded", file=sys.stderr)
+        return 1
+    if args.check and not metrics["verdict"]["pass"]:
+        print("omnifleet run: the run does NOT meet the criteria (settling, no contact, "
+              "nothing non-finite)", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, label: str, live):
+    from deploy.report.outputs import write_run
+    from deploy.report.recorder import McapRecorder
+    from deploy.run.runner import run_in_process, run_progress
+
+    progress = _with_live(run_progress(label), live)
+    result = run_in_process(sc, plant, args.duration, progress, gui=args.gui, faults=plan,
+                            on_series=None if live is None else live.follow)
+    extra = {} if plan is None else {"faults": fault_metrics(plan, result.faults or {})}
+    extra["law_resets"] = result.law_resets
+    extra["torque_clipped"] = {str(r): n for r, n in (result.torque_clipped or {}).items()}
+    recorder = None
+    if not args.no_record:
+        out.mkdir(parents=True, exist_ok=True)
+        recorder = McapRecorder(out / RECORDING, sim_dt=sc.dt)
+    if result.interrupted:
+        from deploy.report.outputs import write_interrupted
+
+        metrics = write_interrupted(sc, result.series, out, plant, "lockstep",
+                                    result.wall_time_s, result.interrupted, extra, recorder,
+                                    contact_log=result.contacts, step_unix_ns=result.step_unix_ns)
+        _interrupted(metrics, out)
+    return write_run(sc, result.series, out, plant, "lockstep", result.wall_time_s,
+                     extra=extra, figures=not args.no_figures, contact_log=result.contacts,
+                     recorder=recorder, step_unix_ns=result.step_unix_ns)
+
+
+def _interrupted(metrics: dict, out: Path) -> None:
+    """Say what an interrupted run wrote, then end as interrupted (exit 130/143)."""
+    print(summary(metrics, out) if metrics.get("steps") else
+          f"{metrics['scenario']}: interrupted before any step; written to {out}/ "
+          f"({', '.join(metrics['files'])})\n{verdict_line(metrics['verdict'])}")
+    exc = KeyboardInterrupt(metrics["interrupted_by"])
+    exc.signal_name = metrics["interrupted_by"]  # type: ignore[attr-defined]
+    raise exc
+
+
+def _start_live(args: argparse.Namespace, sc):
+    """The --live view (None without it; False: a bad address, already said)."""
+    if args.live is None:
+        return None
+    from deploy.report.live_view import LiveView
+    from deploy.report.ws_address import LiveAddressError, parse_address, url
+
+    try:
+        host, port = parse_address(args.live)
+        live = LiveView(sc, host, port, realtime=args.clock == "realtime")
+    except (LiveAddressError, RuntimeError, OSError) as exc:
+        print(f"omnifleet run: --live {args.live}: {exc}", file=sys.stderr)
+        return False
+    print(f"live view: {url(host, live.port)} (Foxglove: Open connection -> "
+          "Foxglove WebSocket; layout docs/foxglove-layout.json)", file=sys.stderr, flush=True)
+    return live
+
+
+def _with_live(progress, live):
+    """A progress callback that also tells the live view how far the series is."""
+    if live is None:
+        return progress
+
+    def both(done: int, total: int) -> None:
+        live.publish(done - 1)
+        if progress is not None:
+            progress(done, total)
+
+    return both
+
+
+def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label: str, live=None):
+    import time
+
+    from deploy.report.outputs import run_wall_clock, write_run
+    from deploy.report.recorder import McapRecorder
+    from deploy.run.launcher import Interrupted, Launcher, LaunchOptions, RunFailed
+    from deploy.run.runner import run_progress
+
+    recorder = None
+    if not args.no_record:  # ours, so that the scene joins it at the end (LaunchOptions.recorder)
+        out.mkdir(parents=True, exist_ok=True)
+        recorder = McapRecorder(out / RECORDING,
+                                sim_dt=sc.dt if args.clock == "lockstep" else None)
+    opts = LaunchOptions(
+        scenario_arg=args.scenario, plant=plant, clock=args.clock, out=out,
+        duration_s=args.duration, control_rate_hz=args.control_rate,
+        step_deadline_s=args.step_deadline, startup_timeout_s=args.startup_timeout,
+        record=not args.no_record, fleet=args.fleet, endpoint=args.endpoint, gui=args.gui,
+        faults=fault_plan(args, sc), realtime_priority=args.priority, recorder=recorder,
+        lowlatency=args.zenoh_transport == "lowlatency",
+    )
+    launcher = Launcher(sc, opts)
+    if live is not None:
+        from deploy.report.live_view import collector_rows
+
+        live.follow(launcher.collector.ts, collector_rows(launcher.collector, args.clock == "realtime"))
+    started = time.perf_counter()
+    try:
+        extra = launcher.run(run_progress(label))
+    except RunFailed as exc:
+        print(f"omnifleet run: FAILED: {exc}", file=sys.stderr)
+        if recorder is not None:
+            recorder.close()
+        return None
+    except Interrupted as exc:  # every child stopped: write what was measured, marked
+        from deploy.report.outputs import write_interrupted
+
+        series = launcher.collector.series(realtime=args.clock == "realtime")
+        metrics = write_interrupted(
+            sc, series, out, plant, args.clock, time.perf_counter() - started, exc.signal_name,
+            {"messages": None, "reports": "not collected (interrupted)",
+             "law_resets": None}, recorder)
+        _interrupted(metrics, out)
+    except BaseException:
+        if recorder is not None:
+            recorder.close()  # flushed, also after Ctrl-C
+        raise
+    end_unix_ns = time.time_ns()
+    series = launcher.collector.series(realtime=args.clock == "realtime")
+    if args.clock == "realtime":
+        extra["series_cells_filled"] = launcher.collector.filled
+    if launcher.truth_files and launcher.t0_mono is not None:
+        from deploy.report.odometry_drift import odometry_drift
+
+        extra["odometry_drift"] = odometry_drift(series, sc.robot_ids, launcher.truth_files,
+                                                 launcher.t0_mono, launcher.collector.have_state)
+        extra["emulator_lag_ms"] = emulator_lag_ms(launcher.truth_files)
+        c = launcher.collector
+        got = c.have_state.sum(axis=0)
+        extra["bridge_faulted_fraction"] = [
+            float(f) / g if g else None for f, g in zip(c.faulted.sum(axis=0), got, strict=True)]
+        if "faults" in extra:
+            extra["faults"]["can"] = can_fault_counts(launcher.truth_files)
+    # an agent counts every non-finite command it computed; the series only the rows its
+    # telemetry carried (realtime decimates them): the larger of the two
+    reported = [x for x in extra.get("nonfinite_commands_reported", []) if x is not None]
+    extra["nonfinite_commands"] = max(int(series.nonfinite.sum()), sum(reported))
+    wall = extra.pop("wall_time_s")
+    messages = extra.pop("messages")
+    contact_log, contacts_total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
+    # the wall clock of each step for the scene (the wire messages carry their own)
+    return write_run(sc, series, out, plant, args.clock, wall, messages, extra,
+                     figures=not args.no_figures, contact_log=contact_log,
+                     contacts_total=contacts_total, recorder=recorder,
+                     **run_wall_clock(end_unix_ns, wall, launcher.run_t0, series.steps,
+                                      args.clock == "lockstep"))

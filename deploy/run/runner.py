@@ -1,0 +1,230 @@
+"""In-process reference runner: leader, plant and every agent in one loop.
+
+It follows the lockstep contract of DESIGN §4 exactly (own state at t_k,
+neighbours' shares from step k-1, leader at t_k), so the distributed runtime
+can be checked against it number for number.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from agents.core import AgentCore, Share
+from agents.leader import LeaderGenerator
+from agents.look_ahead import LookAhead
+from deploy.contract.fault_plan import FaultPlan
+from deploy.contract.scenario import PLANT_KINDS, Scenario
+from deploy.contract.wire import PLANT_ROLE, agent_role
+from deploy.report.targets import FormationTargets
+from deploy.report.timeseries import COLUMNS, TimeSeries
+from deploy.runtime.fault_model import FaultModel
+from deploy.runtime.lockstep_inputs import AgentLinks, HeldInput
+from deploy.runtime.plants import contact_log, make_plant, sensor_for
+from plant.command import (
+    applied_command,
+    clamped_plan,
+    exceeds,
+    torque_bound,
+    torques_at,
+)
+
+__all__ = ["PLANT_KINDS", "RunResult", "contact_log", "make_plant", "run_in_process"]
+
+
+@dataclass
+class RunResult:
+    scenario: Scenario
+    plant: str
+    series: TimeSeries
+    wall_time_s: float
+    contacts: list[dict] | None = None  # physical contact events (pybullet); None: not simulated
+    faults: dict[str, dict[str, int]] | None = None  # injected faults per edge (with a plan)
+    step_unix_ns: np.ndarray | None = None  # wall clock as each step began (the recording)
+    law_resets: list[int] | None = None  # per robot: the law restarted from a non-finite state
+    interrupted: str | None = None  # "SIGINT": stopped early, the series holds the steps done
+    # per robot id, the commands that asked for more torque than the bound (clipped), as
+    # the plant node counts them (plant/command.py); the agents' own: none on a bounded law
+    torque_clipped: dict[int, int] | None = None
+
+
+def make_agents(sc: Scenario) -> list[AgentCore]:
+    q, qd = sc.initial_state()
+    model = sc.model()
+    agents = []
+    for i in range(sc.n):
+        q0h, v0h = sc.initial_estimates(i)
+        agents.append(AgentCore(sc.agent_config(i, model), q[i], qd[i], q0h, v0h))
+    return agents
+
+
+def run_in_process(
+    sc: Scenario,
+    plant_kind: str | None = None,
+    duration_s: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    gui: bool = False,
+    faults: FaultPlan | None = None,
+    on_series: Callable[[TimeSeries], None] | None = None,
+) -> RunResult:
+    """The lockstep reference run; ``faults``: a fault plan (no process kills),
+    applied exactly as the distributed run applies it; ``on_series``: called
+    with the run's time series before the first step (a live view reads its rows
+    0..k once ``progress(k + 1, steps)`` has been called)."""
+    if faults is not None and faults.kills:
+        raise ValueError("process kills need separate processes: run without --in-process")
+    plant_kind = plant_kind or sc.spec.plant.kind
+    dt = sc.dt
+    steps = sc.steps if duration_s is None else int(round(duration_s / dt))
+    plant = make_plant(sc, plant_kind, gui=gui)
+    try:
+        return _run(sc, plant, plant_kind, steps, progress, FaultModel(faults, dt), on_series)
+    finally:
+        getattr(plant, "close", lambda: None)()
+
+
+def _run(sc: Scenario, plant, plant_kind: str, steps: int,
+         progress: Callable[[int, int], None] | None, model: FaultModel,
+         on_series: Callable[[TimeSeries], None] | None = None) -> RunResult:
+    dt = sc.dt
+    agents = make_agents(sc)
+    leader = LeaderGenerator(sc.leader_spec(), dt)
+    sense = sensor_for(plant, sc)
+    ids = sc.robot_ids
+    series = TimeSeries.allocate(steps, sc.n)
+    step_unix_ns = np.zeros(steps, np.int64)
+    if on_series is not None:
+        on_series(series)
+    b = sc.leader_weights
+    torques = np.zeros((sc.n, 4))
+    v_cmd = np.zeros((sc.n, 3))
+    targets = FormationTargets(sc)
+    # what was sent, by step: the links pick from these (a delay reaches back)
+    keep = model.max_lag_steps + 2
+    worlds: dict[int, list[tuple]] = {}  # k -> per robot (q, q_dot, robots, obstacles)
+    leaders: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    shares: dict[tuple[int, int], Share] = {
+        (rid, -1): a.initial_share for rid, a in zip(ids, agents, strict=True)}
+    commands: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    links = [AgentLinks(model, rid, [j for j, _ in a.cfg.neighbours], b[i] != 0.0)
+             for i, (rid, a) in enumerate(zip(ids, agents, strict=True))]
+    zero_missed = sc.spec.plant.missed_command == "zero"
+    command_links = [HeldInput(model, model.edge(agent_role(rid), PLANT_ROLE), exempt_first=False)
+                     for rid in ids]
+    # commands can only be lost with a fault plan: only then is the look-ahead worth its cost
+    horizon = sc.spec.degradation.command_horizon if model.plan is not None else 0
+    look_ahead = [LookAhead(a, horizon) for a in agents] if horizon else None
+    law_resets = [0] * sc.n
+
+    bound, clipped = torque_bound(sc.spec.limits), dict.fromkeys(ids, 0)
+    start = time.perf_counter()
+    done, interrupted = 0, None
+    try:  # Ctrl-C: what was measured so far is still the run's (deploy/cli.py)
+        for k in range(steps):
+            step_unix_ns[k] = time.time_ns()
+            t = k * dt
+            q0, v0 = leader.state()
+            leaders[k] = (q0, v0)
+            worlds[k] = [(plant.q[i].copy(), plant.q_dot[i].copy(), *sense(i)) for i in range(sc.n)]
+            for i, agent in enumerate(agents):
+                rid = ids[i]
+                world, lead, shs, ages = links[i].take(
+                    k, lambda idx, i=i: worlds[idx][i] if idx in worlds else None, leaders.get,
+                    lambda j, idx: shares.get((j, idx)), dt)
+                q, q_dot, robots_seen, obstacles_seen = world
+                out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
+                plan = [] if look_ahead is None else look_ahead[i].plan(
+                    agent, out, t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
+                if exceeds(out.torques, plan, bound):
+                    clipped[rid] += 1
+                commands[(rid, k)] = (*applied_command(out.torques, out.v_cmd, sc.spec.limits),
+                                      clamped_plan(plan, sc.spec.limits))
+                shares[(rid, k)] = out.share
+                law_resets[i] += bool(out.reset)
+                series.record_agent(k, i, out, agent)
+            series.record_world(
+                k, t, q0, v0, plant.q, plant.q_dot, targets.at(t, q0, v0)
+            )
+            for i, rid in enumerate(ids):
+                cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get((rid, idx)))
+                if cmd is None:
+                    continue
+                planned = torques_at(k - age, cmd[0], cmd[2], k, "zero" if zero_missed else "hold")
+                if planned is None:  # "zero": past the newest command's plan
+                    torques[i], v_cmd[i] = 0.0, 0.0
+                else:  # its own command, its look-ahead for step k, or held past it
+                    torques[i], v_cmd[i] = planned, cmd[1]
+            plant.step(t, dt, torques, v_cmd)
+            leader.advance()
+            _forget(k - keep, worlds, leaders, shares, commands)
+            if progress is not None:
+                progress(k + 1, steps)
+            done = k + 1
+    except KeyboardInterrupt:
+        interrupted = "SIGINT"
+        series = TimeSeries(**{c: getattr(series, c)[:done].copy() for c in COLUMNS})
+        step_unix_ns = step_unix_ns[:done]
+    wall = time.perf_counter() - start
+    return RunResult(sc, plant_kind, series, wall, contact_log(plant), model.report()
+                     if model.plan is not None else None, step_unix_ns, law_resets, interrupted,
+                     clipped)
+
+
+def _forget(before: int, by_step: dict, leaders: dict, *by_robot_step: dict) -> None:
+    for d in (by_step, leaders):
+        d.pop(before, None)
+    for d in by_robot_step:
+        for key in [key for key in d if key[1] == before]:
+            del d[key]
+
+
+def terminal_progress(total_label: str) -> Callable[[int, int], None] | None:
+    """A tqdm progress callback on a terminal; None (quiet) when not a TTY."""
+    if not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+
+    bar = tqdm(desc=total_label, unit="step", leave=False)
+
+    def update(done: int, total: int) -> None:
+        if bar.total is None:
+            bar.total = total
+        bar.update(done - bar.n)
+        if done >= total:
+            bar.close()
+
+    return update
+
+
+LOG_PROGRESS_EVERY_S = 5.0  # not on a terminal: one progress line this often
+
+
+def log_progress(label: str, every_s: float = LOG_PROGRESS_EVERY_S,
+                 clock: Callable[[], float] = time.monotonic) -> Callable[[int, int], None]:
+    """Progress as plain lines on stderr (``LABEL: step K/N (P %), T s``), the first at
+    once and then at most one per ``every_s``, and the last: piped output showed nothing
+    for a minute."""
+    start = clock()
+    last = [None]
+
+    def update(done: int, total: int) -> None:
+        now = clock()
+        if last[0] is not None and now - last[0] < every_s and done < total:
+            return
+        if done >= total and last[0] == float("inf"):
+            return
+        last[0] = float("inf") if done >= total else now
+        pct = 100.0 * done / total if total else 100.0
+        print(f"{label}: step {done}/{total} ({pct:.0f} %), {now - start:.0f} s",
+              file=sys.stderr, flush=True)
+
+    return update
+
+
+def run_progress(label: str) -> Callable[[int, int], None]:
+    """A progress bar on a terminal (tqdm), progress lines every few seconds otherwise."""
+    return terminal_progress(label) or log_progress(label)

@@ -1,0 +1,33 @@
+"""What every plant is, and what some can do besides (typed, not probed with hasattr).
+
+A plant integrates every robot's dynamics: ``q``, ``q_dot`` (n x 3: x, y, phi) and
+``step(t, dt, torques, v_cmd)``. A plant that simulates bodies also answers what each
+robot perceives (:class:`Perceiving`) and logs its contacts (:class:`Touching`); for the
+others, perception and contacts come from the scenario's geometry.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from plant.bodies import Body
+
+
+@runtime_checkable
+class Plant(Protocol):
+    q: np.ndarray
+    q_dot: np.ndarray
+
+    def step(self, t: float, dt: float, torques: np.ndarray, v_cmd: np.ndarray) -> None: ...
+
+
+@runtime_checkable
+class Perceiving(Protocol):
+    def perceive(self, i: int, detection_range_m: float) -> tuple[list[Body], list[Body]]: ...
+
+
+@runtime_checkable
+class Touching(Protocol):
+    contacts: list[Any]  # contact events (plant.pybullet_plant.ContactEvent)

@@ -1,0 +1,90 @@
+"""`omnifleet bench --quick`: a smoke run that must write every figure.
+
+Benchmarks are not tests: nothing here compares a time with a bound. The test
+checks that the JSON is complete and coherent, and the pure parts of the bench
+(generated scale scenarios) against what they promise.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from procs import finish, start
+
+from deploy.bench.suite import SCALE_SIZES, Figure, markdown
+from deploy.contract.scaled_scenarios import scale_scenario, tree_adjacency
+from deploy.contract.scenario import has_spanning_tree, load_scenario
+
+EXPECTED = {
+    "lockstep.in_process_wall_s", "lockstep.distributed_wall_s", "lockstep.overhead_ratio",
+    "lockstep.real_time_factor_500hz", "realtime.latency_p50_ms", "realtime.latency_p99_ms",
+    "realtime.jitter_p99_ms", "realtime.deadline_misses_500hz", "memory.agent_peak_rss_mb",
+    "cost.agent_step_us", "cost.safety_filter_check_us", "cost.safety_filter_active_us",
+    "cost.pybullet_step_us_per_robot", "cost.model_step_us_per_robot",
+    "cost.zenoh_hop_runtime_us", "cost.zenoh_hop_lowlatency_us", "cost.zenoh_hop_indirect_us",
+    "cost.udp_hop_us",
+    "cost.defence_guard_message_us", "cost.defence_guards_per_agent_step_us",
+    "cost.defence_control_mac_us",
+    "run.paper_wall_s", "run.paper_no_record_wall_s", "run.recording_cost_ratio",
+    "realtime.paper_1khz_latency_p99_ms", "realtime.paper_1khz_latency_p50_ms",
+    "realtime.paper_1khz_contacts", "realtime.paper_1khz_unsettled_robots",
+    "scale.largest_n_zero_misses",
+    *(f"scale.n{n}.realtime_contacts" for n in SCALE_SIZES),
+    *(f"cost.codec_{m}_us" for m in ("Sample", "Reply", "LeaderState", "Telemetry",
+                                     "StateLog")),
+    *(f"scale.n{n}.lockstep_real_time_factor" for n in SCALE_SIZES),
+    *(f"scale.n{n}.realtime_deadline_misses" for n in SCALE_SIZES),
+}
+TARGETS = {"lockstep.overhead_ratio": "<= 1.5", "lockstep.real_time_factor_500hz": ">= 10",
+           "realtime.latency_p99_ms": "<= 1", "realtime.jitter_p99_ms": "<= 0.5",
+           "realtime.paper_1khz_latency_p99_ms": "<= 1", "realtime.paper_1khz_contacts": "<= 0",
+           "realtime.paper_1khz_unsettled_robots": "<= 0",
+           "scale.n30.realtime_deadline_misses": "<= 0", "scale.n30.realtime_contacts": "<= 0",
+           "memory.agent_peak_rss_mb": "<= 60"}
+
+
+@pytest.mark.parametrize("n", [1, 3, 10, 30])
+def test_scale_scenarios_load_with_a_spanning_tree_and_clear_start(n, tmp_path):
+    path = tmp_path / f"scale-{n}.toml"
+    path.write_text(scale_scenario(n))
+    sc = load_scenario(path)
+    assert sc.n == n and sc.dt == pytest.approx(0.01)
+    assert has_spanning_tree(np.array(tree_adjacency(n), float), np.eye(1, n).ravel())
+    q, _ = sc.initial_state()
+    d = np.linalg.norm(q[:, None, :2] - q[None, :, :2], axis=2) + np.eye(n) * 1e9
+    assert d.min() > 2 * sc.spec.robot.body_radius_m  # nobody starts touching
+
+
+def test_figure_judges_its_target_on_the_median():
+    f = Figure("x", "ms", "", [0.5, 2.0, 0.9], ("<=", 1.0))
+    assert f.median == 0.9 and f.met is True
+    assert Figure("y", "x", "", [9.0, 11.0, 8.0], (">=", 10.0)).met is False
+    assert Figure("z", "x", "", []).met is None
+
+
+def test_quick_bench_writes_every_figure(tmp_path):
+    rc, _, err = finish(start("bench", "--quick", "--out", str(tmp_path)), timeout=600)
+    assert rc == 0, err
+    report = json.loads((tmp_path / "bench.json").read_text())
+    assert report["quick"] is True and report["machine"]["cpus"] >= 1
+    figures = report["figures"]
+    assert EXPECTED <= figures.keys()
+    for name, f in figures.items():
+        assert f["error"] is None, (name, f["error"])
+        assert f["samples"] and all(math.isfinite(x) and x >= 0 for x in f["samples"]), name
+        assert f["min"] <= f["median"] <= f["max"], name
+        assert (f["met"] is None) == (f["target"] is None), name
+    for name, target in TARGETS.items():
+        assert figures[name]["target"] == target
+    # what the figures mean, checked where it is a physical fact
+    assert figures["cost.udp_hop_us"]["median"] > 0
+    assert figures["lockstep.overhead_ratio"]["median"] == pytest.approx(
+        figures["lockstep.distributed_wall_s"]["median"]
+        / figures["lockstep.in_process_wall_s"]["median"])
+    table = (tmp_path / "bench.md").read_text()
+    assert table == markdown(report)
+    assert all(name in table for name in EXPECTED)
+    assert not any(p.name.startswith("runs-") for p in tmp_path.iterdir())  # cleaned up

@@ -1,0 +1,338 @@
+"""The distributed runtime: one process per node over zenoh on loopback.
+
+Every process a test starts is ended by pid in a ``finally`` (the launcher stops
+its own children; the tests check that too)."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import time
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+from procs import assert_same_series, finish, pids_with, start
+from realtime_clock import judged
+
+from deploy.report.metrics import control_figures
+from deploy.report.timeseries import TimeSeries
+from deploy.run.launcher import free_tcp_port
+
+zenoh = pytest.importorskip("zenoh")
+
+REPO = Path(__file__).resolve().parents[2]
+DURATION = "0.3"
+
+
+@pytest.fixture(scope="module")
+def distributed_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("dist")
+    fleet = f"t-equal-{os.getpid()}"
+    rc, _, err = finish(start("run", "paper", "--plant", "model", "--duration", DURATION,
+                              "--out", str(out), "--no-figures", "--fleet", fleet))
+    assert rc == 0, err
+    assert not pids_with(fleet), "a node of the run outlived it"
+    return out
+
+
+def test_lockstep_run_equals_the_in_process_reference(distributed_run, tmp_path):
+    rc, _, err = finish(start("run", "paper", "--plant", "model", "--in-process", "--duration",
+                              DURATION, "--out", str(tmp_path), "--no-figures"))
+    assert rc == 0, err
+    a = TimeSeries.load(distributed_run / "timeseries.npz")
+    b = TimeSeries.load(tmp_path / "timeseries.npz")
+    assert a.steps == b.steps == 300
+    assert_same_series(a, b)
+    ma = json.loads((distributed_run / "metrics.json").read_text())
+    mb = json.loads((tmp_path / "metrics.json").read_text())
+    assert control_figures(ma) == control_figures(mb)
+
+
+def test_run_reports_processes_messages_and_a_recording(distributed_run):
+    from mcap.reader import make_reader
+
+    m = json.loads((distributed_run / "metrics.json").read_text())
+    roles = sorted(p["role"] for p in m["processes"])
+    assert roles == ["agent-1", "agent-2", "agent-3", "launcher", "leader", "plant"]
+    assert all(p["peak_rss_mb"] and p["peak_rss_mb"] > 0 for p in m["processes"])
+    msg = m["messages"]
+    assert msg["sent"] > 0 and msg["invalid"] == 0 and msg["late"] == 0 and msg["dropped"] == 0
+    from foxglove_decode import decode
+
+    from deploy.report.foxglove_topics import SCENE_ROBOTS
+
+    robots = set()
+    with open(distributed_run / "recording.mcap", "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary.statistics.message_count == m["recording"]["messages"] > 0
+        for schema, channel, message in reader.iter_messages():  # as Foxglove decodes them
+            value = decode(schema.name, schema.encoding, schema.data, channel.message_encoding,
+                           message.data)
+            assert message.log_time <= float(DURATION) * 1e9  # lockstep: simulation time
+            if channel.topic == SCENE_ROBOTS:
+                robots |= {e.id for e in value.entities}
+    topics = {c.topic for c in summary.channels.values()}
+    assert "/robot/3/cmd" in topics and SCENE_ROBOTS in topics  # no omr/<fleet>/ prefix
+    assert robots >= {"robot-1", "robot-2", "robot-3"}
+
+
+def test_each_agent_hears_only_its_graph_neighbours(distributed_run):
+    """paper.toml: a = [[0,0,0],[1,0,0],[1,1,0]], b = [1,0,0] (self loop dropped)."""
+    m = json.loads((distributed_run / "metrics.json").read_text())
+    heard = {p["role"]: set(p["received"]) for p in m["processes"] if p["role"] != "launcher"}
+
+    def tails(role):
+        return {k.split("/", 2)[2] for k in heard[role]}
+
+    # one sample a step from the plant, the neighbours' replies (their shares)
+    assert tails("agent-3") == {"robot/3/sample", "robot/1/cmd", "robot/2/cmd", "ctl/tick",
+                                "ctl/end"}
+    assert tails("agent-2") == {"robot/2/sample", "robot/1/cmd", "ctl/tick", "ctl/end"}
+    assert tails("agent-1") == {"robot/1/sample", "leader/state", "ctl/tick", "ctl/end"}
+    for key in heard["agent-2"] | heard["agent-3"]:
+        assert "leader" not in key
+    # and what each heard, it heard every step (300 steps + the initial share)
+    received = {p["role"]: p["received"] for p in m["processes"] if p["role"] != "launcher"}
+    shares_of_2 = [n for k, n in received["agent-3"].items() if k.endswith("/robot/2/cmd")]
+    assert shares_of_2 == [301]
+    samples = [n for k, n in received["agent-3"].items() if k.endswith("/robot/3/sample")]
+    assert samples == [300]
+
+
+def _wait_ready(session, fleet: str, roles: set[str], timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        replies = session.liveliness().get(f"omr/{fleet}/ready/*", timeout=1.0)
+        seen = {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok is not None}
+        if roles <= seen:
+            return
+        time.sleep(0.05)
+    raise TimeoutError(f"fleet {fleet} not ready")
+
+
+NODES = {"plant", "leader", "agent-1", "agent-2", "agent-3"}
+
+
+@contextlib.contextmanager
+def running_fleet(name: str, *args: str):
+    """``omnifleet run paper ARGS`` (ARGS hold --out) with a known endpoint and fleet;
+    yields (launcher process, fleet, a zenoh session linked to every node of the run,
+    from the run's logs/endpoints.json) once every node is ready. Everything is ended
+    by pid on the way out, whatever happened."""
+    from deploy.runtime.transport import zenoh_config
+
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    fleet = f"t-{name}-{os.getpid()}"
+    out = Path(args[args.index("--out") + 1])
+    proc = start("run", "paper", "--no-figures", "--fleet", fleet, "--endpoint", endpoint,
+                 *args)
+    session = None
+    try:
+        where = out / "logs" / "endpoints.json"
+        deadline = time.monotonic() + 60
+        while not where.exists() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.05)  # polling for a file another process writes
+        endpoints = list(json.loads(where.read_text()).values())
+        session = zenoh.open(zenoh_config(connect=endpoints, gossip=False))
+        _wait_ready(session, fleet, NODES, 60)
+        yield proc, fleet, session
+    finally:
+        if session is not None:
+            session.close()
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        for pid in pids_with(fleet):
+            os.kill(pid, signal.SIGKILL)
+
+
+def assert_no_process_left(fleet: str) -> None:
+    deadline = time.monotonic() + 5
+    while pids_with(fleet) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not pids_with(fleet), "orphans left behind"
+
+
+def test_garbage_on_every_key_is_counted_invalid_and_changes_no_torque(tmp_path):
+    from deploy.contract.wire import Keys
+
+    out = tmp_path / "garbage"
+    with running_fleet("garbage", "--duration", "1.0", "--out", str(out)) as (
+            proc, fleet, session):
+        keys = Keys(fleet)
+        targets = [keys.leader_state, keys.ctl("stop"), keys.ctl("tick"), keys.report("plant"),
+                   keys.state_log("plant")]
+        for r in (1, 2, 3):
+            targets += [keys.sample(r), keys.cmd(r), keys.telemetry(r)]
+        wrong_type = json.dumps(None).encode()
+        for key in targets:
+            for payload in (b"\xc1garbage", b"", wrong_type, b"\x93\x01\x02"):
+                session.put(key, payload)
+        rc, _, err = finish(proc)
+    assert rc == 0, err
+    m = json.loads((out / "metrics.json").read_text())
+    # every node counts what reached its subscriptions; the launcher hears all keys
+    assert m["messages"]["invalid"] >= 4 * len(targets)
+    rc, _, err = finish(start("run", "paper", "--in-process", "--duration", "1.0",
+                              "--out", str(tmp_path / "ref"), "--no-figures"))
+    assert rc == 0, err
+    a = TimeSeries.load(out / "timeseries.npz")
+    b = TimeSeries.load(tmp_path / "ref" / "timeseries.npz")
+    assert np.array_equal(a.torque, b.torque)
+
+
+def test_sigint_stops_every_process_of_the_run(tmp_path):
+    from mcap.reader import make_reader
+
+    with running_fleet("sigint", "--out", str(tmp_path)) as (proc, fleet, _session):
+        assert len(pids_with(fleet) - {proc.pid}) >= 5
+        os.kill(proc.pid, signal.SIGINT)
+        rc, _, err = finish(proc, timeout=30)
+    assert rc == 130, err
+    assert "interrupted" in err
+    assert_no_process_left(fleet)
+    with open(tmp_path / "recording.mcap", "rb") as f:  # flushed, with its summary
+        assert make_reader(f).get_summary() is not None
+
+
+def test_an_agent_for_an_unknown_robot_fails_fast():
+    t0 = time.monotonic()
+    rc, _, err = finish(start("agent", "--scenario", "paper", "--robot", "7"), timeout=60)
+    assert rc == 2
+    assert "no robot 7" in err and "1, 2, 3" in err
+    assert time.monotonic() - t0 < 30
+
+
+def test_a_bad_zenoh_config_is_a_clear_error(tmp_path):
+    bad = tmp_path / "bad.json5"
+    bad.write_text("{ this is not json5")
+    rc, _, err = finish(start("agent", "--scenario", "paper", "--robot", "1",
+                              "--zenoh-config", str(bad)), timeout=60)
+    assert rc == 2 and "zenoh configuration" in err
+
+
+def test_a_node_that_dies_fails_the_run_and_is_named(tmp_path):
+    with running_fleet("death", "--out", str(tmp_path), "--no-record") as (proc, fleet, _s):
+        victim = [p for p in pids_with(fleet) if "--robot 2" in
+                  (Path(f"/proc/{p}/cmdline").read_bytes().replace(b"\0", b" ").decode())]
+        assert len(victim) == 1
+        os.kill(victim[0], signal.SIGKILL)
+        rc, _, err = finish(proc, timeout=60)
+    assert rc == 1
+    assert "agent-2" in err and "FAILED" in err
+    assert_no_process_left(fleet)
+
+
+def test_realtime_run_reports_latency_jitter_and_misses(tmp_path):
+    """lab.toml at 200 Hz on the wall clock: every process on its own clock."""
+    def run():
+        out = tmp_path / f"run-{len(list(tmp_path.iterdir()))}"
+        rc, _, err = finish(start("run", "lab", "--clock", "realtime", "--duration", "2.0",
+                                  "--out", str(out), "--no-figures", "--no-record"))
+        assert rc == 0, err
+        return out, json.loads((out / "metrics.json").read_text())
+    out, m = judged(run, lambda r: r[1], "lab realtime")
+    assert m["clock"] == "realtime"
+    lat, jit = m["latency_ms"], m["jitter_ms"]
+    assert 0 < lat["p50"] <= lat["p99"] and 0 <= jit["p50"] <= jit["p99"]
+    assert isinstance(m["deadline_misses"], int) and m["deadline_misses"] >= 0
+    assert abs(m["steps"] - 400) <= 4  # the plant kept the wall clock
+    ts = TimeSeries.load(out / "timeseries.npz")
+    assert np.isfinite(ts.torque).all() and np.abs(ts.torque).max() <= 2.0  # lab's limit
+    assert m["contacts"] == 0
+
+
+def test_a_bad_fleet_name_is_refused_before_anything_starts(tmp_path):
+    out = tmp_path / "run"
+    rc, _, err = finish(start("run", "paper", "--fleet", "a/b", "--duration", "0.1",
+                              "--out", str(out)), timeout=60)
+    assert rc == 2 and "fleet name 'a/b'" in err
+    assert not out.exists()  # refused before anything was written (an empty recording was)
+
+
+def test_plant_exiting_cleanly_ends_the_run_even_before_end_is_read(tmp_path):
+    """The plant exits 0 only after publishing ``end``; a launcher behind on a large
+    fleet's traffic (30 robots in realtime) may see the exit first: that is the end
+    of the run, not a crash. Any other exit code is a failure naming the node."""
+    from deploy.contract.scenario import load_scenario
+    from deploy.run.launcher import Child, Launcher, LaunchOptions, RunFailed
+
+    launcher = Launcher(load_scenario("lab"), LaunchOptions("lab", "model", "lockstep", tmp_path))
+    done = types.SimpleNamespace(pid=4242)  # an exited process: only its pid is read
+    launcher.children = [Child("plant", None, [], tmp_path / "plant.log", done, exit_code=0)]
+    launcher._check_children()
+    assert launcher.ended
+    launcher.children.append(Child("agent-2", 2, [], tmp_path / "agent-2.log", done, exit_code=1))
+    with pytest.raises(RunFailed, match="agent-2"):
+        launcher._check_children()
+
+
+@pytest.mark.parametrize("robots", [3, 7])
+def test_each_node_links_only_to_the_nodes_it_talks_to(tmp_path, robots):
+    """Links as the graph (DESIGN §3), read from every node's own zenoh session: an
+    agent has a link with its plant, the leader iff b_i != 0, its graph neighbours
+    in either direction, and the launcher; no other pair of nodes is linked (3:
+    paper, whose agents all talk; 7: a binary tree, where most pairs do not)."""
+    from deploy.contract.scaled_scenarios import scale_scenario
+    from deploy.contract.scenario import load_scenario
+
+    if robots == 3:
+        scenario = "paper"
+    else:
+        scenario = str(tmp_path / "tree.toml")
+        Path(scenario).write_text(scale_scenario(robots))
+    out = tmp_path / "links"
+    rc, _, err = finish(start("run", scenario, "--duration", "0.2", "--out", str(out),
+                              "--no-figures", "--no-record"))
+    assert rc == 0, err
+    m = json.loads((out / "metrics.json").read_text())
+    links = {p["role"]: set(p["links"]) for p in m["processes"] if p.get("links") is not None}
+    sc = load_scenario(scenario)
+    talks = {"plant": {"launcher", "leader"}, "leader": {"launcher", "plant"}}
+    talks |= {f"agent-{r}": {"launcher", "plant"} for r in sc.robot_ids}
+    for i, r in enumerate(sc.robot_ids):
+        me = f"agent-{r}"
+        talks["plant"].add(me)
+        if sc.leader_weights[i] != 0.0:
+            talks[me].add("leader")
+            talks["leader"].add(me)
+        for j, _w in sc.agent_config(i).neighbours:
+            talks[me].add(f"agent-{j}")
+            talks[f"agent-{j}"].add(me)
+    assert links == talks
+    agent_pairs = sum(len(v - {"launcher", "plant", "leader"}) for k, v in links.items()
+                      if k.startswith("agent")) // 2
+    assert agent_pairs == (3 if robots == 3 else robots - 1)  # a tree: N - 1 edges
+
+
+def test_a_forged_stop_from_a_peer_on_the_fleet_neither_stops_nor_steers_the_run(tmp_path):
+    """Found by probing (issue 21): a well-formed ``ctl/stop`` or ``ctl/estop`` from any
+    process that reached the fleet ended the run early with exit 0, and ``--check``
+    passed it. Control messages are now signed with the run's secret (given to the
+    nodes in their environment, never on the wire): the forged ones are refused and
+    counted, the run goes to its end, equal to the reference."""
+    from deploy.contract.wire import WIRE_VERSION, Control, Keys, encode
+
+    out = tmp_path / "forged-stop"
+    with running_fleet("forged", "--duration", "1.0", "--out", str(out)) as (
+            proc, fleet, session):
+        keys = Keys(fleet)
+        for seq, command in enumerate(("stop", "estop", "end", "stop")):
+            forged = Control(WIRE_VERSION, 0, seq, 0, command=command, k=10**9, t=1.0)
+            session.put(keys.ctl(command), encode(forged))
+        rc, _, err = finish(proc)
+    assert rc == 0, err
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["steps"] == 1000 and m["verdict"]["pass"], m["verdict"]
+    refused = m["messages"].get("refused", {})
+    assert sum(n for why, n in refused.items() if "forged control" in why) >= 4, refused
+    rc, _, err = finish(start("run", "paper", "--in-process", "--duration", "1.0",
+                              "--out", str(tmp_path / "ref"), "--no-figures"))
+    assert rc == 0, err
+    assert_same_series(TimeSeries.load(out / "timeseries.npz"),
+                       TimeSeries.load(tmp_path / "ref" / "timeseries.npz"))

@@ -1,0 +1,498 @@
+"""PybulletPlant (plant/pybullet_plant.py): physical facts, each against an oracle
+that is not the code under test.
+
+* Open loop: eq. (4) integrated by ModelPlant (RK4) from the same states and
+  torques; the only expected difference is the integrator, first order in the
+  sub-step h (checked by refining h).
+* Inertia: m_t and I_t computed here by hand from the robot's parameters.
+* Contacts: geometry (centre distance vs sum of radii) and the crossing time
+  of the obstacle-free ModelPlant trajectory.
+* Sensing: plant/perception.py ``sense`` on the same positions.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pybullet as pb
+import pytest
+
+from deploy.contract.scenario import load_scenario
+from plant.bodies import Body
+from plant.disturbance import make_disturbance
+from plant.mecanum import MecanumModel, generalised_inertia, rotation
+from plant.model_plant import ModelPlant
+from plant.perception import sense
+from plant.pybullet_plant import (
+    MIN_COLLISION_RADIUS_M,
+    ContactEvent,
+    ForceLaw,
+    PybulletPlant,
+    generalised_force,
+)
+
+# Open-loop agreement after 1 s, per scenario, over all 16 cases: (position m, heading
+# rad, world linear velocity m/s, body linear velocity m/s, yaw rate rad/s). Semi-implicit
+# Euler (force held over a sub-step h = dt / substeps) differs from RK4 by ~ a T h / 2: the
+# spinning robots' heading error is exactly that (paper 35 rad/s^2 x 1 s x 0.25 ms / 2 =
+# 4.4e-3 rad), and a body-frame velocity inherits heading error x speed. Measured maxima:
+#   paper (h = 0.25 ms): 2.4e-4 m, 4.4e-3 rad, 1.5e-4 m/s, 4.8e-3 m/s, 1.2e-4 rad/s
+#   lab   (h = 1.25 ms): 2.6e-3 m, 1.7e-2 rad, 3.3e-3 m/s, 1.5e-2 m/s, 5.2e-3 rad/s
+OPEN_LOOP_TOL = {
+    "paper": (1e-3, 1.5e-2, 5e-4, 1.5e-2, 5e-4),
+    "lab": (1e-2, 5e-2, 1e-2, 5e-2, 2e-2),
+}
+# Wheel torque amplitude per scenario (N m): large enough to dominate h_d(t).
+TORQUE_NM = {"paper": 1.0, "lab": 0.5}
+# eq. (4) from one Bullet sub-step vs MecanumModel.acceleration (relative).
+ACCELERATION_RTOL = 1e-9
+# Resting contacts settle ~1e-5 m deep (Bullet's contact solver); allow 1 mm.
+MAX_PENETRATION_M = 1e-3
+# Just inside / just outside the detection range: Bullet's distances between the
+# columns are exact to ~1e-11 m (measured), so 1e-6 m is decisive.
+BOUNDARY_EPS_M = 1e-6
+
+# Wheel sign patterns from P's columns (eq. 2): P^T pattern is a pure body-frame
+# force along x, y, yaw, or x + y. Motion axes (dx, dy, dphi) they must produce.
+PATTERNS = {
+    "forward": (np.array([1.0, 1.0, 1.0, 1.0]), (1.0, 0.0, 0.0)),
+    "strafe": (np.array([-1.0, 1.0, 1.0, -1.0]), (0.0, 1.0, 0.0)),
+    "rotate": (np.array([-1.0, 1.0, -1.0, 1.0]), (0.0, 0.0, 1.0)),
+    "diagonal": (np.array([0.0, 1.0, 1.0, 0.0]), (1.0, 1.0, 0.0)),
+}
+WAVEFORMS = ("step", "sine")
+STARTS = ("rest", "moving")
+MOVING_Q_DOT = np.array([1.0, -0.5, 0.8])  # world-frame start velocity of the moving cases
+MOVING_PHI = 0.3
+SINE_HZ = 1.5
+SPACING_M = 50.0  # open-loop robots are this far apart: no contacts
+
+
+def _zero(t: float) -> np.ndarray:
+    return np.zeros(4)
+
+
+def _disturbance(sc):
+    d = sc.spec.disturbance
+    return make_disturbance(d.kind, d.scale, tuple(d.constant_nm))
+
+
+def _plants(sc, q, q_dot, disturbance=None, obstacles=(), radii=None, ids=None, substeps=None,
+            model: MecanumModel | None = None):
+    n = len(q)
+    model = model or sc.model()
+    disturbance = _disturbance(sc) if disturbance is None else disturbance
+    substeps = substeps or sc.spec.plant.substeps
+    radii = radii or [sc.spec.robot.body_radius_m] * n
+    ids = ids or list(range(1, n + 1))
+    bullet = PybulletPlant([model] * n, q, q_dot, disturbance, radii, ids, list(obstacles), substeps)
+    return bullet, ModelPlant([model] * n, q, q_dot, disturbance, substeps)
+
+
+# -- 1. open loop against ModelPlant ----------------------------------------------
+def _cases():
+    return [(name, wave, start) for start in STARTS for wave in WAVEFORMS for name in PATTERNS]
+
+
+def _open_loop(scenario: str, substeps: int | None = None):
+    """Every case at once: one robot per (pattern, waveform, start), far apart, 1 s."""
+    sc = load_scenario(scenario)
+    cases = _cases()
+    n = len(cases)
+    q = np.zeros((n, 3))
+    q[:, 0] = SPACING_M * np.arange(n)
+    q_dot = np.zeros((n, 3))
+    for k, (_, _, start) in enumerate(cases):
+        if start == "moving":
+            q[k, 2], q_dot[k] = MOVING_PHI, MOVING_Q_DOT
+    q0 = q.copy()
+    bullet, model = _plants(sc, q, q_dot, substeps=substeps)
+    amp = TORQUE_NM[scenario]
+    dt = sc.dt
+    for step in range(int(round(1.0 / dt))):
+        t = step * dt
+        u = np.array([
+            amp * PATTERNS[name][0] * (1.0 if wave == "step" else math.sin(2 * math.pi * SINE_HZ * t))
+            for name, wave, _ in cases
+        ])
+        bullet.step(t, dt, u, None)
+        model.step(t, dt, u, None)
+    bullet.close()
+    return cases, q0, bullet, model
+
+
+def _body_velocity(q: np.ndarray, q_dot: np.ndarray) -> np.ndarray:
+    return np.array([rotation(qi[2]).T @ vi for qi, vi in zip(q, q_dot, strict=True)])
+
+
+def _errors(bullet, model):
+    pos = np.linalg.norm(bullet.q[:, :2] - model.q[:, :2], axis=1)
+    yaw = np.abs(bullet.q[:, 2] - model.q[:, 2])
+    world = np.linalg.norm(bullet.q_dot[:, :2] - model.q_dot[:, :2], axis=1)
+    vb, vm = _body_velocity(bullet.q, bullet.q_dot), _body_velocity(model.q, model.q_dot)
+    return pos, yaw, world, np.linalg.norm(vb[:, :2] - vm[:, :2], axis=1), np.abs(vb[:, 2] - vm[:, 2])
+
+
+@pytest.fixture(scope="module", params=["paper", "lab"])
+def open_loop(request):
+    return request.param, *_open_loop(request.param)
+
+
+def test_open_loop_pose_and_body_velocity_agree_with_model_plant(open_loop):
+    scenario, cases, _, bullet, model = open_loop
+    errors = _errors(bullet, model)
+    names = ("position", "heading", "world velocity", "body velocity", "yaw rate")
+    for err, tol, what in zip(errors, OPEN_LOOP_TOL[scenario], names, strict=True):
+        worst = int(np.argmax(err))
+        assert err[worst] <= tol, f"{scenario} {what} error {err[worst]:.3g} > {tol} in {cases[worst]}"
+
+
+def test_open_loop_torque_patterns_move_the_robot_as_p_says(open_loop):
+    """From rest, each step pattern moves along its body axis; only ``rotate`` turns.
+
+    (Sines are left out: their mean torque is small enough that h_d(t)'s own push
+    is a sizeable part of the motion; they are covered by the agreement test.)
+    """
+    scenario, cases, q0, bullet, model = open_loop
+    for k, (name, wave, start) in enumerate(cases):
+        if start != "rest" or wave != "step":
+            continue
+        axes = np.array(PATTERNS[name][1])
+        for plant in (bullet, model):
+            moved = plant.q[k] - q0[k]
+            along = moved @ axes / (axes @ axes)
+            off = moved - along * axes
+            assert along > 0.0, (scenario, name, moved)
+            if name == "rotate":
+                assert moved[2] > 10.0 and np.linalg.norm(moved[:2]) < 0.1, (scenario, name, moved)
+            else:  # h_d(t) pushes a little sideways and turns a little; the commanded axis dominates
+                assert np.linalg.norm(off[:2]) < 0.1 * along * np.linalg.norm(axes), (scenario, name, moved)
+                assert abs(moved[2]) < 0.15, (scenario, name, moved)
+
+
+def test_open_loop_difference_is_first_order_in_the_substep():
+    """The dynamics are the same: refining h by 4 shrinks every error by ~4 (Euler vs RK4)."""
+    coarse = _open_loop("lab", substeps=4)
+    fine = _open_loop("lab", substeps=16)
+    for e4, e16 in zip(_errors(*coarse[2:]), _errors(*fine[2:]), strict=True):
+        ratio = e4.max() / e16.max()
+        assert 3.8 < ratio < 4.2, ratio  # measured 4.00-4.02
+
+
+# -- 2. force law and effective inertia --------------------------------------------
+@pytest.mark.parametrize("scenario", ["paper", "lab"])
+def test_force_law_over_inertia_is_eq4(scenario):
+    sc = load_scenario(scenario)
+    model = sc.model()
+    inv_mq = np.linalg.inv(generalised_inertia(model.params))
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        q, q_dot = rng.uniform(-3, 3, 3), rng.uniform(-3, 3, 3)
+        u, h_d = rng.uniform(-1, 1, 4), rng.uniform(-0.1, 0.1, 4)
+        expected = model.acceleration(q, q_dot, u, h_d)
+        got = inv_mq @ generalised_force(model, q, q_dot, u + h_d)
+        assert np.linalg.norm(got - expected) <= 1e-12 * np.linalg.norm(expected)
+
+
+@pytest.mark.parametrize("scenario", ["paper", "lab"])
+def test_one_bullet_substep_has_eq4_acceleration(scenario):
+    """(q_dot after one sub-step - q_dot) / h = eq. (4) at the start state (Euler)."""
+    sc = load_scenario(scenario)
+    model = sc.model()
+    rng = np.random.default_rng(3)
+    n, dt = 5, 1e-3
+    q, q_dot = rng.uniform(-3, 3, (n, 3)), rng.uniform(-3, 3, (n, 3))
+    q[:, :2] = SPACING_M * np.arange(n)[:, None]
+    u = rng.uniform(-1, 1, (n, 4))
+    disturbance = _disturbance(sc)
+    with PybulletPlant([model] * n, q, q_dot, disturbance, [0.5] * n, list(range(1, n + 1)), [],
+                       substeps=1) as plant:
+        plant.step(2.0, dt, u, None)
+        acc = (plant.q_dot - q_dot) / dt
+    for i in range(n):
+        expected = model.acceleration(q[i], q_dot[i], u[i], disturbance(2.0))
+        assert np.linalg.norm(acc[i] - expected) <= ACCELERATION_RTOL * np.linalg.norm(expected)
+
+
+@pytest.mark.parametrize("scenario", ["paper", "lab"])
+def test_effective_mass_and_yaw_inertia(scenario):
+    """No friction, no disturbance: a pure x/y force gives F/m_t, a pure yaw torque M/I_t."""
+    sc = load_scenario(scenario)
+    p = replace(sc.robot_params(), static_friction=0.0, viscous_friction=0.0)
+    model = MecanumModel.from_params(p)
+    R, lw = p.wheel_radius_m, p.half_wheelbase_m + p.half_track_m
+    m_t = p.mass_kg + 4 * p.inertia_wheel_kgm2 / R**2  # by hand, (P1)
+    i_t = p.inertia_z_kgm2 + 4 * p.inertia_wheel_kgm2 * lw**2 / R**2
+    tau, dt = 0.2, 1e-3
+    cases = [("forward", np.array([4 * tau / R / m_t, 0, 0])),
+             ("strafe", np.array([0, 4 * tau / R / m_t, 0])),
+             ("rotate", np.array([0, 0, 4 * lw * tau / R / i_t]))]
+    n = len(cases)
+    q = np.zeros((n, 3))
+    q[:, 0] = SPACING_M * np.arange(n)
+    u = np.array([tau * PATTERNS[name][0] for name, _ in cases])
+    with PybulletPlant([model] * n, q, np.zeros((n, 3)), _zero, [0.5] * n, [1, 2, 3], [],
+                       substeps=4) as plant:
+        plant.step(0.0, dt, u, None)
+        for k, (_, acc) in enumerate(cases):
+            np.testing.assert_allclose(plant.q_dot[k] / dt, acc, rtol=1e-9, atol=1e-9 * np.abs(acc).max())
+
+
+def test_no_joint_speed_cap():
+    """Bullet clamps multibody joint speeds at 100 (m/s, rad/s) by default; the plant lifts it."""
+    p = replace(load_scenario("paper").robot_params(), static_friction=0.0, viscous_friction=0.0)
+    q_dot = np.array([[150.0, -120.0, 200.0]])
+    with PybulletPlant([MecanumModel.from_params(p)], np.zeros((1, 3)), q_dot, _zero, [0.5], [1], [],
+                       substeps=4) as plant:
+        plant.step(0.0, 1e-3, np.zeros((1, 4)), None)
+        np.testing.assert_allclose(plant.q_dot, q_dot, rtol=1e-12)
+        np.testing.assert_allclose(plant.q, 1e-3 * q_dot, rtol=1e-12)
+
+
+# -- 3. contacts ---------------------------------------------------------------------
+def _crossing_time(times: np.ndarray, gap: np.ndarray) -> float:
+    """First time the (decreasing) gap reaches 0, linearly interpolated."""
+    k = int(np.argmax(gap <= 0.0))
+    assert gap[k] <= 0.0 < gap[k - 1]
+    return float(times[k - 1] + (times[k] - times[k - 1]) * gap[k - 1] / (gap[k - 1] - gap[k]))
+
+
+def test_robot_driven_into_obstacle_stops_at_its_surface_and_releases():
+    sc = load_scenario("lab")
+    r, dt = sc.spec.robot.body_radius_m, sc.dt
+    obstacle = Body(-1, np.array([1.0, 0.0]), np.zeros(2), 0.15)
+    touch = r + obstacle.radius
+    q, q_dot = np.zeros((1, 3)), np.zeros((1, 3))
+    bullet, model = _plants(sc, q, q_dot, _zero, [obstacle], ids=[7])
+    push = np.full((1, 4), 0.3)
+    times, gaps, closest = [0.0], [1.0 - touch], np.inf
+    for k in range(int(round(2.5 / dt))):  # forward until well after the touch
+        bullet.step(k * dt, dt, push, None)
+        model.step(k * dt, dt, push, None)
+        times.append((k + 1) * dt)
+        gaps.append(obstacle.position[0] - model.q[0, 0] - touch)
+        closest = min(closest, float(np.hypot(*(bullet.q[0, :2] - obstacle.position))))
+    assert closest >= touch - MAX_PENETRATION_M
+    assert abs(bullet.q[0, 1]) < 1e-6 and abs(bullet.q_dot[0, 0]) < 1e-6  # resting on it, head on
+    assert len(bullet.contacts) == 1
+    event = bullet.contacts[0]
+    assert (event.body_a, event.body_b) == (7, -1)
+    assert 0.0 < event.max_depth_m <= MAX_PENETRATION_M
+    assert event.t_end is None
+    # the first sub-step start at which Bullet sees the pair overlap: within a sub-step
+    # or two of the model's touch (measured 0.795 s vs 0.7956 s, h = 1.25 ms)
+    t_touch = _crossing_time(np.array(times), np.array(gaps))
+    h = dt / sc.spec.plant.substeps
+    assert abs(event.t_start - t_touch) <= 2 * h, (event.t_start, t_touch)
+    t_back = 2.5
+    for k in range(int(round(0.5 / dt))):  # reverse: the contact ends
+        bullet.step(t_back + k * dt, dt, -push, None)
+    assert len(bullet.contacts) == 1
+    assert bullet.contacts[0].t_end is not None and t_back <= bullet.contacts[0].t_end < t_back + 2 * dt
+    assert bullet.q[0, 0] < 1.0 - touch - 0.05
+    bullet.close()
+
+
+def test_paper_speed_impact_on_a_point_obstacle_does_not_tunnel():
+    """50 m/s (the paper's top speed) into a radius-0 obstacle: stopped at its collision radius."""
+    sc = load_scenario("paper")
+    r, dt = sc.spec.robot.body_radius_m, sc.dt
+    point = Body(-3, np.array([2.0, 0.0]), np.zeros(2), 0.0)
+    with PybulletPlant([sc.model()], np.zeros((1, 3)), np.array([[50.0, 0.0, 0.0]]), _zero, [r], [2],
+                       [point], sc.spec.plant.substeps) as plant:
+        closest = np.inf
+        for k in range(100):
+            plant.step(k * dt, dt, np.zeros((1, 4)), None)
+            closest = min(closest, float(np.hypot(*(plant.q[0, :2] - point.position))))
+        touch = r + MIN_COLLISION_RADIUS_M
+        assert touch - MAX_PENETRATION_M <= closest <= touch + 1e-9
+        assert [(e.body_a, e.body_b) for e in plant.contacts] == [(2, -3)]
+        # reached at 2 - 0.51 = 1.49 m, i.e. t = 1.49 / 50 = 29.8 ms (friction barely slows
+        # it); seen at the next sub-step start (measured 30.0 ms, h = 0.25 ms)
+        h = dt / sc.spec.plant.substeps
+        assert abs(plant.contacts[0].t_start - 1.49 / 50.0) <= 2 * h
+
+
+def test_two_robots_head_on_make_one_robot_robot_event():
+    sc = load_scenario("lab")
+    r, dt = sc.spec.robot.body_radius_m, sc.dt
+    q = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, math.pi]])  # facing each other
+    with PybulletPlant([sc.model()] * 2, q, np.zeros((2, 3)), _disturbance(sc), [r, r], [9, 4], [],
+                       sc.spec.plant.substeps) as plant:
+        closest = np.inf
+        for k in range(int(round(2.0 / dt))):
+            plant.step(k * dt, dt, np.full((2, 4), 0.3), None)
+            closest = min(closest, float(np.hypot(*(plant.q[1, :2] - plant.q[0, :2]))))
+        assert closest >= 2 * r - MAX_PENETRATION_M
+        assert len(plant.contacts) == 1
+        event = plant.contacts[0]
+        assert (event.body_a, event.body_b) == (4, 9)  # smaller robot id first
+        assert 0.0 < event.max_depth_m <= MAX_PENETRATION_M
+        # each covers 0.3 m at a = 4 tau / R / m_t ~ 2.3 m/s^2: t ~ sqrt(2 * 0.3 / 2.3) ~ 0.51 s
+        assert 0.4 < event.t_start < 0.6
+
+
+def test_robots_apart_and_grazing_pass_make_no_contact():
+    """Paper start (nothing touches) and a robot passing 5 mm from an obstacle: no events,
+    and the grazing robot's path is the obstacle-free one (no phantom contact force)."""
+    sc = load_scenario("paper")
+    q, q_dot = sc.initial_state()
+    with PybulletPlant([sc.model()] * sc.n, q, q_dot, _disturbance(sc), [0.5] * sc.n, sc.robot_ids,
+                       sc.obstacle_bodies(), sc.spec.plant.substeps) as plant:
+        for k in range(500):
+            plant.step(k * sc.dt, sc.dt, np.zeros((sc.n, 4)), None)
+        assert plant.contacts == []
+    lab = load_scenario("lab")
+    r = lab.spec.robot.body_radius_m
+    obstacle = Body(-1, np.array([1.0, r + 0.15 + 0.005]), np.zeros(2), 0.15)
+    start_q, start_v = np.zeros((1, 3)), np.array([[1.5, 0.0, 0.0]])
+    paths = []
+    for obstacles in ([obstacle], []):
+        with PybulletPlant([lab.model()], start_q, start_v, _zero, [r], [1], obstacles, 4) as plant:
+            for k in range(400):  # 2 s at 5 ms: passes x = 1 at ~1.5 m/s
+                plant.step(k * lab.dt, lab.dt, np.zeros((1, 4)), None)
+                gap = np.hypot(*(plant.q[0, :2] - obstacle.position)) - r - obstacle.radius
+                assert gap > 0.004
+            assert plant.contacts == []
+            paths.append(plant.q.copy())
+    assert paths[0][0, 0] > 1.5
+    np.testing.assert_allclose(paths[0], paths[1], rtol=0, atol=1e-12)
+
+
+# -- 4. sensing ------------------------------------------------------------------------
+def _assert_same_sensing(got, expected):
+    for g_list, e_list in zip(got, expected, strict=True):
+        assert [b.ident for b in g_list] == [b.ident for b in e_list]
+        for g, e in zip(g_list, e_list, strict=True):
+            np.testing.assert_allclose(g.position, e.position, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(g.velocity, e.velocity, rtol=0, atol=1e-9)
+            assert g.radius == e.radius
+
+
+def _check_perceive(q, q_dot, radii, ids, obstacles, r_det):
+    with PybulletPlant([load_scenario("paper").model()] * len(q), q, q_dot, _zero, radii, ids,
+                       obstacles, 4) as plant:
+        for i in range(len(q)):
+            expected = sense(i, plant.q[:, :2], plant.q_dot[:, :2], radii, ids, obstacles, r_det)
+            _assert_same_sensing(plant.perceive(i, r_det), expected)
+            yield expected
+
+
+def test_perceive_equals_sense_at_the_detection_boundary():
+    """Bodies 1 um inside and outside r_det, robots and obstacles of radius 0 and > 0."""
+    r_det, r0 = 8.0, 0.5
+    radii = [r0, 0.5, 0.3, 0.5, 0.3]
+    q = np.zeros((5, 3))
+    for j, (angle, sign) in enumerate([(0.3, -1), (1.9, -1), (3.0, 1), (-2.0, 1)], start=1):
+        d = r_det + radii[j] + sign * BOUNDARY_EPS_M  # centre distance: surface just in / out
+        q[j, :2] = d * math.cos(angle), d * math.sin(angle)
+        q[j, 2] = angle
+    q_dot = np.arange(15, dtype=float).reshape(5, 3) / 7.0
+    obstacles = []
+    for k, (radius, angle, sign) in enumerate([(0.0, 0.7, -1), (0.0, 2.5, 1), (0.15, -0.4, -1),
+                                               (0.15, -1.2, 1), (0.0, -2.8, 0)]):
+        d = r_det + radius + sign * BOUNDARY_EPS_M
+        if sign == 0:
+            d = 0.3 * r0  # a point obstacle inside the robot
+        obstacles.append(Body(-(k + 1), np.array([d * math.cos(angle), d * math.sin(angle)]),
+                              np.zeros(2), radius))
+    seen = list(_check_perceive(q, q_dot, radii, [1, 2, 3, 4, 5], obstacles, r_det))
+    robots0, obstacles0 = seen[0]
+    assert [b.ident for b in robots0] == [2, 3]
+    assert [b.ident for b in obstacles0] == [-1, -3, -5]
+
+
+def test_perceive_equals_sense_in_scenarios_and_random_worlds():
+    for name in ("paper", "lab"):
+        sc = load_scenario(name)
+        q, q_dot = sc.initial_state()
+        radii = [sc.spec.robot.body_radius_m] * sc.n
+        list(_check_perceive(q, q_dot, radii, sc.robot_ids, sc.obstacle_bodies(),
+                             sc.spec.behaviors.detection_range_m))
+    rng = np.random.default_rng(11)
+    sc = load_scenario("lab")
+    for _ in range(5):
+        n = 4
+        q = np.column_stack([rng.uniform(-4, 4, (n, 2)), rng.uniform(-3, 3, n)])
+        obstacles = [Body(-(k + 1), rng.uniform(-4, 4, 2), np.zeros(2), float(rad))
+                     for k, rad in enumerate(rng.choice([0.0, 0.15, 0.4], 6))]
+        list(_check_perceive(q, rng.normal(size=(n, 3)), list(rng.uniform(0.1, 0.5, n)),
+                             [3, 1, 8, 2], obstacles, 3.0))
+
+
+# -- 5. determinism, 6. validation and isolation ---------------------------------------
+def _lab_run(plant, steps, seed=5):
+    rng = np.random.default_rng(seed)
+    sc = load_scenario("lab")
+    for k in range(steps):
+        plant.step(k * sc.dt, sc.dt, rng.uniform(-0.6, 0.6, (sc.n, 4)), None)
+        yield
+
+
+def _lab_plant():
+    sc = load_scenario("lab")
+    q, q_dot = sc.initial_state()
+    return PybulletPlant([sc.model()] * sc.n, q, q_dot, _disturbance(sc),
+                         [sc.spec.robot.body_radius_m] * sc.n, sc.robot_ids, sc.obstacle_bodies(),
+                         sc.spec.plant.substeps)
+
+
+def test_two_plants_are_bit_identical_over_500_steps():
+    a, b = _lab_plant(), _lab_plant()
+    for _ in _lab_run(a, 500):
+        pass
+    for _ in _lab_run(b, 500):
+        pass
+    assert np.array_equal(a.q, b.q) and np.array_equal(a.q_dot, b.q_dot)
+    assert a.contacts == b.contacts
+    a.close()
+    b.close()
+
+
+def test_plants_stepped_alternately_do_not_interfere():
+    alone = _lab_plant()
+    for _ in _lab_run(alone, 300):
+        pass
+    a, b = _lab_plant(), _lab_plant()
+    for _ in zip(_lab_run(a, 300), _lab_run(b, 300, seed=99), strict=True):
+        pass
+    assert np.array_equal(a.q, alone.q) and np.array_equal(a.q_dot, alone.q_dot)
+    assert not np.array_equal(b.q, alone.q)
+    for plant in (alone, a, b):
+        plant.close()
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_torques_are_rejected_and_change_nothing(bad):
+    with _lab_plant() as plant:
+        q, q_dot = plant.q.copy(), plant.q_dot.copy()
+        u = np.zeros((3, 4))
+        u[1, 2] = bad
+        with pytest.raises(ValueError, match="finite"):
+            plant.step(0.0, 0.005, u, None)
+        with pytest.raises(ValueError, match="torques"):
+            plant.step(0.0, 0.005, np.zeros((2, 4)), None)
+        assert np.array_equal(plant.q, q) and np.array_equal(plant.q_dot, q_dot)
+        plant.step(0.0, 0.005, np.zeros((3, 4)), None)
+        assert np.all(np.isfinite(plant.q))
+
+
+def test_close_disconnects_its_own_client_only():
+    with _lab_plant() as other:
+        with _lab_plant() as plant:
+            plant.step(0.0, 0.005, np.zeros((3, 4)), None)
+        with pytest.raises(pb.error):
+            plant.step(0.005, 0.005, np.zeros((3, 4)), None)
+        plant.close()  # idempotent
+        other.step(0.0, 0.005, np.zeros((3, 4)), None)
+
+
+def test_contact_event_and_force_law_are_plain_values():
+    event = ContactEvent(0.5, 1, -2, 0.001)
+    assert event.t_end is None
+    with pytest.raises(AttributeError):
+        event.max_depth_m = 1.0  # type: ignore[misc]
+    law = ForceLaw.from_models([load_scenario("paper").model()] * 2)
+    assert law(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, 4))).shape == (2, 3)
