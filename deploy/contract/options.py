@@ -30,10 +30,9 @@ DEFAULT_STARTUP_TIMEOUT_S = 60.0
 DEFAULT_COMMAND_TIMEOUT_S = 0.1
 
 
-# The exit codes of every omnifleet command (one place): 0 done (and PASS where judged),
-# 1 failed (a FAIL verdict with --check, a node or the recorder failed), 2 bad input
-# (refused before anything ran: an option out of range, a scenario error, a used --out).
-EXIT_FAILED = 1
+# Bad input, refused before anything ran (an option out of range, a scenario error, a used
+# --out): the exit code of every omnifleet command for it, declared here only. (0: done;
+# 1: failed, a FAIL verdict with --check, a node or the recorder failed.)
 EXIT_BAD_INPUT = 2
 
 
