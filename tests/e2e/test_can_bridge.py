@@ -24,7 +24,7 @@ from procs import finish, start
 from bridges.protocol import CMD_SET_INPUT_TORQUE, OdriveCanSimple, SetInputTorque
 from deploy.contract.scenario import load_scenario
 from deploy.contract.wire import WIRE_VERSION, Codec, Keys, NodeReport, Reply, Sample, ShareData
-from deploy.run.launcher import free_tcp_port
+from deploy.run.plan import free_tcp_port
 from deploy.runtime.transport import Node, zenoh_config
 
 can = pytest.importorskip("can")
