@@ -14,6 +14,10 @@ import numpy as np
 
 from plant.bodies import Body
 
+# integration substeps per control step, for the plants that integrate (model, pybullet)
+# and the scenario's [plant] table: RK4 / stepSimulation at dt / 4
+DEFAULT_SUBSTEPS = 4
+
 
 @runtime_checkable
 class Plant(Protocol):

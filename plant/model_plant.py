@@ -12,6 +12,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from plant.interface import DEFAULT_SUBSTEPS
 from plant.mecanum import MecanumModel
 
 Disturbance = Callable[[float], np.ndarray]
@@ -33,7 +34,7 @@ class ModelPlant:
         q: np.ndarray,
         q_dot: np.ndarray,
         disturbance: Disturbance,
-        substeps: int = 4,
+        substeps: int = DEFAULT_SUBSTEPS,
     ) -> None:
         self.models = list(models)
         self.q = np.array(q, dtype=float)

@@ -103,6 +103,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from plant.bodies import Body
+from plant.interface import DEFAULT_SUBSTEPS
 from plant.mecanum import MecanumModel, generalised_inertia
 from plant.perception import shape_bodies
 from plant.shapes import Polygon
@@ -217,7 +218,7 @@ class PybulletPlant:
         robot_radii: Sequence[float],
         robot_ids: Sequence[int],
         obstacles: Sequence[Body],
-        substeps: int = 4,
+        substeps: int = DEFAULT_SUBSTEPS,
         gui: bool = False,
         shapes: Sequence[Polygon] = (),
     ) -> None:

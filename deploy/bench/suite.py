@@ -99,8 +99,10 @@ class FleetRunFailed(RuntimeError):
 
 
 class Bench:
-    def __init__(self, out: Path, settings: Settings, log: Callable[[str], None]) -> None:
+    def __init__(self, out: Path, settings: Settings, log: Callable[[str], None],
+                 scale_sizes: tuple[int, ...] = SCALE_SIZES) -> None:
         self.out, self.s, self.log = out, settings, log
+        self.scale_sizes = scale_sizes
         self.figures: dict[str, Figure] = {}
         self.work = Path(tempfile.mkdtemp(prefix="runs-", dir=out))
         self.agent_rss_mb: list[float] = []
@@ -249,7 +251,7 @@ class Bench:
         self.measure("realtime loop at 500 Hz (lab)", body, p50.name, p99.name, jit.name, miss.name)
 
     def scale(self) -> None:
-        for n in SCALE_SIZES:
+        for n in self.scale_sizes:
             path = self.work / f"scale-{n}.toml"
             path.write_text(scale_scenario(n, rate_hz=100.0))
             rtf = self.figure(f"scale.n{n}.lockstep_real_time_factor", "x",
@@ -276,9 +278,9 @@ class Bench:
             self.measure(f"scale N={n} (lockstep, realtime)", body, rtf.name, miss.name,
                          touch.name)
         largest = self.figure("scale.largest_n_zero_misses", "robots",
-                              "the largest N of " + ", ".join(map(str, SCALE_SIZES))
+                              "the largest N of " + ", ".join(map(str, self.scale_sizes))
                               + " whose realtime runs at 100 Hz all missed no deadline (0: none)")
-        clean = [n for n in SCALE_SIZES
+        clean = [n for n in self.scale_sizes
                  if self.figures[f"scale.n{n}.realtime_deadline_misses"].samples
                  and max(self.figures[f"scale.n{n}.realtime_deadline_misses"].samples) == 0]
         largest.samples.append(float(max(clean, default=0)))
@@ -423,7 +425,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     def log(msg: str) -> None:
         print(f"[bench {time.monotonic() - started:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
-    bench = Bench(out, settings, log)
+    bench = Bench(out, settings, log, args.scale_sizes)
     only = None if args.only is None else [g.strip() for g in args.only.split(",") if g.strip()]
     unknown = sorted(set(only or ()) - set(bench.groups()))
     if unknown:
@@ -451,6 +453,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def scale_sizes(text: str) -> tuple[int, ...]:
+    """``--scale-sizes``: robot counts, each a whole number from 1 to 100."""
+    try:
+        sizes = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not whole numbers separated by commas: {text!r}") from None
+    if not sizes or any(not 1 <= n <= 100 for n in sizes):
+        raise argparse.ArgumentTypeError(f"each size must be from 1 to 100: {text!r}")
+    return tuple(sorted(set(sizes)))
+
+
 def add_bench_command(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "bench", help="measure speed and memory against the targets; writes bench.json",
@@ -466,6 +479,9 @@ def add_bench_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--only", metavar="GROUP[,GROUP]",
                    help="run only these groups: costs, lockstep, paper-run, rtf500, realtime, "
                    "realtime-paper, scale (memory is always judged on the fleet runs made)")
+    p.add_argument("--scale-sizes", type=scale_sizes, default=SCALE_SIZES, metavar="N[,N]",
+                   help="the fleet sizes of the scale group (default: "
+                   f"{','.join(map(str, SCALE_SIZES))}; the n30 targets apply to N = 30)")
     p.add_argument("--keep-runs", action="store_true",
                    help="keep the fleet runs' folders (metrics.json, logs) under --out")
     p.set_defaults(func=cmd_bench)

@@ -122,7 +122,7 @@ def zenoh_hop_us(round_trips: int, path: str = "runtime", over: str | None = Non
     ``unixsock`` (a run's default: a socket in a private directory) or ``tcp``
     (loopback, what any local process can reach); default: unixsock, TCP for
     ``indirect``."""
-    from deploy.run.launcher import free_tcp_port
+    from deploy.run.plan import free_tcp_port
 
     where = tempfile.mkdtemp(prefix="omnifleet-hop-")
     over = over or ("tcp" if path == "indirect" else "unixsock")

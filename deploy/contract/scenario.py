@@ -31,6 +31,7 @@ from agents.leader import Harmonic, LeaderGenerator, LeaderSpec
 from agents.waypoint_path import waypoint_path
 from deploy.contract.options import MAX_RATE_HZ
 from plant.bodies import Body
+from plant.interface import DEFAULT_SUBSTEPS
 from plant.mecanum import MecanumModel, RobotParams
 from plant.shapes import Polygon, convex_ccw, signed_distances, wall_vertices
 
@@ -199,7 +200,7 @@ PLANT_KINDS: tuple[str, ...] = get_args(PlantKind)
 
 class PlantSection(_S, kw_only=True):
     kind: PlantKind = "pybullet"
-    substeps: int = 4
+    substeps: int = DEFAULT_SUBSTEPS
     # lockstep, a step whose command was lost (fault injection) or late: "hold"
     # the last command (a driver's input persists), or "zero" the torques for
     # that step (a command is valid for one period only)

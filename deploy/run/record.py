@@ -12,7 +12,6 @@ and reappeared, with wall-clock times (``liveliness`` in metrics.json).
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import time
 from pathlib import Path
@@ -22,55 +21,49 @@ from deploy.contract.options import EXIT_BAD_INPUT, add_option
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, run_roles
 from deploy.nodes.cli import run_scenario
-from deploy.run.launcher import Interrupted, Launcher, LaunchOptions
+from deploy.run.launcher import Interrupted, LaunchOptions, make_observer, observing
+from deploy.run.run_figures import run_figures
+from deploy.runtime.node_runtime import StopFlag
 from deploy.runtime.transport import Node, zenoh_config
 
 
-class Recorder(Launcher):
-    """A :class:`Launcher` that starts no process: the nodes run elsewhere, and this
-    peer joins them through ``listen``/``connect`` endpoints or a zenoh configuration
-    file (TLS and access control across hosts, deploy/fleet/)."""
+class Recorder:
+    """The launcher's :class:`Observer` without its plan or supervisor: the nodes run
+    elsewhere, and this peer joins them through ``listen``/``connect`` endpoints or a
+    zenoh configuration file (TLS and access control across hosts, deploy/fleet/)."""
 
     def __init__(self, sc: Scenario, opts: LaunchOptions, zenoh_file: str | None = None,
                  listen: list[str] | None = None, connect: list[str] | None = None) -> None:
-        super().__init__(sc, opts)
+        self.sc, self.opts = sc, opts
         self.zenoh_file, self.listen, self.connect = zenoh_file, listen, connect
-        self.reported_ns: dict[str, int] = {}  # role -> when its report arrived (wall, ns)
-        self.end_ns: int | None = None  # when the plant's ``end`` was heard
-
-    def _on_sample(self, arrived: tuple[str, bytes]) -> None:
-        super()._on_sample(arrived)
-        key = arrived[0]
-        if self.ended and self.end_ns is None:
-            self.end_ns = time.time_ns()
-        role = key.rsplit("/", 1)[-1]
-        if key == self.keys.report(role):
-            # a node reports as it leaves, on the same link as its token: a token
-            # that goes after the report is a departure, not a loss
-            self.reported_ns.setdefault(role, time.time_ns())
-
-    def run(self, progress=None) -> dict[str, Any]:
-        from deploy.report.recorder import McapRecorder
-
         # the nodes run elsewhere, started by hand or by systemd, with no run secret:
         # across hosts the ACL says who may publish ctl/* (deploy/fleet/acl.py)
-        self.secret = None
+        self.observer = make_observer(sc, opts, secret=None)
+        self.observer.on_report = self._on_report
+        self.stop = StopFlag()
+        self.reported_ns: dict[str, int] = {}  # role -> when its report arrived (wall, ns)
 
-        o = self.opts
+    @property
+    def collector(self):
+        return self.observer.collector
+
+    @property
+    def run_t0(self) -> float | None:
+        return self.observer.run_t0
+
+    def _on_report(self, role: str) -> None:
+        # a node reports as it leaves, on the same link as its token: a token that goes
+        # after the report is a departure, not a loss
+        self.reported_ns.setdefault(role, time.time_ns())
+
+    def run(self, progress=None) -> dict[str, Any]:
+        o, obs = self.opts, self.observer
         o.out.mkdir(parents=True, exist_ok=True)
-        node = Node(LAUNCHER_ROLE, self.keys, self.codec,
+        node = Node(LAUNCHER_ROLE, obs.keys, obs.codec,
                     zenoh_config(self.zenoh_file, self.listen, self.connect))
-        self.node = node
-        self.launcher_zid = node.zid
-        if o.record:
-            self.recorder = o.recorder or McapRecorder(o.out / "recording.mcap")  # issue 18 hook
-        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        zid = node.zid
         roles = run_roles(self.sc.robot_ids)
-        try:
-            for key in self._listened_keys():
-                node.subscribe_raw(key, self._on_sample)
-            node.declare_alive()
-            node.declare_ready()
+        with observing(obs, o, node, self.stop):
             missing = node.wait_for_roles(roles, "ready", o.startup_timeout_s, self.stop)
             if self.stop():
                 raise Interrupted(self.stop.reason)
@@ -78,24 +71,18 @@ class Recorder(Launcher):
                 raise TimeoutError(f"not ready after {o.startup_timeout_s:.0f} s: "
                                    f"{', '.join(sorted(missing))}")
             start = time.perf_counter()
-            while not self.ended:
+            while not obs.ended:
                 if self.stop():
                     raise Interrupted(self.stop.reason)
                 if progress is not None:
-                    progress(self.progress_k + 1, self.steps)
-                node.mailbox.wait_until(lambda: self.ended or self.stop(), 0.1)
+                    progress(obs.progress_k + 1, obs.steps)
+                node.mailbox.wait_until(lambda: obs.ended or self.stop(), 0.1)
             wall = time.perf_counter() - start
             # every node reports as it ends; wait for those still alive
             node.mailbox.wait_until(
                 lambda: set(self.collector.reports) >= set(roles) or self.stop(), 10.0)
-        finally:
-            for s, h in previous.items():
-                signal.signal(s, h)
             closing_ns = time.time_ns()  # tokens seen to go after this: our own closing
-            node.close()
-            if self.recorder is not None and o.recorder is None:  # issue 18 hook: else the caller's
-                self.recorder.close()
-        out = self._figures(wall)
+        out = run_figures(obs, [], zid, wall)
         out["processes"] += [  # the nodes ran elsewhere: what each reported
             {"role": r.role, "robot": None if r.robot < 0 else r.robot, "pid": None,
              "peak_rss_mb": round(r.peak_rss_kb / 1024.0, 1) if r.peak_rss_kb else None,
@@ -103,7 +90,7 @@ class Recorder(Launcher):
              "late": r.late, "received": dict(r.received)}
             for r in sorted(self.collector.reports.values(), key=lambda r: r.role)]
         out["liveliness"] = liveliness_summary(
-            [e for e in node.peer_events if e[0] < min(closing_ns, self.end_ns or closing_ns)
+            [e for e in node.peer_events if e[0] < min(closing_ns, obs.end_unix_ns or closing_ns)
              and e[1] != LAUNCHER_ROLE],
             self.reported_ns)
         return out

@@ -7,6 +7,7 @@ checks that the JSON is complete and coherent, and the pure parts of the bench
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 
@@ -14,10 +15,13 @@ import numpy as np
 import pytest
 from procs import finish, start
 
-from deploy.bench.suite import SCALE_SIZES, Figure, markdown
+from deploy.bench.suite import SCALE_SIZES, Figure, markdown, scale_sizes
 from deploy.contract.scaled_scenarios import scale_scenario, tree_adjacency
 from deploy.contract.scenario import has_spanning_tree, load_scenario
 
+# the smoke run's scale group: 3 robots only (the whole quick bench, 30 robots included,
+# took 281 s of the suite's 1231 s here; the scale runs are the bench's, not the test's)
+SMOKE_SIZES = (3,)
 EXPECTED = {
     "lockstep.in_process_wall_s", "lockstep.distributed_wall_s", "lockstep.overhead_ratio",
     "lockstep.real_time_factor_500hz", "realtime.latency_p50_ms", "realtime.latency_p99_ms",
@@ -32,17 +36,16 @@ EXPECTED = {
     "realtime.paper_1khz_latency_p99_ms", "realtime.paper_1khz_latency_p50_ms",
     "realtime.paper_1khz_contacts", "realtime.paper_1khz_unsettled_robots",
     "scale.largest_n_zero_misses",
-    *(f"scale.n{n}.realtime_contacts" for n in SCALE_SIZES),
+    *(f"scale.n{n}.realtime_contacts" for n in SMOKE_SIZES),
     *(f"cost.codec_{m}_us" for m in ("Sample", "Reply", "LeaderState", "Telemetry",
                                      "StateLog")),
-    *(f"scale.n{n}.lockstep_real_time_factor" for n in SCALE_SIZES),
-    *(f"scale.n{n}.realtime_deadline_misses" for n in SCALE_SIZES),
+    *(f"scale.n{n}.lockstep_real_time_factor" for n in SMOKE_SIZES),
+    *(f"scale.n{n}.realtime_deadline_misses" for n in SMOKE_SIZES),
 }
 TARGETS = {"lockstep.overhead_ratio": "<= 1.5", "lockstep.real_time_factor_500hz": ">= 10",
            "realtime.latency_p99_ms": "<= 1", "realtime.jitter_p99_ms": "<= 0.5",
            "realtime.paper_1khz_latency_p99_ms": "<= 1", "realtime.paper_1khz_contacts": "<= 0",
            "realtime.paper_1khz_unsettled_robots": "<= 0",
-           "scale.n30.realtime_deadline_misses": "<= 0", "scale.n30.realtime_contacts": "<= 0",
            "memory.agent_peak_rss_mb": "<= 60"}
 
 
@@ -58,6 +61,14 @@ def test_scale_scenarios_load_with_a_spanning_tree_and_clear_start(n, tmp_path):
     assert d.min() > 2 * sc.spec.robot.body_radius_m  # nobody starts touching
 
 
+def test_scale_sizes_are_whole_numbers_from_1_to_100():
+    assert scale_sizes("30,3,3") == (3, 30)
+    for bad in ("", "3,x", "0", "101", "2.5"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            scale_sizes(bad)
+    assert SCALE_SIZES[-1] == 30  # the full run reaches the 30 robots
+
+
 def test_figure_judges_its_target_on_the_median():
     f = Figure("x", "ms", "", [0.5, 2.0, 0.9], ("<=", 1.0))
     assert f.median == 0.9 and f.met is True
@@ -66,7 +77,8 @@ def test_figure_judges_its_target_on_the_median():
 
 
 def test_quick_bench_writes_every_figure(tmp_path):
-    rc, _, err = finish(start("bench", "--quick", "--out", str(tmp_path)), timeout=600)
+    rc, _, err = finish(start("bench", "--quick", "--scale-sizes", "3", "--out", str(tmp_path)),
+                        timeout=600)
     assert rc == 0, err
     report = json.loads((tmp_path / "bench.json").read_text())
     assert report["quick"] is True and report["machine"]["cpus"] >= 1

@@ -24,7 +24,7 @@ from procs import finish, start
 from bridges.protocol import CMD_SET_INPUT_TORQUE, OdriveCanSimple, SetInputTorque
 from deploy.contract.scenario import load_scenario
 from deploy.contract.wire import WIRE_VERSION, Codec, Keys, NodeReport, Reply, Sample, ShareData
-from deploy.run.launcher import free_tcp_port
+from deploy.run.plan import free_tcp_port
 from deploy.runtime.transport import Node, zenoh_config
 
 can = pytest.importorskip("can")
@@ -144,7 +144,11 @@ def test_bridge_drives_the_emulated_robot_and_zeroes_torque_when_commands_stop(t
     if delay > COMMAND_TIMEOUT_S + period + 0.02:
         print(f"the last command reached the bridge {delay * 1e3 - ages[-1]:.0f} ms after it "
               "was published")
-    assert all(t - last_command_at < COMMAND_TIMEOUT_S + period for t in nonzero_after)
+    # and it stays at zero: no frame after the first zero one carries torque (counted on
+    # the bus, not from our publish: a command 120 ms in transit on a busy scheduler kept
+    # the robot driving, rightly, until 100 ms after it reached the bridge)
+    assert not nonzero_after or max(nonzero_after) < zero_at
+    assert not [t for t, _, tau in sniffer.torques if t > zero_at and tau]
     # the bridge's added latency, command in -> torque frames out
     (report,) = reports
     lat = np.array(report.latency_ns) / 1e6

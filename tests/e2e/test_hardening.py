@@ -8,10 +8,10 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from deploy.contract.run_secret import report_is_genuine, sign_report
+from deploy.contract.run_secret import new_secret, report_is_genuine, sign_report
 from deploy.contract.scenario import load_scenario
 from deploy.contract.wire import WIRE_VERSION, Codec, ContactRecord, NodeReport, encode
-from deploy.run.launcher import Launcher, LaunchOptions
+from deploy.run.launcher import LaunchOptions, make_observer
 
 
 def report(role: str, **extra) -> NodeReport:
@@ -23,13 +23,14 @@ def test_a_report_is_filed_under_the_key_it_came_on(tmp_path: Path):
     """Found by probing: a "plant" report sent on report/agent-2 put a fake contact
     and invalid = -1000 into metrics.json."""
     sc = load_scenario("paper")
-    launcher = Launcher(sc, LaunchOptions("paper", "model", "lockstep", tmp_path, record=False))
+    listener = make_observer(sc, LaunchOptions("paper", "model", "lockstep", tmp_path, record=False),
+                             new_secret())
     fake = report("plant", contacts=[ContactRecord(0.1, 0.2, 1, 2, 0.5)], contacts_total=1)
-    launcher._on_sample((launcher.keys.report("agent-2"), encode(fake)))
-    assert "plant" not in launcher.collector.reports and launcher.invalid == 1
-    signed = sign_report(launcher.secret, report("plant"))  # as the run's plant signs it
-    launcher._on_sample((launcher.keys.report("plant"), encode(signed)))
-    assert launcher.collector.reports["plant"].contacts is None
+    listener.on_sample((listener.keys.report("agent-2"), encode(fake)))
+    assert "plant" not in listener.collector.reports and listener.invalid == 1
+    signed = sign_report(listener.secret, report("plant"))  # as the run's plant signs it
+    listener.on_sample((listener.keys.report("plant"), encode(signed)))
+    assert listener.collector.reports["plant"].contacts is None
 
 
 def test_a_report_not_signed_by_a_node_of_the_run_is_refused(tmp_path: Path):
@@ -37,19 +38,20 @@ def test_a_report_not_signed_by_a_node_of_the_run_is_refused(tmp_path: Path):
     a report under a made-up role grew the launcher's table): reports are signed with
     the run's secret like control, and filed only for the run's roles."""
     sc = load_scenario("paper")
-    launcher = Launcher(sc, LaunchOptions("paper", "model", "lockstep", tmp_path, record=False))
+    listener = make_observer(sc, LaunchOptions("paper", "model", "lockstep", tmp_path, record=False),
+                             new_secret())
     fake = report("plant", contacts=[ContactRecord(0.1, 0.2, 1, 2, 0.5)], contacts_total=1)
-    launcher._on_sample((launcher.keys.report("plant"), encode(fake)))  # unsigned
-    launcher._on_sample((launcher.keys.report("plant"), encode(sign_report("guess", fake))))
+    listener.on_sample((listener.keys.report("plant"), encode(fake)))  # unsigned
+    listener.on_sample((listener.keys.report("plant"), encode(sign_report("guess", fake))))
     for n in range(100):  # made-up roles, each on its own key, signed by nobody
-        launcher._on_sample((launcher.keys.report(f"x{n}"), encode(report(f"x{n}"))))
-    assert launcher.collector.reports == {} and launcher.forged_reports == 102
-    tampered = msgspec.structs.replace(sign_report(launcher.secret, report("plant")), late=7)
-    launcher._on_sample((launcher.keys.report("plant"), encode(tampered)))
-    assert launcher.collector.reports == {}
-    signed = sign_report(launcher.secret, report("plant", contacts_total=0))
-    launcher._on_sample((launcher.keys.report("plant"), encode(signed)))
-    assert launcher.collector.reports["plant"] == signed
+        listener.on_sample((listener.keys.report(f"x{n}"), encode(report(f"x{n}"))))
+    assert listener.collector.reports == {} and listener.forged_reports == 102
+    tampered = msgspec.structs.replace(sign_report(listener.secret, report("plant")), late=7)
+    listener.on_sample((listener.keys.report("plant"), encode(tampered)))
+    assert listener.collector.reports == {}
+    signed = sign_report(listener.secret, report("plant", contacts_total=0))
+    listener.on_sample((listener.keys.report("plant"), encode(signed)))
+    assert listener.collector.reports["plant"] == signed
     assert report_is_genuine(None, fake)  # a recorder across hosts: no secret, the ACL's word
 
 

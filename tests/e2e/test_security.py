@@ -21,7 +21,7 @@ from deploy.contract.wire import Keys
 from deploy.fleet.acl import access_control, fleet_roles
 from deploy.fleet.certs import make_fleet_certs, role_files
 from deploy.fleet.zenoh_configs import node_config, write_config
-from deploy.run.launcher import free_tcp_port
+from deploy.run.plan import free_tcp_port
 from deploy.runtime.transport import zenoh_config
 
 zenoh = pytest.importorskip("zenoh")

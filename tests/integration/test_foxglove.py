@@ -201,6 +201,7 @@ def _listening_here(port: int) -> bool:
     return False
 
 
+@pytest.mark.slow  # a whole run with the live server: ~19 s here
 def test_live_serves_the_scene_while_the_run_goes_and_ends_cleanly(tmp_path):
     sc = load_scenario("paper")
     tag = f"live-{tmp_path.name}"

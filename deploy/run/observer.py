@@ -1,0 +1,171 @@
+"""Hearing a run from outside its control path: every sample the launcher (or the
+recorder across hosts) subscribes to goes through :meth:`Observer.on_sample`, which
+decodes it, records it, judges it (signed control, reports filed by their key,
+state logs from the node that holds those robots, rows no further than the run
+can have reached on our own clock) and files what is kept in the
+:class:`Collector`. What it refused is counted, by reason.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+from deploy.contract.run_secret import control_is_genuine, report_is_genuine
+from deploy.contract.scenario import Scenario
+from deploy.contract.wire import (
+    PLANT_ROLE,
+    Codec,
+    Control,
+    Keys,
+    NodeReport,
+    StateLog,
+    bridge_role,
+    run_roles,
+)
+from deploy.nodes.leader import TICK_EVERY
+from deploy.run.collector import Collector
+from deploy.run.plan import CAN_EMULATED
+from deploy.runtime.step_guard import CLOCK_SKEW_S
+
+
+class Observer:
+    """What the run's listener knows: the series and reports (``collector``), the run's
+    clock (``run_t0`` realtime, ``t0_mono`` when the launcher keeps the time, ``tick_k``
+    lockstep), whether it has ended or been stopped, and what it refused."""
+
+    def __init__(self, sc: Scenario, keys: Keys, clock: str, plant: str, steps: int,
+                 secret: str | None, recorder: Any = None, record_all: bool = False) -> None:
+        self.sc, self.keys, self.clock, self.plant = sc, keys, clock, plant
+        self.codec = Codec(sc.robot_ids)
+        self.secret = secret  # None: across hosts the ACL says who may publish (fleet/acl.py)
+        self.recorder = recorder  # McapRecorder or None
+        self.record_all = record_all  # subscribe to every key (recording)
+        self.steps = steps
+        self.collector = Collector(sc, steps)
+        self.collector.horizon = self.horizon
+        self.invalid = 0  # samples that did not decode, or were refused
+        self.ended = False
+        self.end_unix_ns: int | None = None  # when ``end`` was heard (wall clock)
+        self.progress_k = -1
+        self.run_t0: float | None = None  # t = 0 of the run on our clock (``ctl/start``)
+        self.t0_mono: float | None = None  # t = 0 when the launcher keeps the time (CAN)
+        self.tick_k = -1  # lockstep: the newest signed ctl/tick (the plant's step)
+        self.stopped_by: dict[str, Any] | None = None  # a genuine ctl/stop or ctl/estop
+        self.control_refused = 0  # control messages heard whose signature did not check
+        self.misfiled = 0  # reports and state logs whose key is not their sender's
+        self.forged_reports = 0  # reports of no role of the run, or not signed by its nodes
+        self.on_report: Callable[[str], None] = lambda role: None  # a report was filed
+
+    def listened_keys(self) -> list[str]:
+        """Recording: every key of the fleet. Otherwise only what the series and
+        the metrics need (each message heard costs CPU in every listener)."""
+        k = self.keys
+        if self.record_all:
+            return [k.everything]
+        return [k.leader_state, k.state_log_all, f"{k.root}/agent/*/telemetry",
+                k.ctl_all, f"{k.root}/report/*"]
+
+    def on_sample(self, arrived: tuple[str, bytes]) -> None:
+        key, data = arrived
+        found = self.keys.kind_of(key)
+        if found is None:
+            return
+        kind, robot = found
+        msg = self.codec.decode(kind, data, robot)
+        if msg is None:
+            self.invalid += 1
+            return
+        if self.recorder is not None:
+            self.recorder.add(key, time.time_ns(), msg)
+        if isinstance(msg, Control):
+            self._on_control(msg)
+        elif isinstance(msg, NodeReport):
+            self._on_report(key, msg)
+        elif isinstance(msg, StateLog) and not self._state_source(key, msg):
+            self.invalid += 1  # robot states from a node that does not hold them
+            self.misfiled += 1
+        else:
+            if isinstance(msg, StateLog) and self.clock == "realtime":
+                self.progress_k = max(self.progress_k, msg.rows[-1].k)
+            self.collector.add(msg)
+
+    def _on_control(self, msg: Control) -> None:
+        if not control_is_genuine(self.secret, msg):
+            self.control_refused += 1
+            return
+        if msg.command == "start" and self.run_t0 is None:
+            self.run_t0 = time.monotonic() + (msg.start_unix_ns - time.time_ns()) * 1e-9
+        elif msg.command == "tick":
+            self.progress_k = max(self.progress_k, msg.k)
+            self.tick_k = max(self.tick_k, msg.k)
+        elif msg.command == "end":
+            self.ended = True
+            self.end_unix_ns = self.end_unix_ns or time.time_ns()
+        elif msg.command in ("stop", "estop") and self.stopped_by is None:
+            # signed by a holder of the run's secret: the run ends early, and says so
+            self.stopped_by = {"command": msg.command, "sender": msg.sender,
+                               "k": self.progress_k, "t_s": self.run_time()}
+
+    def _on_report(self, key: str, msg: NodeReport) -> None:
+        if key != self.keys.report(msg.role):
+            # a report is filed under the role of the key it came on, never the role its
+            # body claims (a "plant" report on report/agent-2 put a fake contact in
+            # metrics.json); across hosts the ACL lets each role put only its own key
+            self.invalid += 1
+            self.misfiled += 1
+            return
+        if msg.role not in self._report_roles() or not report_is_genuine(self.secret, msg):
+            # only the run's roles (the table of reports stays bounded), signed with the
+            # run's secret (a report on report/plant with a fake contact is refused)
+            self.invalid += 1
+            self.forged_reports += 1
+            return
+        self.collector.add(msg)
+        self.on_report(msg.role)
+
+    def _report_roles(self) -> set[str]:
+        """The roles whose reports a run files: its nodes (a plant or bridges)."""
+        ids = self.sc.robot_ids
+        return {*run_roles(ids), *(bridge_role(r) for r in ids)}
+
+    def _state_source(self, key: str, msg: StateLog) -> bool:
+        """Whether ``msg`` came on the key of a node that holds those robots' states:
+        the plant (any robots), or robot i's CAN bridge (robot i only)."""
+        if key == self.keys.state_log(PLANT_ROLE):
+            return self.plant != CAN_EMULATED
+        return self.plant == CAN_EMULATED and len(msg.robots) == 1 and (
+            key == self.keys.state_log(bridge_role(msg.robots[0])))
+
+    def horizon(self) -> int | None:
+        """The newest step the run can have reached now, on our clock: realtime from
+        t = 0 (no node runs ahead of the wall clock), lockstep from the plant's newest
+        signed tick (rows follow it by less than a batch: agents answer its samples)."""
+        t0 = self.run_t0 if self.run_t0 is not None else self.t0_mono
+        if self.clock == "realtime":
+            if t0 is None:
+                return None
+            return int((time.monotonic() - t0 + CLOCK_SKEW_S) / self.sc.dt) + 1
+        return max(self.tick_k, 0) + 3 * TICK_EVERY
+
+    def run_time(self) -> float | None:
+        """Run time now: realtime from ``ctl/start``; lockstep from the plant's ticks."""
+        if self.run_t0 is not None:
+            return time.monotonic() - self.run_t0
+        if self.t0_mono is not None:
+            return time.monotonic() - self.t0_mono
+        return None if self.progress_k < 0 else self.progress_k * self.sc.dt
+
+    def refused(self) -> dict[str, int]:
+        """What the listener refused, by reason (metrics.json ``messages.refused``)."""
+        out: dict[str, int] = {}
+        if self.control_refused:
+            out["launcher: forged control"] = self.control_refused
+        if self.misfiled:
+            out["launcher: report or state log on another node's key"] = self.misfiled
+        if self.forged_reports:
+            out["launcher: report not from a node of the run"] = self.forged_reports
+        for why, n in self.collector.refused.items():
+            out[f"launcher: {why}"] = n
+        return out

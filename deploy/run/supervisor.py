@@ -1,0 +1,190 @@
+"""The run's processes: start them, watch them, carry out the fault plan's kills,
+pauses and restarts, and stop every one of them by pid, always.
+
+Children are started in their own session (a Ctrl-C reaches only the launcher,
+which stops them in order) and get SIGTERM if the launcher itself dies
+(``die_with_parent`` in each node).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from deploy.contract.run_secret import RUN_SECRET_ENV
+from deploy.contract.wire import PLANT_ROLE
+from deploy.run.kill_schedule import PAUSE, RESUME, KillSchedule
+from deploy.run.plan import Child, restart_of
+from deploy.runtime.node_runtime import StopFlag
+
+STOP_GRACE_S = 3.0
+REJOIN_GRACE_S = 3.0  # a restarted node may exit this long after the others
+# zenoh's runtime pools cut to one worker each: a node needs no more, and every
+# thread is a wake-up competing for 2 cores (the hop 80 -> 60 µs p50, ping-pong)
+ZENOH_RUNTIME = ("(app: (worker_threads: 1), acc: (worker_threads: 1), "
+                 "tx: (worker_threads: 1), rx: (worker_threads: 1), net: (worker_threads: 1))")
+
+
+class RunFailed(RuntimeError):
+    """A child died, or the fleet never came up."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM reached the launcher; every child has been stopped."""
+
+    def __init__(self, signal_name: str) -> None:
+        super().__init__(signal_name)
+        self.signal_name = signal_name
+
+
+def _failure(c: Child, what: str) -> str:
+    tail = c.tail()
+    return f"{c.role} (pid {c.proc.pid}) {what}" + (f"; its last output:\n{tail}" if tail else "")
+
+
+class Supervisor:
+    """Owns the run's child processes (``children``, in start order)."""
+
+    def __init__(self, secret: str | None, run_dir: Path | None = None) -> None:
+        self.secret = secret  # handed to every child: it signs the run's control messages
+        self.run_dir = run_dir  # the run's sockets (a restarted node's old one is removed)
+        self.children: list[Child] = []
+
+    def start(self, children: list[Child]) -> None:
+        for c in children:
+            self.spawn(c)
+
+    def spawn(self, child: Child) -> None:
+        child.log_path.parent.mkdir(parents=True, exist_ok=True)
+        child.log = open(child.log_path, "wb")  # noqa: SIM115 - closed in reap
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        if self.secret is not None:
+            env[RUN_SECRET_ENV] = self.secret  # signs the run's control messages (run_secret.py)
+        env.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
+        child.proc = subprocess.Popen(
+            child.argv, stdout=child.log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            env=env, start_new_session=True,
+        )
+        self.children.append(child)
+
+    def reap(self, child: Child, block: bool) -> bool:
+        """Collect the child's exit status; True once it has exited."""
+        if child.exit_code is not None or child.proc is None:
+            return True
+        try:
+            pid, status = os.waitpid(child.proc.pid, 0 if block else os.WNOHANG)
+        except ChildProcessError:
+            pid, status = child.proc.pid, 0
+        if pid == 0:
+            return False
+        child.exit_code = os.waitstatus_to_exitcode(status)
+        child.proc.returncode = child.exit_code
+        if child.log is not None:
+            child.log.close()
+        return True
+
+    def check(self, ended: bool) -> bool:
+        """Raise :class:`RunFailed` if a child died; returns whether the run has ended
+        (``ended``, or the plant exited 0: it does so only after sending ``end``, which
+        a launcher behind on a large fleet's traffic may not have read yet)."""
+        for c in self.children:
+            if c.killed or not self.reap(c, block=False) or (ended and c.exit_code == 0):
+                continue
+            if c.exit_code != 0:
+                raise RunFailed(_failure(c, f"exited with code {c.exit_code}"))
+            ended = ended or c.role == PLANT_ROLE
+        return ended
+
+    def stop_all(self) -> None:
+        """SIGTERM every live child by pid, SIGKILL after a grace period, reap all."""
+        live = [c for c in self.children if c.proc is not None and not self.reap(c, False)]
+        for c in live:
+            try:
+                os.kill(c.proc.pid, signal.SIGTERM)
+                os.kill(c.proc.pid, signal.SIGCONT)  # a paused one (fault plan) hears it too
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + STOP_GRACE_S
+        while live and time.monotonic() < deadline:
+            live = [c for c in live if not self.reap(c, False)]
+            time.sleep(0.02)
+        for c in live:
+            try:
+                os.kill(c.proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            self.reap(c, block=True)
+
+    def apply_kills(self, kills: KillSchedule, t: float) -> None:
+        """The fault plan's process kills (SIGKILL: a crash, no goodbye), pauses and
+        restarts (the agent rejoins the running fleet) due at run time ``t``."""
+        for event in kills.due(t):
+            # kill or pause: the live process of that role; restart: the one killed
+            child = [c for c in self.children if c.role == event.process
+                     and c.killed == event.restart][-1]
+            if event.restart:
+                if self.run_dir is not None:  # the killed node's socket file stays behind it
+                    (self.run_dir / f"{child.role}.sock").unlink(missing_ok=True)
+                again = restart_of(child, self.run_dir)
+                self.spawn(again)
+                kills.log(event, t, again.proc.pid)
+            elif event.action in (PAUSE, RESUME):  # off the CPU and back, as a starved host
+                os.kill(child.proc.pid, signal.SIGSTOP if event.action == PAUSE else signal.SIGCONT)
+                kills.log(event, t, child.proc.pid)
+            else:
+                child.killed = True
+                os.kill(child.proc.pid, signal.SIGKILL)
+                self.reap(child, block=True)
+                kills.log(event, t, child.proc.pid)
+
+    def wait_for_exit(self, stop: StopFlag, wait: Callable[[float], None],
+                      timeout_s: float = 20.0) -> None:
+        """After ``end``: every node sends its report and exits 0; then the children
+        that run until stopped (emulators) are stopped. ``wait(s)`` hears the fleet
+        meanwhile, for at most ``s`` seconds. Raises :class:`RunFailed` naming each
+        node that did not exit 0."""
+        deadline = time.monotonic() + timeout_s
+        nodes = [c for c in self.children if not c.stop_after_run]
+        steady = [c for c in nodes if not c.restarted]
+        others_done_at = None
+        while time.monotonic() < deadline:
+            if stop():
+                raise Interrupted(stop.reason)
+            if all(self.reap(c, False) for c in steady):
+                others_done_at = others_done_at or time.monotonic()
+                if (all(self.reap(c, False) for c in nodes)
+                        or time.monotonic() > others_done_at + REJOIN_GRACE_S):
+                    break
+            wait(0.02)
+        for c in nodes:
+            # a restarted node still starting when the run ended (a loaded host: imports and
+            # the handshake took longer than the run had left) missed the end: stop it
+            if c.restarted and self._terminate(c):
+                print(f"omnifleet run: {c.role} (restarted) was still rejoining when the run "
+                      "ended: stopped", file=sys.stderr)
+        for c in self.children:
+            if c.stop_after_run:
+                self._terminate(c)  # stopped as planned
+        bad = [c for c in self.children if c.exit_code not in (0,) and not c.killed]
+        if bad:
+            raise RunFailed("; ".join(
+                _failure(c, "did not exit" if c.exit_code is None
+                         else f"exited with code {c.exit_code}") for c in bad))
+
+    def _terminate(self, c: Child, timeout_s: float = 10.0) -> bool:
+        """SIGTERM a child still running; True (and exit code 0) if it ended by it."""
+        if self.reap(c, False):
+            return False
+        c.proc.send_signal(signal.SIGTERM)
+        until = time.monotonic() + timeout_s
+        while not self.reap(c, False) and time.monotonic() < until:
+            time.sleep(0.02)
+        if c.exit_code in (-signal.SIGTERM, 143):
+            c.exit_code = 0
+            return True
+        return False

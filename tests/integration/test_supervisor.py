@@ -1,0 +1,70 @@
+"""The supervisor ends every process it started by pid (SIGTERM, then SIGKILL after
+the grace period), and names a child that died."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+import types
+
+import pytest
+
+from deploy.run.plan import Child
+from deploy.run.supervisor import RunFailed, Supervisor
+
+SLEEPER = "import time; print('up', flush=True); time.sleep(60)"
+STUBBORN = ("import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); "
+            "print('up', flush=True); time.sleep(60)")
+
+
+def _started(sup: Supervisor, tmp_path, role: str, code: str) -> Child:
+    c = Child(role, None, [sys.executable, "-c", code], tmp_path / f"{role}.log")
+    sup.spawn(c)
+    return c
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def test_stop_all_ends_every_child_by_pid_even_one_that_ignores_sigterm(tmp_path):
+    sup = Supervisor(secret="s")
+    try:
+        polite = _started(sup, tmp_path, "polite", SLEEPER)
+        stubborn = _started(sup, tmp_path, "stubborn", STUBBORN)
+        for c in (polite, stubborn):  # wait until each runs its own code (not a sleep)
+            while b"up" not in c.log_path.read_bytes():
+                assert c.proc.poll() is None, c.log_path.read_text()
+                time.sleep(0.01)  # polling its output, the readiness signal
+    finally:
+        sup.stop_all()
+    assert polite.exit_code == -15  # SIGTERM
+    assert stubborn.exit_code == -9  # SIGKILL after the grace period
+    assert not _alive(polite.proc.pid) and not _alive(stubborn.proc.pid)
+
+
+def test_a_child_that_died_fails_the_run_naming_it_and_its_last_output(tmp_path):
+    sup = Supervisor(secret="s")
+    try:
+        c = _started(sup, tmp_path, "agent-2", "import sys; print('boom'); sys.exit(3)")
+        sup.reap(c, block=True)
+        with pytest.raises(RunFailed, match=r"agent-2 \(pid \d+\) exited with code 3(.|\n)*boom"):
+            sup.check(ended=False)
+    finally:
+        sup.stop_all()
+
+
+def test_the_plant_exiting_cleanly_ends_the_run():
+    """The plant exits 0 only after publishing ``end``; a launcher behind on traffic
+    may see the exit first: that is the end of the run, not a crash."""
+    sup = Supervisor(secret=None)
+    done = types.SimpleNamespace(pid=4242)  # an exited process: only its pid is read
+    sup.children = [Child("agent-1", 1, [], os.devnull, done, exit_code=0)]
+    assert not sup.check(ended=False)
+    sup.children.append(Child("plant", None, [], os.devnull, done, exit_code=0))
+    assert sup.check(ended=False)

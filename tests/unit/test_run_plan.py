@@ -1,0 +1,75 @@
+"""The run's plan, drawn without starting anything (deploy/run/plan.py): links as the
+graph (DESIGN §3), one socket per node in the run's private directory, and a
+restarted node that dials every peer it talks with."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from deploy.contract.scenario import load_scenario
+from deploy.run.launcher import LaunchOptions
+from deploy.run.plan import endpoint_of, plan_run, restart_of
+
+RUN_DIR = Path("/run/omnifleet-test")
+LAUNCHER = endpoint_of(RUN_DIR, "launcher")
+
+
+def _connects(argv: list[str]) -> list[str]:
+    return [argv[i + 1] for i, a in enumerate(argv) if a == "--connect"]
+
+
+def _plan(name: str, plant: str = "model"):
+    sc = load_scenario(name)
+    opts = LaunchOptions(name, plant, "lockstep", Path("/tmp/out"))
+    return sc, plan_run(sc, opts.node_args(name), opts.out, LAUNCHER, RUN_DIR)
+
+
+def test_each_node_listens_on_its_own_socket_and_dials_the_launcher():
+    _, plan = _plan("paper")
+    for c in plan.children:
+        listen = c.argv[c.argv.index("--listen") + 1]
+        assert listen == f"unixsock-stream/{RUN_DIR / f'{c.role}.sock'}"
+        assert _connects(c.argv)[0] == LAUNCHER  # every node reports to the launcher
+
+
+def test_links_are_the_graph_each_pair_opened_once():
+    """paper: a_21 = a_31 = a_32 = 1, b = (1, 0, 0). Agent i talks with the plant, the
+    leader iff b_i != 0 and its neighbours either way; the leader with the plant."""
+    _, plan = _plan("paper")
+    talks = {c.role: set(c.talks_with) for c in plan.children}
+    assert talks["agent-1"] == {"plant", "leader", "agent-2", "agent-3"}
+    assert talks["agent-2"] == {"plant", "agent-1", "agent-3"}
+    assert talks["agent-3"] == {"plant", "agent-1", "agent-2"}
+    assert talks["leader"] == {"plant", "agent-1"}
+    opened = [frozenset((c.role, o)) for c in plan.children for o in c.links]
+    assert len(opened) == len(set(opened))  # one link per pair
+    assert set(opened) == {frozenset((a, b)) for a, ts in talks.items() for b in ts}
+    for c in plan.children:  # a node dials exactly its links (beside the launcher)
+        assert _connects(c.argv)[1:] == [endpoint_of(RUN_DIR, o) for o in c.links]
+
+
+def test_a_restarted_agent_dials_every_peer_it_talks_with():
+    """Peers that had dialled the dead node never dial again (zenoh re-dials only
+    what a session connects to): the restarted one dials them all."""
+    _, plan = _plan("paper")
+    dead = next(c for c in plan.children if c.role == "agent-2")
+    again = restart_of(dead, RUN_DIR)
+    assert "--rejoin" in again.argv and again.restarted
+    assert set(_connects(again.argv)[1:]) == {endpoint_of(RUN_DIR, o) for o in dead.talks_with}
+    assert again.log_path.name == "agent-2.restart.log"
+
+
+def test_can_emulated_is_one_emulator_and_a_bridge_per_robot_each_on_its_own_bus():
+    sc, plan = _plan("lab", "can-emulated")
+    emulators = [c for c in plan.children if c.role == "emulator"]
+    assert len(emulators) == 1  # one process plays every robot's drives
+    assert not emulators[0].zenoh and emulators[0].stop_after_run
+    bridges = [c for c in plan.children if c.role.startswith("bridge-")]
+    assert [c.robot for c in bridges] == sc.robot_ids
+    buses = {(c.argv[c.argv.index("--can-channel") + 1], c.argv[c.argv.index("--can-arg") + 1])
+             for c in bridges}
+    assert len(buses) == sc.n  # robots never hear each other's frames
+    assert set(plan.truth_files) == set(sc.robot_ids)
+    agents = [c for c in plan.children if c.role.startswith("agent-")]
+    for a in agents:  # an agent's plant is its robot's bridge
+        assert a.argv[a.argv.index("--plant-role") + 1] == f"bridge-{a.robot}"
