@@ -51,7 +51,7 @@ def judged(run: Callable[[], T], metrics_of: Callable[[T], dict[str, Any]], what
     periods = _jitter_periods(metrics_of(first))
     if periods is not None and periods > HOPELESS:
         pytest.skip(f"{what}: the scheduler starved the realtime run on this machine ({why}: "
-                    f"{periods:.0f} periods, not retried beyond {HOPELESS:g}): its claims "
+                    f"{periods:.1f} periods, not retried beyond {HOPELESS:g}): its claims "
                     "cannot be judged here")
     second = run()
     why_again = starved(metrics_of(second))
