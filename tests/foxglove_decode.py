@@ -73,11 +73,13 @@ def _protobuf_class(name: str, data: bytes):
 
 
 @cache
-def _json_schema(data: bytes) -> dict[str, Any]:
+def _json_validator(data: bytes) -> jsonschema.Draft202012Validator:
+    """The channel's schema, checked once (``jsonschema.validate`` checks the schema
+    again on every call: 38 s for one 0.3 s recording of paper)."""
     schema = json.loads(data)
     check_foxglove_json_schema(schema)
     jsonschema.Draft202012Validator.check_schema(schema)
-    return schema
+    return jsonschema.Draft202012Validator(schema)
 
 
 def decode(schema_name: str, schema_encoding: str, schema_data: bytes, message_encoding: str,
@@ -90,8 +92,7 @@ def decode(schema_name: str, schema_encoding: str, schema_data: bytes, message_e
         return msg
     if message_encoding == "json":
         assert schema_encoding == "jsonschema", schema_encoding
-        schema = _json_schema(bytes(schema_data))
         value = json.loads(payload)
-        jsonschema.validate(value, schema)
+        _json_validator(bytes(schema_data)).validate(value)
         return value
     raise AssertionError(f"unexpected message encoding {message_encoding!r}")

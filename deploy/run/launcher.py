@@ -23,61 +23,23 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from deploy.contract.fault_plan import FaultPlan
-from deploy.contract.options import DEFAULT_STARTUP_TIMEOUT_S, DEFAULT_STEP_DEADLINE_S
 from deploy.contract.run_secret import new_secret
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, Keys, control
 from deploy.run.kill_schedule import KillSchedule
 from deploy.run.observer import Observer
-from deploy.run.plan import CAN_EMULATED, NodeArgs, endpoint_of, plan_run
+from deploy.run.plan import CAN_EMULATED, LaunchOptions, endpoint_of, plan_run
 from deploy.run.run_figures import run_figures
 from deploy.run.supervisor import Interrupted, RunFailed, Supervisor
 from deploy.runtime.node_runtime import START_LEAD_S, StopFlag
-from deploy.runtime.priority import REALTIME_PRIORITY
 from deploy.runtime.transport import Node, zenoh_config
 
 __all__ = ["Interrupted", "LaunchOptions", "Launcher", "RunFailed", "observing"]
 
 Progress = Callable[[int, int], None] | None
-
-
-@dataclass
-class LaunchOptions:
-    scenario_arg: str
-    plant: str
-    clock: str
-    out: Path
-    duration_s: float | None = None
-    control_rate_hz: float | None = None
-    step_deadline_s: float = DEFAULT_STEP_DEADLINE_S
-    startup_timeout_s: float = DEFAULT_STARTUP_TIMEOUT_S
-    fleet: str | None = None
-    endpoint: str | None = None  # where the launcher listens (default: its private socket)
-    record: bool = True
-    gui: bool = False  # pybullet plant: open its window
-    extra_agent_args: list[str] = field(default_factory=list)
-    faults: FaultPlan | None = None  # given to every node; kills done by the launcher
-    realtime_priority: int = REALTIME_PRIORITY  # nice -N for every node on the realtime clock
-    # zenoh's low-latency transport on every link: off, it lost 1 in 24 messages over 64 kB
-    # (a node's end-of-run report) in zenoh 1.10.2 (docs/distributed.md)
-    lowlatency: bool = False
-    # a McapRecorder made (and closed) by the caller, who adds the run's scene to it at
-    # the end; None: the launcher makes its own and closes it
-    recorder: Any = None
-
-    def steps(self, sc: Scenario) -> int:
-        return sc.steps if self.duration_s is None else int(round(self.duration_s / sc.dt))
-
-    def node_args(self, fleet: str) -> NodeArgs:
-        return NodeArgs(self.scenario_arg, fleet, self.clock, self.plant, self.step_deadline_s,
-                        self.startup_timeout_s, self.duration_s, self.control_rate_hz,
-                        self.faults, self.realtime_priority, self.lowlatency, self.gui,
-                        tuple(self.extra_agent_args))
 
 
 def make_observer(sc: Scenario, opts: LaunchOptions, secret: str | None) -> Observer:
@@ -112,12 +74,11 @@ def observing(obs: Observer, opts: LaunchOptions, node: Node, stop: StopFlag) ->
 
 class Launcher:
     """Runs a scenario's fleet on this machine: :meth:`run` returns the figures the
-    run adds to metrics.json; ``collector`` holds its series."""
+    run adds to metrics.json; ``observer.collector`` holds its series, ``observer.run_t0``
+    its t = 0 on this host's monotonic clock."""
 
     def __init__(self, sc: Scenario, opts: LaunchOptions) -> None:
         self.sc, self.opts = sc, opts
-        # stable topic names: runs are kept apart by their private endpoints, not the name
-        self.fleet = opts.fleet or sc.name
         self.secret = new_secret()  # the run's: only its own nodes can sign ctl/* (run_secret.py)
         self.observer = make_observer(sc, opts, self.secret)
         self.supervisor = Supervisor(self.secret)
@@ -125,20 +86,6 @@ class Launcher:
         self.steps = opts.steps(sc)
         self.kills = KillSchedule(opts.faults.kills if opts.faults else ())
         self.truth_files: dict[int, Path] = {}  # can-emulated: each emulator's ground truth
-
-    @property
-    def collector(self):
-        return self.observer.collector
-
-    @property
-    def run_t0(self) -> float | None:
-        """t = 0 of the run on this host's monotonic clock (None: never started)."""
-        return self.observer.run_t0
-
-    @property
-    def t0_mono(self) -> float | None:
-        """can-emulated: t = 0 as the launcher announced it (it keeps the run's time)."""
-        return self.observer.t0_mono
 
     def run(self, progress: Progress = None) -> dict[str, Any]:
         """Run to the end; returns the figures the launcher adds to metrics.json.
@@ -169,7 +116,7 @@ class Launcher:
         """Start the fleet, supervise it to the end and collect its reports; returns
         the wall time from all-ready to the end."""
         o, sup = self.opts, self.supervisor
-        plan = plan_run(self.sc, o.node_args(self.fleet), o.out, endpoint, run_dir)
+        plan = plan_run(self.sc, o, endpoint, run_dir)
         self.truth_files = plan.truth_files
         _write_endpoints(o.out, endpoint, plan.children, run_dir)
         sup.start(plan.children)
@@ -185,7 +132,7 @@ class Launcher:
         sup.wait_for_exit(self.stop, lambda s: node.mailbox.wait_until(self.stop, s))
         # reports travel before the session closes; wait for stragglers (a launcher
         # behind on a large fleet's traffic reads them late)
-        node.mailbox.wait_until(lambda: len(self.collector.reports) >= len(roles), 10.0)
+        node.mailbox.wait_until(lambda: len(self.observer.collector.reports) >= len(roles), 10.0)
         return wall
 
     def _wait_ready(self, node: Node, roles: list[str]) -> None:

@@ -19,9 +19,10 @@ from pathlib import Path
 from typing import Any
 
 from deploy.contract.fault_plan import FaultPlan
+from deploy.contract.options import DEFAULT_STARTUP_TIMEOUT_S, DEFAULT_STEP_DEADLINE_S
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, LEADER_ROLE, PLANT_ROLE, agent_role, bridge_role
-from deploy.runtime.priority import EMULATOR_PRIORITY
+from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
 
 ENCODER_RATE_HZ = 100.0  # the driver emulator's encoder estimates (can-emulated)
 CAN_EMULATED = "can-emulated"  # every robot through a CAN bridge + driver emulator
@@ -56,23 +57,36 @@ class Child:
         return "\n".join(f"    {ln}" for ln in lines[-n:])
 
 
-@dataclass(frozen=True)
-class NodeArgs:
-    """What every node of a run is told (the launcher's options that reach the nodes)."""
+@dataclass
+class LaunchOptions:
+    """How a run is launched: what every node is told (scenario, fleet, clock, plant,
+    deadlines, duration, rate, faults, priority, transport) and what the launcher does
+    itself (where it listens, whether it records)."""
 
     scenario_arg: str
-    fleet: str
-    clock: str
     plant: str
-    step_deadline_s: float
-    startup_timeout_s: float
+    clock: str
+    out: Path
     duration_s: float | None = None
     control_rate_hz: float | None = None
-    faults: FaultPlan | None = None
-    realtime_priority: int = 0
+    step_deadline_s: float = DEFAULT_STEP_DEADLINE_S
+    startup_timeout_s: float = DEFAULT_STARTUP_TIMEOUT_S
+    fleet: str | None = None  # default: the scenario's name
+    endpoint: str | None = None  # where the launcher listens (default: its private socket)
+    record: bool = True
+    gui: bool = False  # pybullet plant: open its window
+    extra_agent_args: list[str] = field(default_factory=list)
+    faults: FaultPlan | None = None  # given to every node; kills done by the launcher
+    realtime_priority: int = REALTIME_PRIORITY  # nice -N for every node on the realtime clock
+    # zenoh's low-latency transport on every link: off, it lost 1 in 24 messages over 64 kB
+    # (a node's end-of-run report) in zenoh 1.10.2 (docs/distributed.md)
     lowlatency: bool = False
-    gui: bool = False
-    extra_agent_args: tuple[str, ...] = ()
+    # a McapRecorder made (and closed) by the caller, who adds the run's scene to it at
+    # the end; None: the launcher makes its own and closes it
+    recorder: Any = None
+
+    def steps(self, sc: Scenario) -> int:
+        return sc.steps if self.duration_s is None else int(round(self.duration_s / sc.dt))
 
 
 @dataclass
@@ -100,12 +114,13 @@ def endpoint_of(run_dir: Path | None, role: str) -> str:
     return f"unixsock-stream/{where / f'{role}.sock'}"
 
 
-def plan_run(sc: Scenario, a: NodeArgs, out: Path, launcher_endpoint: str,
+def plan_run(sc: Scenario, a: LaunchOptions, launcher_endpoint: str,
              run_dir: Path | None = None) -> RunPlan:
     """The leader, the plant (or a driver emulator and a CAN bridge per robot) and
-    one agent per robot, each with its arguments, log file and links."""
+    one agent per robot, each with its arguments, log file (under ``a.out``) and links."""
     cmd = [sys.executable, "-m", "deploy.cli"]
-    common = _common_args(a, launcher_endpoint)
+    common = _common_args(sc, a, launcher_endpoint)
+    out = a.out
     logs = out / "logs"
     on_can = a.plant == CAN_EMULATED
     truth: dict[int, Path] = {}
@@ -152,8 +167,9 @@ def restart_of(dead: Child, run_dir: Path | None) -> Child:
                  links=dead.talks_with, talks_with=dead.talks_with, restarted=True)
 
 
-def _common_args(a: NodeArgs, endpoint: str) -> list[str]:
-    args = ["--scenario", a.scenario_arg, "--fleet", a.fleet, "--clock", a.clock,
+def _common_args(sc: Scenario, a: LaunchOptions, endpoint: str) -> list[str]:
+    # stable topic names: runs are kept apart by their private endpoints, not the name
+    args = ["--scenario", a.scenario_arg, "--fleet", a.fleet or sc.name, "--clock", a.clock,
             "--connect", endpoint, "--no-gossip", "--with-recorder",
             *(["--lowlatency"] if a.lowlatency else []),
             "--step-deadline", str(a.step_deadline_s),
@@ -203,7 +219,7 @@ def _links(sc: Scenario, plan: list[Child], on_can: bool, run_dir: Path | None) 
                 c.argv += ["--connect", endpoint_of(run_dir, other)]
 
 
-def _can_plan(sc: Scenario, a: NodeArgs, cmd: list[str], common: list[str], out: Path,
+def _can_plan(sc: Scenario, a: LaunchOptions, cmd: list[str], common: list[str], out: Path,
               truth: dict[int, Path]) -> list[Child]:
     """One driver emulator process for the whole fleet and a bridge per robot; every
     robot on a CAN bus of its own (udp_multicast: a group and a port per robot, so

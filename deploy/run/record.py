@@ -43,14 +43,6 @@ class Recorder:
         self.stop = StopFlag()
         self.reported_ns: dict[str, int] = {}  # role -> when its report arrived (wall, ns)
 
-    @property
-    def collector(self):
-        return self.observer.collector
-
-    @property
-    def run_t0(self) -> float | None:
-        return self.observer.run_t0
-
     def _on_report(self, role: str) -> None:
         # a node reports as it leaves, on the same link as its token: a token that goes
         # after the report is a departure, not a loss
@@ -80,7 +72,7 @@ class Recorder:
             wall = time.perf_counter() - start
             # every node reports as it ends; wait for those still alive
             node.mailbox.wait_until(
-                lambda: set(self.collector.reports) >= set(roles) or self.stop(), 10.0)
+                lambda: set(obs.collector.reports) >= set(roles) or self.stop(), 10.0)
             closing_ns = time.time_ns()  # tokens seen to go after this: our own closing
         out = run_figures(obs, [], zid, wall)
         out["processes"] += [  # the nodes ran elsewhere: what each reported
@@ -88,7 +80,7 @@ class Recorder:
              "peak_rss_mb": round(r.peak_rss_kb / 1024.0, 1) if r.peak_rss_kb else None,
              "exit_code": None, "reported": True, "steps": r.steps, "sent": r.sent,
              "late": r.late, "received": dict(r.received)}
-            for r in sorted(self.collector.reports.values(), key=lambda r: r.role)]
+            for r in sorted(obs.collector.reports.values(), key=lambda r: r.role)]
         out["liveliness"] = liveliness_summary(
             [e for e in node.peer_events if e[0] < min(closing_ns, obs.end_unix_ns or closing_ns)
              and e[1] != LAUNCHER_ROLE],
@@ -174,13 +166,13 @@ def _cmd_record(args: argparse.Namespace) -> int:
             return 143 if exc.signal_name == "SIGTERM" else 130
         raise
     end_unix_ns = time.time_ns()
-    series = rec.collector.series(realtime=args.clock == "realtime")
+    series = rec.observer.collector.series(realtime=args.clock == "realtime")
     wall, messages = extra.pop("wall_time_s"), extra.pop("messages")
     contact_log, total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
     metrics = write_run(sc, series, Path(args.out), plant, args.clock, wall, messages, extra,
                         figures=not args.no_figures, contact_log=contact_log,
                         contacts_total=total, recorder=recording,
-                        **run_wall_clock(end_unix_ns, wall, rec.run_t0, series.steps,
+                        **run_wall_clock(end_unix_ns, wall, rec.observer.run_t0, series.steps,
                                          args.clock == "lockstep"))
     print(f"omnifleet record: {series.steps} steps written to {args.out} "
           f"({', '.join(metrics['files'])})", file=sys.stderr)

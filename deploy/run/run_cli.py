@@ -182,7 +182,8 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     if live is not None:
         from deploy.report.live_view import collector_rows
 
-        live.follow(launcher.collector.ts, collector_rows(launcher.collector, args.clock == "realtime"))
+        heard = launcher.observer.collector
+        live.follow(heard.ts, collector_rows(heard, args.clock == "realtime"))
     started = time.perf_counter()
     try:
         extra = launcher.run(run_progress(label))
@@ -194,7 +195,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     except Interrupted as exc:  # every child stopped: write what was measured, marked
         from deploy.report.outputs import write_interrupted
 
-        series = launcher.collector.series(realtime=args.clock == "realtime")
+        series = launcher.observer.collector.series(realtime=args.clock == "realtime")
         metrics = write_interrupted(
             sc, series, out, plant, args.clock, time.perf_counter() - started, exc.signal_name,
             {"messages": None, "reports": "not collected (interrupted)",
@@ -205,16 +206,17 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
             recorder.close()  # flushed, also after Ctrl-C
         raise
     end_unix_ns = time.time_ns()
-    series = launcher.collector.series(realtime=args.clock == "realtime")
+    series = launcher.observer.collector.series(realtime=args.clock == "realtime")
     if args.clock == "realtime":
-        extra["series_cells_filled"] = launcher.collector.filled
-    if launcher.truth_files and launcher.t0_mono is not None:
+        extra["series_cells_filled"] = launcher.observer.collector.filled
+    if launcher.truth_files and launcher.observer.t0_mono is not None:
         from deploy.report.odometry_drift import odometry_drift
 
-        extra["odometry_drift"] = odometry_drift(series, sc.robot_ids, launcher.truth_files,
-                                                 launcher.t0_mono, launcher.collector.have_state)
+        extra["odometry_drift"] = odometry_drift(
+            series, sc.robot_ids, launcher.truth_files, launcher.observer.t0_mono,
+            launcher.observer.collector.have_state)
         extra["emulator_lag_ms"] = emulator_lag_ms(launcher.truth_files)
-        c = launcher.collector
+        c = launcher.observer.collector
         got = c.have_state.sum(axis=0)
         extra["bridge_faulted_fraction"] = [
             float(f) / g if g else None for f, g in zip(c.faulted.sum(axis=0), got, strict=True)]
@@ -231,5 +233,5 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     return write_run(sc, series, out, plant, args.clock, wall, messages, extra,
                      figures=not args.no_figures, contact_log=contact_log,
                      contacts_total=contacts_total, recorder=recorder,
-                     **run_wall_clock(end_unix_ns, wall, launcher.run_t0, series.steps,
+                     **run_wall_clock(end_unix_ns, wall, launcher.observer.run_t0, series.steps,
                                       args.clock == "lockstep"))

@@ -143,15 +143,14 @@ def test_the_restarted_agent_rejoins_and_settles(killed_run):
 def test_can_faults_reach_every_emulator(tmp_path):
     """--plant can-emulated: the plan's [can] section becomes the driver
     emulator's frame loss and corruption, seeded apart per robot."""
-    from deploy.run.launcher import LaunchOptions
-    from deploy.run.plan import plan_run
+    from deploy.run.plan import LaunchOptions, plan_run
 
     sc = load_scenario("lab")
     plan_file = tmp_path / "can.toml"
     plan_file.write_text("seed = 4\n[can]\nframe_loss = 0.02\ncorrupt = 0.001\n")
     opts = LaunchOptions("lab", "can-emulated", "realtime", tmp_path,
                          faults=load_plan(plan_file, sc))
-    plan = plan_run(sc, opts.node_args("lab"), tmp_path, "tcp/127.0.0.1:7447")
+    plan = plan_run(sc, opts, "tcp/127.0.0.1:7447")
     emulators = [c.argv for c in plan.children if c.role == "emulator"]
     assert len(emulators) == 1  # one process plays every robot, each on its own bus
     argv = emulators[0]

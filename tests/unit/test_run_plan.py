@@ -7,8 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from deploy.contract.scenario import load_scenario
-from deploy.run.launcher import LaunchOptions
-from deploy.run.plan import endpoint_of, plan_run, restart_of
+from deploy.run.plan import LaunchOptions, endpoint_of, plan_run, restart_of
 
 RUN_DIR = Path("/run/omnifleet-test")
 LAUNCHER = endpoint_of(RUN_DIR, "launcher")
@@ -21,7 +20,7 @@ def _connects(argv: list[str]) -> list[str]:
 def _plan(name: str, plant: str = "model"):
     sc = load_scenario(name)
     opts = LaunchOptions(name, plant, "lockstep", Path("/tmp/out"))
-    return sc, plan_run(sc, opts.node_args(name), opts.out, LAUNCHER, RUN_DIR)
+    return sc, plan_run(sc, opts, LAUNCHER, RUN_DIR)
 
 
 def test_each_node_listens_on_its_own_socket_and_dials_the_launcher():
