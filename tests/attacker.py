@@ -15,14 +15,13 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import signal
 import subprocess
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from procs import pids_with, start
+from procs import kill_run, start
 
 from deploy.contract.wire import (
     WIRE_VERSION,
@@ -207,8 +206,4 @@ def fleet_under_attack(scenario: str, out: Path, *args: str, robots: int = 3
     finally:
         if attacker is not None:
             attacker.close()
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        for pid in pids_with(fleet):
-            os.kill(pid, signal.SIGKILL)
+        kill_run(proc, fleet)

@@ -24,9 +24,20 @@ def finish(proc: subprocess.Popen, timeout: float = 240) -> tuple[int, str, str]
         out, err = proc.communicate(timeout=timeout)
         return proc.returncode, out, err
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        kill_run(proc)
+
+
+def kill_run(proc: subprocess.Popen, fleet: str | None = None) -> None:
+    """End a run started by :func:`start`, by pid, whatever state it is in: its process
+    group if it still lives, then any process left whose command line names ``fleet``."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    for pid in pids_with(fleet) if fleet else ():
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
 
 
 def pids_with(text: str) -> set[int]:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from procs import assert_same_series, finish, pids_with, start
+from procs import assert_same_series, finish, kill_run, pids_with, start
 from realtime_clock import judged
 
 from deploy.report.metrics import control_figures
@@ -143,11 +143,7 @@ def running_fleet(name: str, *args: str):
     finally:
         if session is not None:
             session.close()
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        for pid in pids_with(fleet):
-            os.kill(pid, signal.SIGKILL)
+        kill_run(proc, fleet)
 
 
 def assert_no_process_left(fleet: str) -> None:

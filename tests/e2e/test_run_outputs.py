@@ -16,7 +16,7 @@ import pytest
 from deploy.cli import main, package_version
 from deploy.report.recorder import messages_in
 from deploy.run.runner import log_progress
-from tests.procs import finish, pids_with, start
+from tests.procs import finish, kill_run, pids_with, start
 
 
 def test_sigint_leaves_a_readable_recording_and_metrics_marked_interrupted(tmp_path):
@@ -36,8 +36,7 @@ def test_sigint_leaves_a_readable_recording_and_metrics_marked_interrupted(tmp_p
         os.kill(proc.pid, signal.SIGINT)
         code, stdout, err = finish(proc, timeout=120)
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
+        kill_run(proc)
     assert code == 130, err[-2000:]
     assert not pids_with(fleet), "processes of the run still alive"
     m = json.loads((out / "metrics.json").read_text())
