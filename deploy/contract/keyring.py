@@ -47,9 +47,7 @@ KEY_BYTES = 32
 MAX_KEYRING_BYTES = 4 * 1024 * 1024
 MAX_CACHED = 4096  # prepared key expressions kept per node (a wildcard hears made-up keys)
 
-UNSIGNED = "unsigned"
-WRONG_SENDER = "not signed by a sender of this key"
-BAD_MAC = "MAC does not check"
+UNSIGNED, WRONG_SENDER, BAD_MAC = mac.UNSIGNED, mac.WRONG_SENDER, mac.BAD_MAC
 
 
 class KeysError(ValueError):
@@ -156,7 +154,7 @@ class Keyring:
             raise KeysError(f"keyring of {role}: a peer that is not a role of scenario "
                             f"{sc.name} ({exc})") from exc
         self._seal: dict[str, list[tuple[bytes, Any]]] = {}
-        self._open: dict[tuple[str, str], Any] = {}
+        self._open: dict[str, dict[bytes, list[Any]]] = {}
 
     @classmethod
     def from_text(cls, text: str | bytes, where: str, role: str, sc: Scenario,
@@ -182,20 +180,12 @@ class Keyring:
     def open(self, data: bytes, key_expr: str) -> tuple[memoryview | None, str]:
         """(the payload, "") when ``data`` came from a sender of ``key_expr`` with a tag
         for this node that checks; else (None, why)."""
-        parsed = mac.parse(data)
-        if parsed is None:
-            return None, UNSIGNED
-        end, sender_hint, n = parsed
-        why = WRONG_SENDER
-        for sender in self.senders.get(key_expr, ()):
-            if self._hints[sender] != sender_hint:
-                continue
-            start = self._open.get((key_expr, sender))
-            if start is None:
-                start = mac.prefixed(self._pair[sender], key_expr, sender, self.role)
-                if len(self._open) < MAX_CACHED:
-                    self._open[(key_expr, sender)] = start
-            if mac.checks(data, end, n, self._me, start):
-                return memoryview(data)[:end], ""
-            why = BAD_MAC
-        return None, why
+        senders = self._open.get(key_expr)
+        if senders is None:
+            senders = {}
+            for r in self.senders.get(key_expr, ()):
+                senders.setdefault(self._hints[r], []).append(
+                    mac.prefixed(self._pair[r], key_expr, r, self.role))
+            if len(self._open) < MAX_CACHED:
+                self._open[key_expr] = senders
+        return mac.open_envelope(data, self._me, senders)

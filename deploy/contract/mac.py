@@ -50,13 +50,6 @@ def prefixed(pair_key: bytes, key_expr: str, sender: str, receiver: str) -> Any:
     return h
 
 
-def tag(start: Any, payload: bytes | memoryview) -> bytes:
-    """The tag of ``payload`` from a :func:`prefixed` hasher."""
-    h = start.copy()
-    h.update(payload)
-    return h.digest()
-
-
 def seal(payload: bytes, sender_hint: bytes, receivers: Sequence[tuple[bytes, Any]]) -> bytes:
     """``payload`` in an envelope with one tag per receiver, each given as (its hint,
     its :func:`prefixed` hasher)."""
@@ -64,33 +57,45 @@ def seal(payload: bytes, sender_hint: bytes, receivers: Sequence[tuple[bytes, An
         raise ValueError(f"{len(receivers)} receivers: an envelope holds at most {MAX_TAGS}")
     parts = [payload]
     for receiver_hint, start in receivers:
+        h = start.copy()
+        h.update(payload)
         parts.append(receiver_hint)
-        parts.append(tag(start, payload))
+        parts.append(h.digest())
     parts.append(sender_hint + bytes((len(receivers), MAGIC)))
     return b"".join(parts)
 
 
-def parse(data: bytes) -> tuple[int, bytes, int] | None:
-    """(payload length, sender hint, tag count) of an envelope, or None when ``data``
-    is not one (a message from a node without keys, or garbage)."""
-    if len(data) < TRAILER_BYTES + 1 or data[-1] != MAGIC:
-        return None
+UNSIGNED = "unsigned"
+WRONG_SENDER = "not signed by a sender of this key"
+BAD_MAC = "MAC does not check"
+
+
+def open_envelope(data: bytes, my_hint: bytes, senders: dict[bytes, list[Any]]
+                  ) -> tuple[memoryview | None, str]:
+    """(the payload, "") when ``data`` is an envelope from one of ``senders`` (by its
+    hint: the :func:`prefixed` hashers of the keys it shares with this receiver) with a
+    tag for ``my_hint`` that checks; else (None, why): ``UNSIGNED`` (no envelope),
+    ``WRONG_SENDER`` (none of ``senders``) or ``BAD_MAC``. One call a message: this runs
+    for every message a keyed node hears."""
+    size = len(data)
+    if size <= TRAILER_BYTES or data[-1] != MAGIC:
+        return None, UNSIGNED
     n = data[-2]
-    end = len(data) - TRAILER_BYTES - n * ENTRY_BYTES
+    end = size - TRAILER_BYTES - n * ENTRY_BYTES
     if end < 1:
-        return None
-    return end, data[-TRAILER_BYTES:-2], n
-
-
-def checks(data: bytes, end: int, n: int, my_hint: bytes, start: Any) -> bool:
-    """Whether one of the ``n`` tags for ``my_hint`` checks under ``start`` (a
-    :func:`prefixed` hasher of the sender's key with this receiver)."""
-    want = None
-    for i in range(n):
-        at = end + i * ENTRY_BYTES
-        if data[at:at + HINT_BYTES] == my_hint:
-            if want is None:
-                want = tag(start, memoryview(data)[:end])
-            if hmac.compare_digest(data[at + HINT_BYTES:at + ENTRY_BYTES], want):
-                return True
-    return False
+        return None, UNSIGNED
+    starts = senders.get(data[-TRAILER_BYTES:-2])
+    if starts is None:
+        return None, WRONG_SENDER
+    payload = memoryview(data)[:end]
+    for start in starts:
+        h = start.copy()
+        h.update(payload)
+        want = h.digest()
+        at = end
+        for _ in range(n):
+            if data[at:at + HINT_BYTES] == my_hint and hmac.compare_digest(
+                    data[at + HINT_BYTES:at + ENTRY_BYTES], want):
+                return payload, ""
+            at += ENTRY_BYTES
+    return None, BAD_MAC
