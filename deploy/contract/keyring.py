@@ -37,7 +37,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from deploy.contract import mac
+import deploy.contract.mac as mac
 from deploy.contract.audience import ROUTER_ROLE, publishes, receives
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import Keys

@@ -65,6 +65,19 @@ def seal(payload: bytes, sender_hint: bytes, receivers: Sequence[tuple[bytes, An
     return b"".join(parts)
 
 
+def parse_head(data: bytes) -> tuple[int, bytes, int] | None:
+    """(payload length, sender hint, tag count) of an envelope, or None when ``data``
+    is not one (a message of a node without keys, or garbage). Nothing is checked."""
+    size = len(data)
+    if size <= TRAILER_BYTES or data[-1] != MAGIC:
+        return None
+    n = data[-2]
+    end = size - TRAILER_BYTES - n * ENTRY_BYTES
+    if end < 1:
+        return None
+    return end, data[-TRAILER_BYTES:-2], n
+
+
 UNSIGNED = "unsigned"
 WRONG_SENDER = "not signed by a sender of this key"
 BAD_MAC = "MAC does not check"
@@ -77,14 +90,11 @@ def open_envelope(data: bytes, my_hint: bytes, senders: dict[bytes, list[Any]]
     tag for ``my_hint`` that checks; else (None, why): ``UNSIGNED`` (no envelope),
     ``WRONG_SENDER`` (none of ``senders``) or ``BAD_MAC``. One call a message: this runs
     for every message a keyed node hears."""
-    size = len(data)
-    if size <= TRAILER_BYTES or data[-1] != MAGIC:
+    head = parse_head(data)
+    if head is None:
         return None, UNSIGNED
-    n = data[-2]
-    end = size - TRAILER_BYTES - n * ENTRY_BYTES
-    if end < 1:
-        return None, UNSIGNED
-    starts = senders.get(data[-TRAILER_BYTES:-2])
+    end, sender_hint, n = head
+    starts = senders.get(sender_hint)
     if starts is None:
         return None, WRONG_SENDER
     payload = memoryview(data)[:end]

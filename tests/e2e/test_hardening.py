@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import msgspec
 import pytest
 
 from deploy.contract.keyring import Keyring, keyring_text, new_master
