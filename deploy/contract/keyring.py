@@ -114,7 +114,8 @@ def read_file(path: str | Path) -> bytes:
             raise KeysError(f"{path}: more than {MAX_KEYRING_BYTES} bytes")
         return path.read_bytes()
     except OSError as exc:
-        raise KeysError(f"{path}: cannot read: {exc.strerror}") from exc
+        raise KeysError(f"{path}: cannot read: {exc.strerror} (`omnifleet deploy certs` "
+                        "writes one per role)") from exc
 
 
 def write_file(path: str | Path, text: str) -> Path:

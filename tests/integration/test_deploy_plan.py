@@ -10,6 +10,7 @@ import pytest
 from procs import finish, start
 
 from deploy.contract.hosts import HostsError, load_hosts
+from deploy.contract.keyring import Keyring, read_file
 from deploy.contract.scenario import load_scenario
 from deploy.contract.wire import Keys
 from deploy.fleet.acl import access_control, fleet_roles, receives
@@ -39,6 +40,7 @@ def test_the_plan_gives_every_machine_its_exact_commands(paper):
     assert agent2[:2] == ["omnifleet", "agent"]
     assert agent2[agent2.index("--robot") + 1] == "2"
     assert agent2[agent2.index("--zenoh-config") + 1] == "/etc/omnifleet/lab1/agent-2.json5"
+    assert agent2[agent2.index("--keys") + 1] == "/etc/omnifleet/lab1/agent-2.keys"
     for cmds in sections.values():  # every node agrees on fleet, scenario and duration
         for c in cmds:
             assert c[c.index("--fleet") + 1] == "lab1" and c[c.index("--duration") + 1] == "5.0"
@@ -60,7 +62,16 @@ def test_configs_and_certificates_match_the_hosts_file(paper, tmp_path):
     assert agent["access_control"]["default_permission"] == "deny"
     # each machine gets the CA's certificate and its own roles' keys, nothing else
     assert sorted(p.name for p in (tmp_path / "robot2").iterdir()) == [
-        "agent-2.json5", "agent-2.key", "agent-2.pem", "ca.pem"]
+        "agent-2.json5", "agent-2.key", "agent-2.keys", "agent-2.pem", "ca.pem"]
+    # its keyring: a key with every other node (not the router, which forwards), only
+    # its owner may read it, and the master stays with the CA
+    keys = tmp_path / "robot2" / "agent-2.keys"
+    assert keys.stat().st_mode & 0o077 == 0
+    ring = Keyring.from_text(read_file(keys), str(keys), "agent-2", paper, Keys("lab1"))
+    assert sorted(ring._pair) == ["agent-1", "agent-2", "agent-3", "launcher", "leader",
+                                  "plant"]
+    assert (tmp_path / "ca" / "fleet.master").stat().st_mode & 0o077 == 0
+    assert not list(tmp_path.glob("robot*/fleet.master"))
     assert sorted(p.name for p in (tmp_path / "base").glob("*.key")) == [
         "launcher.key", "leader.key", "plant.key"]
     assert common_name(tmp_path / "robot2" / "agent-2.pem") == "agent-2"
