@@ -68,12 +68,15 @@ class Recorder:
                 raise TimeoutError(f"not ready after {o.startup_timeout_s:.0f} s: "
                                    f"{', '.join(sorted(missing))}")
             start = time.perf_counter()
-            while not obs.ended:
+            # the run ends with the plant's ``end``, or early with a genuine stop or estop
+            # (no ``end`` follows one: the nodes leave, each sending its report)
+            while not obs.ended and obs.stopped_by is None:
                 if self.stop():
                     raise Interrupted(self.stop.reason)
                 if progress is not None:
                     progress(obs.progress_k + 1, obs.steps)
-                node.mailbox.wait_until(lambda: obs.ended or self.stop(), 0.1)
+                node.mailbox.wait_until(
+                    lambda: obs.ended or obs.stopped_by is not None or self.stop(), 0.1)
             wall = time.perf_counter() - start
             # every node reports as it ends; wait for those still alive
             node.mailbox.wait_until(
