@@ -9,8 +9,8 @@ keys it holds instead.
     python tests/rogue_agent.py --scenario S --fleet F --keys agent-3.keys --role agent-3
         --victim 2 --connect ENDPOINT [--zenoh-config FILE] --steps N --seconds S
 
-Prints ``sent N`` at the end. Used by tests/e2e/test_compromised.py and
-tests/e2e/test_netns.py.
+Prints ``peers N`` once it is linked with N nodes, and ``sent N`` at the end. Used by
+tests/e2e/test_compromised.py and tests/e2e/test_netns.py.
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ def main() -> int:
     ring = Keyring.from_text(read_file(args.keys), args.keys, args.role, sc, keys)
     session = zenoh.open(zenoh_config(args.zenoh_config, connect=args.connect))
     block = zenoh.CongestionControl.BLOCK
-    sent = 0
+    sent = linked = 0
     until = time.monotonic() + args.seconds
     try:
         while time.monotonic() < until:
@@ -87,6 +87,10 @@ def main() -> int:
                         session.put(keys.cmd(args.victim), data, congestion_control=block)
                         sent += 1
             time.sleep(0.05)  # a pace, not a synchronisation: the rogue floods for its time
+            if not linked:  # said once it is in the fleet (a test may end it any time)
+                linked = len(session.info.peers_zid())
+                if linked:
+                    print(f"peers {linked}", flush=True)
     finally:
         session.close()
     print(f"sent {sent}", flush=True)
