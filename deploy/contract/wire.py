@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import msgspec
+import numpy as np
 
 from agents.degradation import MAX_COMMAND_HORIZON
 
@@ -161,7 +162,10 @@ class SensedBody(msgspec.Struct, array_like=True, frozen=True):
 
 
 def sensed_bodies(bodies) -> list[SensedBody]:
-    """Wire form of sensed bodies (anything with ident, position, velocity, radius)."""
+    """Wire form of sensed bodies: rows (ident, x, y, vx, vy, radius) as perception gives
+    them (plant/perception.py), or anything with ident, position, velocity, radius."""
+    if isinstance(bodies, np.ndarray):  # rows
+        return [SensedBody(int(r[0]), (r[1], r[2]), (r[3], r[4]), r[5]) for r in bodies.tolist()]
     return [SensedBody(b.ident, tuple(b.position.tolist()), tuple(b.velocity.tolist()),
                        float(b.radius)) for b in bodies]
 

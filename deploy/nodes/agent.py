@@ -124,8 +124,8 @@ def _stale(ages: InputAges | None) -> int:
     return int(ages.state_s > 0) + int(ages.leader_s > 0) + sum(a > 0 for a in ages.shares_s.values())
 
 
-def _t3(x: np.ndarray) -> tuple[float, float, float]:
-    return tuple(x.tolist())  # type: ignore[return-value]
+def _t3(x: np.ndarray | tuple[float, float, float]) -> tuple[float, float, float]:
+    return x if type(x) is tuple else tuple(x.tolist())  # type: ignore[return-value]
 
 
 def _finite_row(r: TelemetryRow) -> TelemetryRow:

@@ -185,8 +185,9 @@ class PlantNode:
         for i, rid in enumerate(self.ids):
             robots, obstacles = self.sense(i)
             if self.unpowered:  # a robot nobody drives is an obstacle to the others
-                obstacles = [*obstacles, *(b for b in robots if b.ident in self.unpowered)]
-                robots = [b for b in robots if b.ident not in self.unpowered]
+                off = np.isin(robots[:, 0], list(self.unpowered))
+                obstacles = np.concatenate([obstacles, robots[off]])
+                robots = robots[~off]
             msg = node.publish(keys.sample(rid), lambda seq, stamp, i=i, rid=rid, r=robots,
                                o=obstacles: Sample(
                 WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t, q=tuple(q[i]),

@@ -146,9 +146,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                 shares[(rid, k)] = out.share
                 law_resets[i] += bool(out.reset)
                 series.record_agent(k, i, out, agent)
-            series.record_world(
-                k, t, q0, v0, plant.q, plant.q_dot, targets.at(t, q0, v0)
-            )
+            series.record_world(k, t, q0, v0, plant.q, plant.q_dot)
             for i, rid in enumerate(ids):
                 cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get((rid, idx)))
                 if cmd is None:
@@ -169,6 +167,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
         series = TimeSeries(**{c: getattr(series, c)[:done].copy() for c in COLUMNS})
         step_unix_ns = step_unix_ns[:done]
     wall = time.perf_counter() - start
+    series.target[:] = targets.along(series.t, series.leader_q)  # reported only: after the run
     return RunResult(sc, plant_kind, series, wall, contact_log(plant), model.report()
                      if model.plan is not None else None, step_unix_ns, law_resets, interrupted,
                      clipped)

@@ -8,11 +8,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import asdict
 
+import numpy as np
+
 from deploy.contract.scenario import PLANT_KINDS, Scenario
+from plant.bodies import body_rows
 from plant.disturbance import make_disturbance
 from plant.interface import Perceiving, Plant, Touching
 from plant.model_plant import KinematicPlant, ModelPlant
-from plant.perception import Sensor, sense
+from plant.perception import Perception, Sensor
 
 __all__ = ["PLANT_KINDS", "contact_log", "make_plant", "sensor_for"]
 
@@ -64,12 +67,15 @@ def contact_log(plant: Plant) -> list[dict] | None:
 
 
 def sensor_for(plant: Plant, sc: Scenario) -> Sensor:
-    """i -> (robots, obstacles) robot i senses now: the plant's own world query when
-    it has one (pybullet), else :func:`sense` on the plant's positions."""
+    """i -> (robots, obstacles) robot i senses now, as rows (ident, x, y, vx, vy, radius):
+    the plant's own world query when it has one (pybullet), else the perception kernel on
+    the plant's positions (plant/perception.py)."""
     det = sc.spec.behaviors.detection_range_m
     if isinstance(plant, Perceiving):
-        return lambda i: plant.perceive(i, det)
-    radii = [sc.spec.robot.body_radius_m] * sc.n
-    ids, obstacles, shapes = sc.robot_ids, sc.obstacle_bodies(), sc.obstacle_shapes()
-    return lambda i: sense(i, plant.q[:, :2], plant.q_dot[:, :2], radii, ids, obstacles, det,
-                           shapes)
+        def perceived(i: int) -> tuple[np.ndarray, np.ndarray]:
+            robots, obstacles = plant.perceive(i, det)
+            return body_rows(robots), body_rows(obstacles)
+        return perceived
+    world = Perception([sc.spec.robot.body_radius_m] * sc.n, sc.robot_ids, sc.obstacle_bodies(),
+                       det, sc.obstacle_shapes())
+    return lambda i: world.rows(i, plant.q, plant.q_dot)
