@@ -9,6 +9,7 @@ cdef struct Model:
     double inv_R         # 1 / wheel radius
     double coulomb       # C_f m g R / 4, wheel torque of the smoothed Coulomb friction
     double inv_smooth    # 1 / omega_s in tanh(theta_dot / omega_s)
+    double viscous       # C_theta R^2, wheel torque per wheel speed (pybullet plant's (P4))
 
 cdef void model_from(Model* m, object model)
 cdef void acceleration(const Model* m, double phi, const double* qd, const double* u,

@@ -30,6 +30,7 @@ cdef void model_from(Model* m, object model):
     m.inv_R = 1.0 / model.params.wheel_radius_m
     m.coulomb = model.coulomb_torque_nm
     m.inv_smooth = 1.0 / model.params.coulomb_smoothing_radps
+    m.viscous = model.viscous_torque_per_radps
 
 
 cdef void acceleration(const Model* m, double phi, const double* qd, const double* u,
@@ -190,6 +191,27 @@ cdef class FleetDynamics:
         self._models = <Model*> <char*> self._keep
         for i in range(self.n):
             model_from(&self._models[i], models[i])
+
+    def wheel_forces(self, const double[:, ::1] q, const double[:, ::1] qd,
+                     const double[:, ::1] wheel_torques, double[:, ::1] out):
+        """The wheels' generalised force on each chassis (plant/pybullet_plant.py, (P3)-(P5)):
+        theta_dot = P T(phi)^T q_dot / R; tau_w = u + h_d - tau_c(theta_dot) - C_theta R^2
+        theta_dot; F = T(phi) P^T tau_w / R, world frame [F_x, F_y, M_z], into ``out``."""
+        cdef int i, j
+        cdef double c, s, bx, by, bw, w, fx, fy, fw
+        cdef double tau[4]
+        cdef Model* m
+        for i in range(self.n):
+            m = &self._models[i]
+            c, s = cos(q[i, 2]), sin(q[i, 2])
+            bx, by, bw = c * qd[i, 0] + s * qd[i, 1], c * qd[i, 1] - s * qd[i, 0], qd[i, 2]
+            for j in range(4):
+                w = (m.P[j][0] * bx + m.P[j][1] * by + m.P[j][2] * bw) * m.inv_R  # (P3)
+                tau[j] = wheel_torques[i, j] - m.coulomb * tanh(w * m.inv_smooth) - m.viscous * w  # (P4)
+            fx = (m.P[0][0] * tau[0] + m.P[1][0] * tau[1] + m.P[2][0] * tau[2] + m.P[3][0] * tau[3]) * m.inv_R
+            fy = (m.P[0][1] * tau[0] + m.P[1][1] * tau[1] + m.P[2][1] * tau[2] + m.P[3][1] * tau[3]) * m.inv_R
+            fw = (m.P[0][2] * tau[0] + m.P[1][2] * tau[1] + m.P[2][2] * tau[2] + m.P[3][2] * tau[3]) * m.inv_R
+            out[i, 0], out[i, 1], out[i, 2] = c * fx - s * fy, s * fx + c * fy, fw  # (P5)
 
     def step(self, double t, double dt, double[:, ::1] q, double[:, ::1] qd,
              const double[:, ::1] torques, const double[:, :, ::1] stage_disturbance=None):
