@@ -281,3 +281,11 @@ def sense_discs(int i, const double[:, ::1] positions, const double[:, ::1] velo
             o[cnt, 5] = obstacles[j, 4]
             cnt += 1
     return robots_seen, seen[:cnt]
+
+
+def sense_fleet(const double[:, ::1] positions, const double[:, ::1] velocities,
+                const double[::1] radii, const long[::1] ids, const double[:, ::1] obstacles,
+                const long[::1] obstacle_ids, double detection_range_m):
+    """:func:`sense_discs` for every robot in one pass: a list of (robots, obstacles)."""
+    return [sense_discs(i, positions, velocities, radii, ids, obstacles, obstacle_ids,
+                        detection_range_m) for i in range(positions.shape[0])]

@@ -16,11 +16,11 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from plant.bodies import Body, bodies_of, body_rows
-from plant.fleet_kernel import sense_discs
+from plant.fleet_kernel import sense_discs, sense_fleet
 from plant.shapes import Polygon
 
-# i -> (robots, obstacles) robot i perceives, as rows (ident, x, y, vx, vy, radius)
-Sensor = Callable[[int], tuple[np.ndarray, np.ndarray]]
+# () -> per robot, (robots, obstacles) it perceives now, as rows (ident, x, y, vx, vy, radius)
+Sensor = Callable[[], list[tuple[np.ndarray, np.ndarray]]]
 
 
 class Perception:
@@ -51,6 +51,23 @@ class Perception:
                                            self.shapes, self.detection_range_m))
             seen = np.concatenate([seen, walls]) if len(walls) else seen
         return robots, seen
+
+
+    def fleet_rows(self, positions: np.ndarray, velocities: np.ndarray
+                   ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """:meth:`rows` for every robot, in one call of the kernel."""
+        pos = np.ascontiguousarray(positions[:, :2], dtype=float)
+        out = sense_fleet(pos, np.ascontiguousarray(velocities[:, :2], dtype=float),
+                          self.radii, self.ids, self.obstacles, self.obstacle_ids,
+                          self.detection_range_m)
+        if not self.shapes:
+            return out
+        for i, (robots, seen) in enumerate(out):
+            walls = body_rows(shape_bodies(float(pos[i, 0]), float(pos[i, 1]), self.shapes,
+                                           self.detection_range_m))
+            if len(walls):
+                out[i] = (robots, np.concatenate([seen, walls]))
+        return out
 
 
 def sense(

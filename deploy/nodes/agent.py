@@ -51,7 +51,7 @@ from deploy.runtime.lockstep_inputs import AgentLinks
 from deploy.runtime.node_runtime import ControlInbox, FaultGate, StopFlag, Timing, publish_report
 from deploy.runtime.step_guard import CLOCK_SKEW_S, JUMP_OK, OwnClock, StepGuard
 from deploy.runtime.transport import Node
-from plant.bodies import Body
+from plant.bodies import NO_BODIES
 
 KEEP_STEPS = 4  # lockstep inputs kept behind the current step
 FORGET_EVERY = 32  # lockstep: older inputs are dropped every this many steps (a scan)
@@ -90,8 +90,11 @@ def share_from_msg(m: Reply) -> Share:
                  s.info_age_s)
 
 
-def bodies_from_msg(bodies: list[SensedBody]) -> list[Body]:
-    return [Body(b.ident, np.array(b.position), np.array(b.velocity), b.radius) for b in bodies]
+def body_rows_of(bodies: list[SensedBody]) -> np.ndarray:
+    """Sensed bodies as the law takes them: rows (ident, x, y, vx, vy, radius)."""
+    if not bodies:
+        return NO_BODIES
+    return np.array([(b.ident, *b.position, *b.velocity, b.radius) for b in bodies], dtype=float)
 
 
 def realtime_ages(state: Sample, leader: LeaderPoint | None,
@@ -381,8 +384,8 @@ class AgentNode:
                  dt: float | None = None, ages: InputAges | None = None
                  ) -> tuple[AgentOutput, list[Vec4]]:
         """The step's output and its look-ahead torques (empty when off)."""
-        robots = bodies_from_msg(state.robots)
-        obstacles = bodies_from_msg(state.obstacles)
+        robots = body_rows_of(state.robots)
+        obstacles = body_rows_of(state.obstacles)
         lead = (leader.q, leader.q_dot) if leader is not None else None
         if self.hears_leader and lead is None:  # never heard it yet: use own estimate
             lead = (self.core.q0_hat.copy(), self.core.v0_hat.copy())

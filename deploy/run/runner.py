@@ -134,7 +134,8 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
             q0, v0 = leader.state()
             leaders[k] = (q0, v0)
             qs, qds = plant.q.tolist(), plant.q_dot.tolist()
-            worlds[k] = world_k = [(tuple(qs[i]), tuple(qds[i]), *sense(i)) for i in range(sc.n)]
+            worlds[k] = world_k = [(tuple(q), tuple(qd), *seen)
+                                   for q, qd, seen in zip(qs, qds, sense(), strict=True)]
             shares_k, commands_k, shares_before = {}, {}, shares.get(k - 1, {})
             shares[k], commands[k] = shares_k, commands_k
             for i, agent in enumerate(agents):

@@ -64,7 +64,7 @@ def contact_log(plant: Plant) -> list[dict] | None:
 
 
 def sensor_for(plant: Plant, sc: Scenario) -> Sensor:
-    """i -> (robots, obstacles) robot i senses now, as rows (ident, x, y, vx, vy, radius):
+    """() -> per robot, (robots, obstacles) it senses now, as rows (ident, x, y, vx, vy, radius):
     the perception kernel on the plant's positions (plant/perception.py), for every plant.
     Robots and obstacles are discs, so the rule is exact geometry; the pybullet plant's own
     closest-point queries (``PybulletPlant.perceive``) give the same bodies
@@ -73,4 +73,4 @@ def sensor_for(plant: Plant, sc: Scenario) -> Sensor:
     det = sc.spec.behaviors.detection_range_m
     world = Perception([sc.spec.robot.body_radius_m] * sc.n, sc.robot_ids, sc.obstacle_bodies(),
                        det, sc.obstacle_shapes())
-    return lambda i: world.rows(i, plant.q, plant.q_dot)
+    return lambda: world.fleet_rows(plant.q, plant.q_dot)
