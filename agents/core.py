@@ -189,11 +189,17 @@ class AgentCore:
         robots: Bodies = (),
         dt: float | None = None,
         ages: InputAges | None = None,
+        horizon: float | None = None,
+        speed_cap: float = 1.0,
     ) -> AgentOutput:
         """One control step. ``dt`` is the time to the next step: the configured
         period unless given (a realtime agent passes the time its plant actually
         advanced, so a missed period does not stretch the observer's clock).
         ``ages``: how stale the inputs are (None: all fresh); see degradation.py.
+        ``horizon``: how long this command will act before the next can brake (the
+        avoidance engagement and the safety filter's barrier use it; at least ``dt``;
+        agents/pace.py measures it on a realtime loop); ``speed_cap``: a planar speed
+        scale for a loop that cannot keep its period (1: none).
         ``obstacles``, ``robots``: what perception sees (Body objects, or rows
         (ident, x, y, vx, vy, radius) as plant/perception.py gives them).
 
@@ -202,8 +208,9 @@ class AgentCore:
         qv, qdv = _vec3(q), _vec3(q_dot)
         nbr, kernel_ages = self.kernel_inputs(shares, ages)
         lead = None if leader is None else (_vec3(leader[0]), _vec3(leader[1]))
+        h = self.cfg.dt if dt is None else dt
         raw = self._law.step(t, qv, qdv, nbr, kernel_ages, lead, body_rows(obstacles),
-                             body_rows(robots), self.cfg.dt if dt is None else dt)
+                             body_rows(robots), h, h if horizon is None else horizon, speed_cap)
         (torques, v_cmd, e, s, q_d, q_fd, zeta, zeta_dot, q0h, v0h, z2, order, errors,
          nonfinite, info_age, input_age, speed, left_out, safety) = raw
         out = AgentOutput(

@@ -298,12 +298,14 @@ cdef Filtered safety_filter(double vnx, double vny, bint has_prev, double pvx, d
                             double px, double py, double radius, const double* bodies,
                             int nb, int n_obstacles, double margin, double brake,
                             double max_speed, double exit_time, double h,
-                            Line* lines) noexcept nogil:
+                            double horizon, Line* lines) noexcept nogil:
     """The command closest to v_nom that keeps every barrier: (S1) for an obstacle,
     n . v >= n . v_j - c_max(d_j); (S2) for a robot (reciprocal), n . v >= max((S1),
     -c_max / 2); within |v - v_prev| <= a h and |v| <= v_max (agents/safety_filter.py).
     ``bodies``: rows (ident, x, y, vx, vy, radius), the first ``n_obstacles`` obstacles.
-    ``lines``: room for nb barriers."""
+    ``h``: the step (how far v may move from v_prev); ``horizon``: how long the command
+    will act before the next one can brake (the period, or longer when the loop runs late:
+    the barrier's "one more period"). ``lines``: room for nb barriers."""
     cdef Filtered r
     cdef Disc discs[2]
     cdef int nd = 0, i, binding = 0
@@ -317,7 +319,7 @@ cdef Filtered safety_filter(double vnx, double vny, bint has_prev, double pvx, d
         if dist > 1e-12:
             nx, ny = dx / dist, dy / dist
         gap = dist - radius - row[5] - margin
-        c_max = closing_speed_limit(gap, brake, h, exit_time)
+        c_max = closing_speed_limit(gap, brake, horizon, exit_time)
         b = nx * row[3] + ny * row[4] - c_max  # (S1)
         if i >= n_obstacles and b < -0.5 * c_max:
             b = -0.5 * c_max  # (S2)
@@ -671,6 +673,8 @@ cdef void supervise(Task* tasks, int n, bint approaching, Law limiter, double h,
 cdef struct Inputs:
     # one step's inputs, as the step uses them
     double t, h
+    double horizon          # how long this command will act (>= h: a late loop holds it longer)
+    double speed_cap        # 1, or the planar speed scale of a loop that cannot keep its period
     double q[3]             # own pose as sampled
     double qd[3]            # own velocity
     bint has_ages
@@ -747,6 +751,7 @@ cdef class Law:
     cdef double speed_factor
     cdef bint info_lost, reacquiring
     cdef double reacquire_s
+    cdef double speed_cap       # this step's (Inputs.speed_cap)
     cdef int n_tasks            # tasks of the last step (the chain: FDB and the engaged ones)
     # work buffers
     cdef Task* tasks
@@ -836,6 +841,7 @@ cdef class Law:
         self.has_vdp = self.has_z1 = False
         self.z2[0] = self.z2[1] = self.z2[2] = 0.0
         self.speed_factor = 1.0
+        self.speed_cap = 1.0
         self.info_lost = self.reacquiring = False
         self.reacquire_s = 0.0
 
@@ -975,6 +981,8 @@ cdef class Law:
         does not run ahead of the robot at a behavior switch)."""
         cdef double dv[3]
         saturate_velocity(v, self.max_speed, self.max_yaw)
+        if self.speed_cap < 1.0:  # a loop that cannot keep its period slows its robot
+            v[0], v[1], v[2] = v[0] * self.speed_cap, v[1] * self.speed_cap, v[2] * self.speed_cap
         if self.speed_factor < 1.0:
             slow_down(v, self.speed_factor, self.degraded_speed)
         if self.has_vdp and self.limits_rate:
@@ -1002,7 +1010,7 @@ cdef class Law:
 
     cdef int _behaviors(self, double qx, double qy, double qw, const double* qd,
                         const double* q_fd, const double* v_fd, const double* bodies,
-                        int n_obs, int n_rob, double h) noexcept nogil:
+                        int n_obs, int n_rob, double horizon) noexcept nogil:
         """The active tasks into self.tasks, highest priority first; within FOCB and FRCB
         one task per guarded body, nearest (smallest surface gap) first. R_a is measured
         from an obstacle's surface (the paper's obstacles are points), R_c from the other
@@ -1040,7 +1048,7 @@ cdef class Law:
                 row = bodies + 6 * i
                 contact = self.radius + row[5]
                 threshold = safe + (row[5] if surface else 0.0)
-                engage = self._engage_distance(qx, qy, qd, row, contact, h)
+                engage = self._engage_distance(qx, qy, qd, row, contact, horizon)
                 if engage > threshold:
                     threshold = engage
                 if avoidance_task(&self.tasks[n], kind, qx, qy, qw, row[1], row[2], contact,
@@ -1132,8 +1140,9 @@ cdef class Law:
         if x.has_ages or self.speed_factor < 1.0:  # degraded, or recovering
             self.speed_factor = next_speed_factor(self.speed_factor, input_age, self.slow_after,
                                                   self.slow_ramp, h)
+        self.speed_cap = x.speed_cap
         nt = self._behaviors(qv[0], qv[1], qv[2], x.qd, q_fd, v_fd, x.bodies, x.n_obs,
-                             x.n_rob, h)
+                             x.n_rob, x.horizon)
         supervise(self.tasks, nt, self.approaching, self, h, v_d)
         self.n_tasks = nt
         o.filtered = self.use_filter and (x.n_obs + x.n_rob) > 0
@@ -1141,7 +1150,7 @@ cdef class Law:
             o.safety = safety_filter(v_d[0], v_d[1], self.has_vdp, self.vdp[0], self.vdp[1],
                                      qv[0], qv[1], self.radius, x.bodies, x.n_obs + x.n_rob,
                                      x.n_obs, self.margin, self.max_accel, self.max_speed,
-                                     self.exit_time, h, self.lines)
+                                     self.exit_time, h, x.horizon, self.lines)
             if o.safety.active:
                 v_d[0], v_d[1] = o.safety.vx, o.safety.vy
 
@@ -1235,11 +1244,14 @@ cdef class Law:
 
     # -- the Python face --------------------------------------------------------------
     cdef int _inputs(self, Inputs* x, double t, q, q_dot, nbr, ages, leader,
-                     obstacles, robots, double h) except -1:
+                     obstacles, robots, double h, double horizon=0.0,
+                     double speed_cap=1.0) except -1:
         cdef int i, j, n_obs, n_rob
         cdef double* row
         cdef const double[:, ::1] arr
         x.t, x.h = t, h
+        x.horizon = horizon if horizon > h else h
+        x.speed_cap = speed_cap if speed_cap < 1.0 else 1.0
         for j in range(3):
             x.q[j] = q[j]
             x.qd[j] = q_dot[j]
@@ -1274,17 +1286,20 @@ cdef class Law:
         self._room(1 + n_obs + n_rob, n_obs + n_rob)
         return 0
 
-    def step(self, double t, q, q_dot, nbr, ages, leader, obstacles, robots, double h):
+    def step(self, double t, q, q_dot, nbr, ages, leader, obstacles, robots, double h,
+             double horizon=0.0, double speed_cap=1.0):
         """One control step. ``q``, ``q_dot``: 3 floats each; ``nbr``: the neighbours'
         shares in the configuration's order (objects with q0_hat, v0_hat, q, q_dot, zeta,
         zeta_dot of 3 floats and info_age_s); ``ages``: None (all fresh) or (state age,
         leader age, per-neighbour link ages); ``leader``: None or (q0, v0);
         ``obstacles``, ``robots``: (k, 6) float arrays of rows (ident, x, y, vx, vy,
-        radius); ``h``: the time to the next step. Returns the output tuple that
-        agents/core.py unpacks (AgentOutput)."""
+        radius); ``h``: the time to the next step; ``horizon``: how long the command will
+        act (at least h); ``speed_cap``: a planar speed scale (1: none). Returns the output
+        tuple that agents/core.py unpacks (AgentOutput)."""
         cdef Inputs x
         cdef Outputs o
-        self._inputs(&x, t, q, q_dot, nbr, ages, leader, obstacles, robots, h)
+        self._inputs(&x, t, q, q_dot, nbr, ages, leader, obstacles, robots, h, horizon,
+                     speed_cap)
         self._step(&x, &o)
         return self._outputs(&o)
 
@@ -1645,7 +1660,7 @@ def safety_filter_of(v_nom, v_prev, double px, double py, double radius, bodies,
         r = safety_filter(v_nom[0], v_nom[1], v_prev is not None,
                           v_prev[0] if v_prev is not None else 0.0,
                           v_prev[1] if v_prev is not None else 0.0, px, py, radius, rows, nb,
-                          n_obstacles, margin, brake, max_speed, exit_time, h, ls)
+                          n_obstacles, margin, brake, max_speed, exit_time, h, h, ls)
     finally:
         free(rows)
         free(ls)
