@@ -300,8 +300,9 @@ class Node:
         seq = self._seq[key]
         self._seq[key] = seq + 1
         try:
-            msg = msg_factory(seq, time.monotonic_ns())  # validates: NaN never leaves
+            msg = msg_factory(seq, time.monotonic_ns())
             data = encode(msg)
+            self.codec.check(type(msg), data)  # the receivers' schema: NaN never leaves
             if self.keyring is not None:
                 data = self.keyring.seal(data, key)
             pub.put(data)
