@@ -3,7 +3,7 @@ tag per receiver that only the sender and that receiver can make.
 
 ::
 
-    envelope = payload | (receiver hint, tag) x n | sender hint | n | MAGIC
+    envelope = payload | (receiver hint, tag) x n | sender hint | n (2 bytes) | MAGIC
 
 - ``payload``: the message as the wire encodes it (deploy/contract/wire.py), untouched:
   the envelope is checked on the raw bytes before anything decodes them;
@@ -31,9 +31,9 @@ from typing import Any
 TAG_BYTES = 16
 HINT_BYTES = 2
 ENTRY_BYTES = HINT_BYTES + TAG_BYTES
-TRAILER_BYTES = HINT_BYTES + 2  # sender hint, tag count, MAGIC
+TRAILER_BYTES = HINT_BYTES + 3  # sender hint, tag count (2 bytes, big-endian), MAGIC
 MAGIC = 0xA7  # the envelope's format (version 1)
-MAX_TAGS = 255
+MAX_TAGS = 0xFFFF
 PERSON = b"omnifleet-mac1"  # BLAKE2b personalisation: these tags and nothing else
 
 
@@ -61,7 +61,7 @@ def seal(payload: bytes, sender_hint: bytes, receivers: Sequence[tuple[bytes, An
         h.update(payload)
         parts.append(receiver_hint)
         parts.append(h.digest())
-    parts.append(sender_hint + bytes((len(receivers), MAGIC)))
+    parts.append(sender_hint + len(receivers).to_bytes(2, "big") + bytes((MAGIC,)))
     return b"".join(parts)
 
 
@@ -71,11 +71,11 @@ def parse_head(data: bytes) -> tuple[int, bytes, int] | None:
     size = len(data)
     if size <= TRAILER_BYTES or data[-1] != MAGIC:
         return None
-    n = data[-2]
+    n = (data[-3] << 8) | data[-2]
     end = size - TRAILER_BYTES - n * ENTRY_BYTES
     if end < 1:
         return None
-    return end, data[-TRAILER_BYTES:-2], n
+    return end, data[-TRAILER_BYTES:-3], n
 
 
 UNSIGNED = "unsigned"

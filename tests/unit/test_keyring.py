@@ -104,7 +104,7 @@ def test_what_is_not_an_envelope_or_was_touched_is_refused(rings):
     sealed = rings["plant"].seal(b"\x93\x01\x02\x03", key)
     assert rings["agent-2"].open(b"\x93\x01\x02\x03", key) == (None, UNSIGNED)
     assert rings["agent-2"].open(b"", key) == (None, UNSIGNED)
-    assert rings["agent-2"].open(sealed[-4:], key) == (None, UNSIGNED)  # no payload
+    assert rings["agent-2"].open(sealed[-mac.TRAILER_BYTES:], key) == (None, UNSIGNED)  # no payload
     mine = sealed.index(mac.hint("agent-2"), 4)  # agent 2's entry among the tags
     for at in range(len(sealed) - mac.TRAILER_BYTES):  # every byte of payload and tags
         bad = bytearray(sealed)
@@ -114,7 +114,7 @@ def test_what_is_not_an_envelope_or_was_touched_is_refused(rings):
             assert opened is None, at
         else:  # another receiver's tag: not agent 2's business
             assert opened is not None, at
-    garbage = os.urandom(300) + bytes((0, 2, mac.MAGIC))
+    garbage = os.urandom(300) + bytes((0, 0, 2, mac.MAGIC))
     assert rings["agent-2"].open(garbage, key)[0] is None
 
 
@@ -136,3 +136,14 @@ def test_a_keyring_file_others_may_read_is_refused(tmp_path, lab):
                           "agent-2", lab, Keys(FLEET))
     with pytest.raises(KeysError, match="not an omnifleet keyring"):
         Keyring.from_text('{"format": 1}', "x", "agent-2", lab, Keys(FLEET))
+
+
+def test_an_envelope_holds_a_tag_for_every_receiver_of_a_large_fleet():
+    """Control goes to every node of the run: a fleet of 300 robots has 303 receivers."""
+    key, payload = "omr/k/ctl/tick", b"\x91\x01"
+    starts = [(mac.hint(f"agent-{i}"), mac.prefixed(bytes(32), key, "plant", f"agent-{i}"))
+              for i in range(300)]
+    sealed = mac.seal(payload, mac.hint("plant"), starts)
+    assert mac.parse_head(sealed) == (len(payload), mac.hint("plant"), 300)
+    last = {mac.hint("plant"): [mac.prefixed(bytes(32), key, "plant", "agent-299")]}
+    assert mac.open_envelope(sealed, mac.hint("agent-299"), last)[1] == ""
