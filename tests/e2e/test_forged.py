@@ -186,52 +186,62 @@ def test_a_fling_of_future_step_replies_at_1e30_is_refused_and_nothing_hangs(
     assert_same_series(TimeSeries.load(out / "timeseries.npz"), want)
 
 
-# 600 periods at 100 Hz (lab's own rate is 200 Hz: half of it keeps the fleet's loops in
-# their period on a loaded 2-core machine more often), two forgeries on each sample
-REALTIME_S, REALTIME_HZ = "6.0", "100"
+# 800 periods at 100 Hz (lab's own rate is 200 Hz: half of it keeps the fleet's loops in
+# their period on a loaded 2-core machine more often), two forgeries on each of 500 samples:
+# the race is over well before the run ends, so every node still hears all of it
+REALTIME_S, REALTIME_HZ = "8.0", "100"
 
 
 def _formation_rms(m: dict) -> list[float]:
     return m["formation_rms_after_settling_m"]
 
 
-def test_realtime_forgeries_neither_win_a_step_nor_silence_an_agent(tmp_path: Path):
+def test_realtime_forgeries_neither_win_a_step_nor_silence_an_agent(tmp_path: Path,
+                                                                    tmp_path_factory):
     """Before (realtime lab): forged torques moved robot 2 on at least 705 of 1003 steps
     (903 'second command for a step' at the plant), robot 2 ended 86 m off at 25 m/s
     and the run exited 0. Now every forgery is refused and counted, robot 2 is never
-    zeroed, and every robot stays within its un-attacked baseline's formation RMS."""
+    zeroed, and every robot stays within its un-attacked baseline's formation RMS: the
+    same scenario in process (an un-attacked realtime run that keeps its period is
+    within 0.5 % of it: 1.3038 / 0.9357 / 0.9456 m against 1.3037 / 0.9358 / 0.9405 m,
+    measured 2026-11-25)."""
+    out = tmp_path_factory.mktemp("baseline")
+    rc, _, err = finish(start("run", "lab", "--plant", "model", "--in-process", "--duration",
+                              REALTIME_S, "--control-rate", REALTIME_HZ, "--out", str(out),
+                              "--no-figures", "--no-record"))
+    assert rc == 0, err
+    base = metrics(out)
     n = [0]
 
-    def run(attack: bool) -> dict:
+    def run() -> dict:
         n[0] += 1
         out = tmp_path / f"realtime{n[0]}"
         with fleet_under_attack("lab", out, "--plant", "model", "--clock", "realtime",
                                 "--duration", REALTIME_S, "--control-rate", REALTIME_HZ) as (
                 proc, a):
-            if attack:
-                raced = a.race(2, RACE // 2, lambda m: [
-                    a.cmd(2, m.k, seq=m.seq, torque=-2.0, as_="agent-2") for _ in range(2)])
-                k = a.step_of(2, after=20)
-                a.cmd(2, 2**62, torque=-2.0)  # plain
-                a.sample(2, k + 1, seq=k + 1)  # plain
-                a.sample(2, k + WHERE, as_="plant")
-                assert raced.wait(60), "the race did not get its forgeries out"
+            raced = a.race(2, RACE // 2, lambda m: [
+                a.cmd(2, m.k, seq=m.seq, torque=-2.0, as_="agent-2") for _ in range(2)])
+            k = a.step_of(2, after=20)
+            a.cmd(2, 2**62, torque=-2.0)  # plain
+            a.sample(2, k + 1, seq=k + 1)  # plain
+            a.sample(2, k + WHERE, as_="plant")
+            assert raced.wait(60), "the race did not get its forgeries out"
             rc, _, err = finish(proc)
         assert rc == 0, err
         m = metrics(out)
-        if attack:  # what was refused does not depend on the scheduler: judged on every run
-            assert refused(m, "plant") == {"reply: " + BAD: RACE, "reply: unsigned": 1}
-            assert refused(m, "agent-3") == {"reply: " + BAD: RACE, "reply: unsigned": 1}
-            assert refused(m, "agent-2") == {"sample: unsigned": 1, "sample: " + BAD: 1}
+        # what was refused does not depend on the scheduler: judged on every run
+        refusals = m["messages"].get("refused")
+        assert refused(m, "plant") == {"reply: " + BAD: RACE, "reply: unsigned": 1}, refusals
+        assert refused(m, "agent-3") == {"reply: " + BAD: RACE, "reply: unsigned": 1}, refusals
+        assert refused(m, "agent-2") == {"sample: unsigned": 1, "sample: " + BAD: 1}, refusals
         return m
 
     # that nobody was zeroed and the formation held: only where the clock allowed it
-    m = judged(lambda: run(True), lambda m: m, "realtime forgeries")
-    base = judged(lambda: run(False), lambda m: m, "realtime baseline")
+    m = judged(run, lambda m: m, "realtime forgeries")
     assert not [s for s in m.get("command_stops", []) if s["robot"] == 2]
     assert m["verdict"]["pass"], m["verdict"]
     for i, (got, was) in enumerate(zip(_formation_rms(m), _formation_rms(base), strict=True)):
-        assert got <= 1.2 * was + 0.02, f"robot {i + 1}: formation RMS {got} m, baseline {was} m"
+        assert got <= 1.1 * was + 0.02, f"robot {i + 1}: formation RMS {got} m, baseline {was} m"
 
 
 # --- the CAN bridge, driven directly (no bus hardware, no zenoh) ----------------------------
