@@ -8,6 +8,9 @@ their sources, so that ``python -m ...`` and ``python -m pytest`` run from a clo
 put the clone ahead of site-packages on sys.path) find them there.
 """
 
+import hashlib
+from pathlib import Path
+
 from Cython.Build import cythonize
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
@@ -16,6 +19,10 @@ KERNELS = [
     Extension("plant.fleet_kernel", ["plant/fleet_kernel.pyx"]),
     Extension("agents.law_kernel", ["agents/law_kernel.pyx"]),
 ]
+# each kernel knows the source it was built from (BUILT_FROM), so that a module built from
+# an older .pyx is refused at import instead of running stale arithmetic (plant/kernels.py)
+SOURCE_HASHES = {ext.name.replace(".", "_").upper() + "_SHA256":
+                 hashlib.sha256(Path(ext.sources[0]).read_bytes()).hexdigest() for ext in KERNELS}
 
 
 class BuildNextToSources(build_ext):
@@ -32,6 +39,7 @@ setup(
         KERNELS,
         compiler_directives={"language_level": 3, "boundscheck": False, "wraparound": False,
                              "cdivision": True, "initializedcheck": False},
+        compile_time_env=SOURCE_HASHES,
     ),
     cmdclass={"build_ext": BuildNextToSources},
 )

@@ -15,6 +15,10 @@ allocation overhead of a few hundred small operations); here a step costs a few 
 values propagate and the caller (AgentCore) zeroes the torques and restarts the state.
 """
 
+DEF _SOURCE = AGENTS_LAW_KERNEL_SHA256  # given by setup.py at build time
+BUILT_FROM = _SOURCE  # the sha256 of the .pyx this module was built from (plant/kernels.py)
+
+
 from libc.math cimport sqrt, hypot, cos, sin, tanh, pow, fabs, ceil, erf, exp, isfinite, INFINITY, M_PI
 from libc.stdlib cimport malloc, realloc, free
 from libc.string cimport memcpy

@@ -7,6 +7,10 @@ the per-call overhead of ~400 numpy calls on arrays of 3-12 elements; the same l
 doubles cost about 1 µs (docs/bench.md, "The compiled kernels").
 """
 
+DEF _SOURCE = PLANT_FLEET_KERNEL_SHA256  # given by setup.py at build time
+BUILT_FROM = _SOURCE  # the sha256 of the .pyx this module was built from (plant/kernels.py)
+
+
 from libc.math cimport cos, sin, tanh, hypot
 
 import numpy as np
