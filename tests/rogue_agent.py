@@ -49,7 +49,7 @@ def forgeries(ring: Keyring, keys: Keys, victim: int, k: int) -> list[bytes]:
     claimed = agent_role(victim)
     tags = [(mac.hint(receiver), mac.prefixed(ring._pair[held], key, claimed, receiver))
             for receiver in ("plant", f"bridge-{victim}") for held in ring._pair]
-    return [ring.seal(body, key), mac.seal(body, mac.hint(claimed), tags)]
+    return [ring.seal(body, key), mac.seal(body, tags, mac.trailer(mac.hint(claimed), len(tags)))]
 
 
 def main() -> int:
@@ -78,7 +78,7 @@ def main() -> int:
                 # for every receiver but itself (stopping its own process proves nothing)
                 tags = [(mac.hint(r), mac.prefixed(ring._pair[held], keys.ctl("stop"), "plant", r))
                         for r in ring._pair if r != args.role for held in ring._pair]
-                session.put(keys.ctl("stop"), mac.seal(stop, mac.hint("plant"), tags[:255]),
+                session.put(keys.ctl("stop"), mac.seal(stop, tags, mac.trailer(mac.hint("plant"), len(tags))),
                             congestion_control=block)
                 sent += 1
             else:

@@ -154,7 +154,7 @@ class Keyring:
         except (ValueError, KeyError) as exc:
             raise KeysError(f"keyring of {role}: a peer that is not a role of scenario "
                             f"{sc.name} ({exc})") from exc
-        self._seal: dict[str, list[tuple[bytes, Any]]] = {}
+        self._seal: dict[str, tuple[list[tuple[bytes, Any]], bytes]] = {}
         self._open: dict[str, dict[bytes, list[Any]]] = {}
 
     @classmethod
@@ -172,11 +172,12 @@ class Keyring:
         """``payload`` with a tag for every receiver of ``key_expr`` this node has a key with."""
         plan = self._seal.get(key_expr)
         if plan is None:
-            plan = [(self._hints[r], mac.prefixed(self._pair[r], key_expr, self.role, r))
+            tags = [(self._hints[r], mac.prefixed(self._pair[r], key_expr, self.role, r))
                     for r in self.receivers.get(key_expr, ())]
+            plan = (tags, mac.trailer(self._me, len(tags)))
             if len(self._seal) < MAX_CACHED:
                 self._seal[key_expr] = plan
-        return mac.seal(payload, self._me, plan)
+        return mac.seal(payload, *plan)
 
     def open(self, data: bytes, key_expr: str) -> tuple[memoryview | None, str]:
         """(the payload, "") when ``data`` came from a sender of ``key_expr`` with a tag

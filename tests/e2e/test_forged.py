@@ -317,9 +317,10 @@ def test_a_compromised_agent_cannot_command_another_robots_bridge():
         b.published_k = 100
         three = keys["agent-3"]
         b.node.deliver(key, three.seal(_reply(100, 11, -2.0), key))  # as itself
-        forged = mac.seal(_reply(100, 11, -2.0), mac.hint("agent-2"), [  # claiming agent 2
-            (mac.hint("bridge-2"), mac.prefixed(three._pair["bridge-2"], key, "agent-2",
-                                                "bridge-2"))])
+        stolen = [(mac.hint("bridge-2"), mac.prefixed(three._pair["bridge-2"], key, "agent-2",
+                                                      "bridge-2"))]
+        forged = mac.seal(_reply(100, 11, -2.0), stolen,  # claiming to be agent 2
+                          mac.trailer(mac.hint("agent-2"), len(stolen)))
         b.node.deliver(key, forged)
         assert b.gate._torques is None and b.command_k == -1
         assert b.node.refused == {"reply: not signed by a sender of this key": 1,

@@ -72,7 +72,7 @@ def _forged(real: dict[str, Keyring], other: dict[str, Keyring], claimed: str, k
     stolen = [(mac.hint(r), mac.prefixed(three._pair[held], key, claimed, r))
               for r in real[claimed].receivers.get(key, []) for held in three._pair]
     return [body, other[claimed].seal(body, key), three.seal(body, key),
-            mac.seal(body, mac.hint(claimed), stolen)]
+            mac.seal(body, stolen, mac.trailer(mac.hint(claimed), len(stolen)))]
 
 
 def test_the_plant_steps_past_k_only_on_each_robots_own_agents_command(lab):

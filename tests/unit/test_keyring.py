@@ -75,10 +75,11 @@ def test_a_compromised_agent_cannot_command_another_robot(rings):
     assert rings["plant"].open(three.seal(payload, keys.cmd(2)), keys.cmd(2)) == (
         None, WRONG_SENDER)
     # claiming to be agent 2, tagged with every key it holds for the plant and agent 2
-    forged = mac.seal(payload, mac.hint("agent-2"), [
+    stolen = [
         (mac.hint("plant"), mac.prefixed(three._pair["plant"], keys.cmd(2), "agent-2", "plant")),
         (mac.hint("plant"), mac.prefixed(three._pair["agent-2"], keys.cmd(2), "agent-2",
-                                         "plant"))])
+                                         "plant"))]
+    forged = mac.seal(payload, stolen, mac.trailer(mac.hint("agent-2"), len(stolen)))
     assert rings["plant"].open(forged, keys.cmd(2)) == (None, BAD_MAC)
     # its own robot: taken
     assert rings["plant"].open(three.seal(payload, keys.cmd(3)), keys.cmd(3))[1] == ""
@@ -143,7 +144,25 @@ def test_an_envelope_holds_a_tag_for_every_receiver_of_a_large_fleet():
     key, payload = "omr/k/ctl/tick", b"\x91\x01"
     starts = [(mac.hint(f"agent-{i}"), mac.prefixed(bytes(32), key, "plant", f"agent-{i}"))
               for i in range(300)]
-    sealed = mac.seal(payload, mac.hint("plant"), starts)
+    sealed = mac.seal(payload, starts, mac.trailer(mac.hint("plant"), len(starts)))
     assert mac.parse_head(sealed) == (len(payload), mac.hint("plant"), 300)
     last = {mac.hint("plant"): [mac.prefixed(bytes(32), key, "plant", "agent-299")]}
     assert mac.open_envelope(sealed, mac.hint("agent-299"), last)[1] == ""
+
+
+def test_a_receiver_finds_its_tag_wherever_its_hint_bytes_also_appear():
+    """The receiver's hint searched in C: bytes equal to it inside another entry's tag
+    (or several entries under its hint, as a forger who tags with every key it holds
+    writes them) neither hide its own tag nor pass for it."""
+    key, payload, me = "omr/k/robot/2/cmd", b"\x93\x01\x02\x03", mac.hint("plant")
+    start = mac.prefixed(bytes(range(32)), key, "agent-2", "plant")
+    good = start.copy()
+    good.update(payload)
+    decoy = mac.hint("agent-3") + b"\x00" * 5 + me + b"\x00" * 9  # its tag holds `me`
+    wrong = me + b"\x11" * 16  # an entry under my hint that does not check
+    trail = mac.trailer(mac.hint("agent-2"), 3)
+    senders = {mac.hint("agent-2"): [start]}
+    data = payload + decoy + wrong + me + good.digest() + trail
+    assert mac.open_envelope(data, me, senders) == (memoryview(payload), "")
+    data = payload + decoy + wrong + wrong + trail
+    assert mac.open_envelope(data, me, senders) == (None, mac.BAD_MAC)
