@@ -261,9 +261,7 @@ def add_keys_options(p: argparse.ArgumentParser) -> None:
                       help="this node's keyring (`omnifleet deploy certs` writes one per role, "
                       "mode 0600): every message is authenticated per sender and receiver "
                       "(docs/hardening.md); without it, nothing is")
-    keys.add_argument("--keys-fd", type=int, metavar="N",
-                      help="read this node's keyring from the pipe N (how `omnifleet run` "
-                      "hands each node its keys: never in its environment or on disk)")
+    add_option(keys, "--keys-fd")  # type: ignore[arg-type]  # a group adds arguments alike
 
 
 def add_node_commands(sub: argparse._SubParsersAction) -> None:

@@ -131,3 +131,22 @@ def test_deploy_plan_exits_2_on_a_bad_hosts_file(tmp_path):
     assert rc == 2 and str(bad) in err and "fleet" in err
     rc, out, err = finish(start("deploy", "plan", str(EXAMPLE), "paper"), timeout=60)
     assert rc == 0 and "omnifleet agent" in out, err
+
+
+def test_a_node_refuses_a_keyring_others_may_read_or_another_roles(paper, tmp_path):
+    """Before opening a session: exit 2 naming the file and what is wrong with it."""
+    from deploy.contract.keyring import keyring_text, new_master, write_file
+
+    ring = write_file(tmp_path / "agent-2.keys",
+                      keyring_text(new_master(), "f", "agent-2", ["plant", "leader"]))
+    ring.chmod(0o644)
+    rc, _, err = finish(start("agent", "--scenario", "paper", "--fleet", "f", "--robot", "2",
+                              "--keys", str(ring)), timeout=60)
+    assert rc == 2 and f"{ring}: mode 0644: others may read its keys" in err, err
+    ring.chmod(0o600)
+    rc, _, err = finish(start("agent", "--scenario", "paper", "--fleet", "f", "--robot", "3",
+                              "--keys", str(ring)), timeout=60)
+    assert rc == 2 and "keys of agent-2, not of agent-3" in err, err
+    rc, _, err = finish(start("agent", "--scenario", "paper", "--fleet", "f", "--robot", "2",
+                              "--keys", str(tmp_path / "none.keys")), timeout=60)
+    assert rc == 2 and "none.keys: cannot read" in err and "deploy certs" in err, err
