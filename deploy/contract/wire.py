@@ -377,13 +377,16 @@ class NodeReport(Message, frozen=True):
     # for more wheel torque than the bound (plant/command.py torque_bound): clipped to it
     torque_clipped: dict[str, int] = {}
     mac: str = ""  # HMAC of the report's encoding with the run's secret (deploy/contract/run_secret.py)
+    # realtime: the node's longest late wake (ns; a stall) and the step it was due for
+    longest_late_ns: int = 0
+    longest_late_k: int = -1
 
     def __post_init__(self) -> None:
         if len(self.mac) > 64:
             raise ValueError("mac too long")
         if min(self.sent, self.dropped, self.late, self.invalid, self.steps, self.nonfinite,
                self.deadline_misses, self.law_resets, self.nonfinite_commands,
-               self.stale_samples, self.contacts_total) < 0:
+               self.stale_samples, self.contacts_total, self.longest_late_ns) < 0:
             raise ValueError("a negative count")  # a forged "invalid = -1000"
         if (len(self.latency_ns) > MAX_REPORT_SAMPLES or len(self.jitter_ns) > MAX_REPORT_SAMPLES
                 or len(self.received) > MAX_REPORT_KEYS or len(self.faults) > MAX_REPORT_KEYS

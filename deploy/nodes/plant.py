@@ -235,7 +235,7 @@ class PlantNode:
             self.plant.step(t, dt, self.torques, self.v_cmd)
             self.steps_done += 1
         self.flush_log()
-        self._control("end", steps, steps * dt)
+        self._control("end", self.steps_done, self.steps_done * dt)
 
     def _take_lockstep_commands(self, k: int) -> None:
         """Each robot's command of step k. For a missing one (late: counted) or one

@@ -45,7 +45,8 @@ TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "ji
                # what the nodes report of themselves (a distributed run only: in process
                # there is no command to time out, no sample to arrive stale)
                "command_timeout_s", "nonfinite_commands_reported", "stale_samples",
-               "zero_torque_longest_s",
+               "zero_torque_longest_s", "deadline_misses_by_node", "longest_stall",
+               "reports_missing",
                # which output files the run wrote (a recording, figures): not a figure
                "files")
 
@@ -124,9 +125,12 @@ def compute_metrics(
     messages: dict[str, int] | None = None,
     contact_log: list[dict[str, Any]] | None = None,
     contacts_total: int | None = None,
+    steps_asked: int | None = None,
 ) -> dict[str, Any]:
     """``contact_log``: the plant's physical contact events (None: it has no bodies);
-    ``contacts_total``: their number when the log was truncated in transit."""
+    ``contacts_total``: their number when the log was truncated in transit;
+    ``steps_asked``: the steps the run was asked for (None: the series' own, as a run
+    in process simulates exactly what it records)."""
     s = sc.spec
     t = series.t
     n = sc.n
@@ -153,6 +157,10 @@ def compute_metrics(
         "robots": n,
         "sim_time_s": sim_time,
         "steps": series.steps,
+        # what was asked, and what the node that integrates simulated (a distributed run:
+        # the plant's own count, in its report); the verdict compares the three
+        "steps_asked": series.steps if steps_asked is None else steps_asked,
+        "steps_simulated": series.steps,
         "control_rate_hz": s.control_rate_hz,
         "wall_time_s": wall_time_s,
         "real_time_factor": sim_time / wall_time_s if wall_time_s > 0 else None,

@@ -30,13 +30,15 @@ def write_run(
     recorder: McapRecorder | None = None,
     step_unix_ns: np.ndarray | None = None,
     t0_unix_ns: int | None = None,
+    steps_asked: int | None = None,
 ) -> dict[str, Any]:
     """``recorder``: the run's open recording; the scene and plots of ``series``
     are added to it (``step_unix_ns``: each step's wall clock, when known;
-    ``t0_unix_ns``: the wall clock at t = 0) and it is closed."""
+    ``t0_unix_ns``: the wall clock at t = 0) and it is closed. ``steps_asked``: the
+    steps the run was asked for (metrics.json ``steps_asked``)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     metrics = compute_metrics(sc, series, plant, clock, wall_time_s, messages, contact_log,
-                              contacts_total)
+                              contacts_total, steps_asked)
     metrics.update(extra or {})
     if recorder is not None:
         try:

@@ -23,7 +23,7 @@ def summary(m: dict, out: Path) -> str:
 
     return "\n".join([
         f"{m['scenario']}: {m['robots']} robots, {m['plant']} plant, {m['clock']}, "
-        f"{m['sim_time_s']:.2f} s simulated in {m['wall_time_s']:.2f} s "
+        f"{_simulated(m)} in {m['wall_time_s']:.2f} s "
         f"(x{m['real_time_factor']:.2f} real time)",
         *([f"  INTERRUPTED ({m.get('interrupted_by')}): what follows covers the "
            f"{m['sim_time_s']:.2f} s measured before it; no figures"] if m.get("interrupted")
@@ -46,6 +46,20 @@ def summary(m: dict, out: Path) -> str:
         f"  written to {out}/ ({', '.join(m.get('files') or ['metrics.json'])})",
         *([verdict_line(m["verdict"])] if "verdict" in m else []),
     ])
+
+
+def _simulated(m: dict) -> str:
+    """"20.00 s simulated", or what fell short: "4.90 s of the 20.00 s asked simulated,
+    4.88 s heard" (the steps the plant simulated, and those whose states arrived)."""
+    dt = 1.0 / float(m["control_rate_hz"])
+    asked, done = m.get("steps_asked"), m.get("steps_simulated", m["steps"])
+    text = f"{done * dt:.2f} s"
+    if asked is not None and asked != done:
+        text += f" of the {asked * dt:.2f} s asked"
+    text += " simulated"
+    if done != m["steps"]:
+        text += f" ({m['sim_time_s']:.2f} s of it heard)"
+    return text
 
 
 def _law_lines(m: dict) -> list[str]:
@@ -123,6 +137,18 @@ def _transport_lines(m: dict) -> list[str]:
             lines.append(f"  state->command latency     p50 {ms(lat['p50'])} ms, p99 {ms(lat['p99'])} ms")
         lines.append(f"  loop jitter                p50 {ms(jit['p50'])} ms, p99 {ms(jit['p99'])} ms; "
                      f"deadline misses {m['deadline_misses']}")
+        by_node = m.get("deadline_misses_by_node")
+        if by_node and m['deadline_misses']:
+            lines.append("  deadline misses by node    " + ", ".join(
+                f"{role} {n}" for role, n in by_node.items() if n)
+                + f" (of {m.get('steps_asked', m['steps'])} steps)")
+        stall = m.get("longest_stall")
+        if stall:
+            lines.append(f"  longest stall              {stall['node']} {stall['duration_s']:.3f} s "
+                         f"from t = {stall['t_s']:.3f} s (its latest wake)")
+    missing = m.get("reports_missing")
+    if missing:
+        lines.append(f"  reports missing            {', '.join(missing)}")
     if "odometry_drift" in m:
         d = m["odometry_drift"]
 

@@ -127,8 +127,8 @@ class Launcher:
             self._announce_start(node)
         self._supervise(node, progress)
         wall = time.perf_counter() - start
-        if progress is not None:
-            progress(self.steps, self.steps)
+        if progress is not None:  # the steps the plant says it simulated, no more
+            progress(self.observer.progress_k + 1, self.steps)
         sup.wait_for_exit(self.stop, lambda s: node.mailbox.wait_until(self.stop, s))
         # reports travel before the session closes; wait for stragglers (a launcher
         # behind on a large fleet's traffic reads them late)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from deploy.contract.options import EXIT_BAD_INPUT
 from deploy.contract.wire import Keys
-from deploy.nodes.cli import fault_plan, gui_problem, run_scenario
+from deploy.nodes.cli import fault_plan, gui_problem, run_scenario, steps_of
 from deploy.report.emulator_truth import can_fault_counts, emulator_lag_ms
 from deploy.report.run_folder import RunFolderError
 from deploy.report.run_folder import prepare as prepare_run_folder
@@ -113,7 +113,8 @@ def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, l
         _interrupted(metrics, out)
     return write_run(sc, result.series, out, plant, "lockstep", result.wall_time_s,
                      extra=extra, figures=not args.no_figures, contact_log=result.contacts,
-                     recorder=recorder, step_unix_ns=result.step_unix_ns)
+                     recorder=recorder, step_unix_ns=result.step_unix_ns,
+                     steps_asked=steps_of(sc, args))
 
 
 def _interrupted(metrics: dict, out: Path) -> None:
@@ -233,5 +234,6 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     return write_run(sc, series, out, plant, args.clock, wall, messages, extra,
                      figures=not args.no_figures, contact_log=contact_log,
                      contacts_total=contacts_total, recorder=recorder,
+                     steps_asked=opts.steps(sc),
                      **run_wall_clock(end_unix_ns, wall, launcher.observer.run_t0, series.steps,
                                       args.clock == "lockstep"))

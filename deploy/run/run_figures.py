@@ -98,9 +98,11 @@ def process_rows(children: list[Child], reports: dict[str, NodeReport],
 
 
 def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: float,
-                faults: FaultPlan | None = None, kill_events: list[dict] | None = None
-                ) -> dict[str, Any]:
-    """Everything a run adds to metrics.json beside its series and scene."""
+                faults: FaultPlan | None = None, kill_events: list[dict] | None = None,
+                expected_roles: list[str] | None = None) -> dict[str, Any]:
+    """Everything a run adds to metrics.json beside its series and scene.
+    ``expected_roles``: the nodes that must report (default: the zenoh nodes among
+    ``children``, those the fault plan killed for good left out)."""
     sc = obs.sc
     reports: dict[str, NodeReport] = dict(obs.collector.reports)
     out: dict[str, Any] = {"wall_time_s": wall, "messages": message_figures(reports, obs),
@@ -133,10 +135,35 @@ def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: f
     if faults is not None:
         out["faults"] = fault_metrics(faults, merge_reports([r.faults for r in reports.values()]),
                                       kill_events or [])
+    if expected_roles is None:
+        expected_roles = [c.role for c in children if c.zenoh and not (c.killed and not any(
+            o.role == c.role and o.restarted for o in children))]
+    out |= completeness_figures(sc.dt, expected_roles, reports, plant, bridges, obs.clock)
     if obs.clock == "realtime":
         out["latency_ms"] = percentiles_ms(plant.latency_ns if plant else [])
         if bridges:  # on CAN: each command's arrival -> its torque frames on the bus
             out["bridge_latency_ms"] = percentiles_ms([x for b in bridges for x in b.latency_ns])
         out["jitter_ms"] = percentiles_ms([j for r in reports.values() for j in r.jitter_ns])
         out["deadline_misses"] = sum(r.deadline_misses for r in reports.values())
+        out["deadline_misses_by_node"] = {role: r.deadline_misses
+                                          for role, r in sorted(reports.items())}
+    return out
+
+
+def completeness_figures(dt: float, expected_roles: list[str], reports: dict[str, NodeReport],
+                         plant: NodeReport | None, bridges: list[NodeReport], clock: str
+                         ) -> dict[str, Any]:
+    """What the verdict needs to know the run went whole (deploy/report/verdict.py): the
+    steps the node that integrates (the plant; on CAN each bridge) simulated, the nodes
+    whose report never came, and (realtime) the longest stall of a node that applies
+    torques, when it began."""
+    out: dict[str, Any] = {}
+    holders = [r for r in [plant, *bridges] if r is not None]
+    if holders:
+        out["steps_simulated"] = min(r.steps for r in holders)
+    out["reports_missing"] = sorted({role for role in expected_roles if role not in reports})
+    if clock == "realtime" and holders:
+        worst = max(holders, key=lambda r: r.longest_late_ns)
+        out["longest_stall"] = {"node": worst.role, "duration_s": worst.longest_late_ns * 1e-9,
+                                "t_s": max(worst.longest_late_k, 0) * dt}
     return out
