@@ -2,7 +2,7 @@
 
 Exit codes: 0 success, 1 the run failed (a node died) or did not meet the
 scenario's criteria (with ``--check``), 2 bad input (scenario, arguments,
-zenoh configuration), 3 a node lost a peer it cannot run without, 130
+zenoh configuration, an output path that cannot be written), 3 a node lost a peer it cannot run without, 130
 interrupted (SIGINT), 143 terminated (SIGTERM).
 """
 
@@ -13,6 +13,7 @@ import sys
 
 from deploy.contract.fault_plan import FaultPlanError
 from deploy.contract.options import EXIT_BAD_INPUT, OptionError, add_option
+from deploy.contract.output_paths import OutputPathError
 from deploy.contract.scenario import PLANT_KINDS, ScenarioError
 from deploy.contract.wire import FleetNameError
 from deploy.nodes.cli import CLOCKS, add_node_commands
@@ -147,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     except (TransportError, FleetNameError) as exc:
         print(f"omnifleet: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except OptionError as exc:
+    except (OptionError, OutputPathError) as exc:
         print(f"{_prog(args)}: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from deploy.contract.options import EXIT_BAD_INPUT, add_option
+from deploy.contract.output_paths import check_folder
 from deploy.contract.scaled_scenarios import scale_scenario
 
 BENCH_VERSION = 2  # 2: wire v2 codec figures, README command 1, realtime paper, largest N
@@ -417,7 +418,7 @@ def _num(x: float) -> str:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    out = Path(args.out)
+    out = check_folder(args.out, "--out")  # OutputPathError: exit 2 (cli.main), before anything
     out.mkdir(parents=True, exist_ok=True)
     settings = Settings.of(args.quick, args.repeats)
     started = time.monotonic()

@@ -48,7 +48,7 @@ TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "ji
                "zero_torque_longest_s", "deadline_misses_by_node", "longest_stall",
                "reports_missing",
                # which output files the run wrote (a recording, figures): not a figure
-               "files")
+               "files", "folder")
 
 
 def settling_time(t: np.ndarray, err_norm: np.ndarray, threshold: float) -> float | None:

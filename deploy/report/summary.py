@@ -43,7 +43,7 @@ def summary(m: dict, out: Path) -> str:
         *_law_lines(m),
         *_transport_lines(m),
         *_hardening_lines(m),
-        f"  written to {out}/ ({', '.join(m.get('files') or ['metrics.json'])})",
+        f"  written to {m.get('folder') or out}/ ({', '.join(m.get('files') or ['metrics.json'])})",
         *([verdict_line(m["verdict"])] if "verdict" in m else []),
     ])
 

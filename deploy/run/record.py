@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from deploy.contract.options import EXIT_BAD_INPUT, add_option
+from deploy.contract.output_paths import check_folder
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, run_roles
 from deploy.nodes.cli import run_scenario
@@ -132,6 +133,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
     plant = args.plant or sc.spec.plant.kind
     from deploy.report.run_folder import RunFolderError, prepare
 
+    check_folder(args.out, "--out")  # OutputPathError: exit 2 (cli.main), before anything
     try:
         removed = prepare(Path(args.out), args.overwrite)
     except RunFolderError as exc:

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from deploy.contract.options import EXIT_BAD_INPUT
+from deploy.contract.output_paths import check_folder, usable_folder
 from deploy.contract.wire import Keys
 from deploy.nodes.cli import fault_plan, gui_problem, run_scenario, steps_of
 from deploy.report.emulator_truth import can_fault_counts, emulator_lag_ms
@@ -48,7 +49,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"note: {note}", file=sys.stderr)
     if not args.in_process:
         Keys(args.fleet or sc.name)  # FleetNameError: exit 2 (main), before --out is touched
-    out = Path(args.out) if args.out else Path("runs") / sc.name
+    out = check_folder(Path(args.out) if args.out else Path("runs") / sc.name, "--out")
     try:
         removed = prepare_run_folder(out, args.overwrite)
     except RunFolderError as exc:
@@ -102,7 +103,13 @@ def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, l
     extra["torque_clipped"] = {str(r): n for r, n in (result.torque_clipped or {}).items()}
     recorder = None
     if not args.no_record:
-        out.mkdir(parents=True, exist_ok=True)
+        # the folder may have gone while the run went: the recording goes where the
+        # results will (write_run names a rescue folder then)
+        usable, why = usable_folder(out, sc.name)
+        if why is not None:
+            print(f"omnifleet run: cannot write to {out} any more ({why}); the run's results "
+                  f"go to {usable}/", file=sys.stderr)
+        out = usable
         recorder = McapRecorder(out / RECORDING, sim_dt=sc.dt)
     if result.interrupted:
         from deploy.report.outputs import write_interrupted

@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from deploy.contract.options import add_option, check_duration
+from deploy.contract.output_paths import check_folder
 
 
 @dataclass(frozen=True)
@@ -80,6 +81,7 @@ def markdown(rows: list[SweepRow], scenario: str, plant: str) -> str:
 def cmd_sweep(args: argparse.Namespace) -> int:
     from deploy.contract.scenario import load_scenario
 
+    check_folder(args.out, "--out")  # OutputPathError: exit 2 (cli.main), before anything
     sc = load_scenario(args.scenario)  # ScenarioError: exit 2 with file and key (cli.main)
     check_duration(args.duration, sc.spec.control_rate_hz)  # OptionError: exit 2 (cli.main)
     plant = args.plant or sc.spec.plant.kind
