@@ -380,18 +380,23 @@ class NodeReport(Message, frozen=True):
     # realtime: the node's longest late wake (ns; a stall) and the step it was due for
     longest_late_ns: int = 0
     longest_late_k: int = -1
+    # plant (realtime): per robot, in the scenario's order, the steps at which the newest
+    # command did not answer the newest state (the agent late or silent)
+    unanswered: list[int] = []
 
     def __post_init__(self) -> None:
         if len(self.mac) > 64:
             raise ValueError("mac too long")
         if min(self.sent, self.dropped, self.late, self.invalid, self.steps, self.nonfinite,
                self.deadline_misses, self.law_resets, self.nonfinite_commands,
-               self.stale_samples, self.contacts_total, self.longest_late_ns) < 0:
+               self.stale_samples, self.contacts_total, self.longest_late_ns,
+               *self.unanswered) < 0:
             raise ValueError("a negative count")  # a forged "invalid = -1000"
         if (len(self.latency_ns) > MAX_REPORT_SAMPLES or len(self.jitter_ns) > MAX_REPORT_SAMPLES
                 or len(self.received) > MAX_REPORT_KEYS or len(self.faults) > MAX_REPORT_KEYS
                 or len(self.refused) > MAX_REPORT_KEYS or len(self.command_stops) > 1000
-                or len(self.zero_torque) > 1000 or len(self.torque_clipped) > MAX_BODIES):
+                or len(self.zero_torque) > 1000 or len(self.torque_clipped) > MAX_BODIES
+                or len(self.unanswered) > MAX_BODIES):
             raise ValueError("report too large")
         if len(self.zid) > MAX_ROLE_CHARS or len(self.peers) > MAX_BODIES or any(
                 len(p) > MAX_ROLE_CHARS for p in self.peers):

@@ -118,6 +118,7 @@ class PlantNode:
         self.clipped: dict[int, int] = {}
         self.command_stops: list[tuple[int, float, float]] = []  # (robot, command age, t)
         self.zero_torque = ZeroTorqueSpans()  # how long each stop lasted
+        self.unanswered = [0] * sc.n  # realtime: per robot, steps whose state went unanswered
         for rid in self.ids:
             on_cmd = self._on_cmd if self.gate is None else self.gate.wrap(
                 agent_role(rid), PLANT_ROLE, self._on_cmd)
@@ -309,7 +310,9 @@ class PlantNode:
                         self.unpowered.discard(rid)
                         self.zero_torque.end(rid, self.steps_done * self.sc.dt)
                 if cmd is None or cmd.state_seq != self.last_state_seq.get(rid):
-                    self.timing.deadline_misses += 1  # the latest state went unanswered
+                    # the latest state went unanswered: the agent's lateness (or silence),
+                    # not a miss of this loop (its own: Periodic's skipped periods)
+                    self.unanswered[i] += 1
             self.commands.clear()
 
     def _play_plans(self, k: int) -> None:
@@ -338,6 +341,7 @@ class PlantNode:
                        contacts_total=0 if log is None else len(log),
                        faults=self.faults.report(), command_stops=self.command_stops[:1000],
                        zero_torque=self.zero_torque.close(self.steps_done * self.sc.dt),
-                       torque_clipped={str(r): n for r, n in self.clipped.items()})
+                       torque_clipped={str(r): n for r, n in self.clipped.items()},
+                       unanswered=self.unanswered)
         others = set(self.peers) - {LAUNCHER_ROLE}
         self.node.mailbox.wait_until(lambda: not (others & self.node.peers_alive), linger_s)

@@ -142,6 +142,10 @@ def _transport_lines(m: dict) -> list[str]:
             lines.append("  deadline misses by node    " + ", ".join(
                 f"{role} {n}" for role, n in by_node.items() if n)
                 + f" (of {m.get('steps_asked', m['steps'])} steps)")
+        unanswered = m.get("unanswered_states")
+        if unanswered and any(unanswered):
+            lines.append(f"  states unanswered in time {_fmt_ints(unanswered)} step(s) (the "
+                         "agent's command had not come by the plant's next step)")
         stall = m.get("longest_stall")
         if stall:
             lines.append(f"  longest stall              {stall['node']} {stall['duration_s']:.3f} s "

@@ -147,6 +147,8 @@ def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: f
         out["deadline_misses"] = sum(r.deadline_misses for r in reports.values())
         out["deadline_misses_by_node"] = {role: r.deadline_misses
                                           for role, r in sorted(reports.items())}
+        if plant is not None and len(plant.unanswered) == sc.n:
+            out["unanswered_states"] = list(plant.unanswered)
     return out
 
 

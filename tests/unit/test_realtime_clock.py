@@ -74,6 +74,14 @@ def test_a_run_that_missed_its_clock_on_a_quiet_machine_fails():
     assert len(calls) == 1
 
 
+def test_a_run_that_saturates_the_machine_by_itself_fails():
+    """Busy 1.95 of 2 cores, 1.90 of them the run's: too big for this machine, not starved."""
+    alone = MachineLoad(cores=2, wall_s=10.0, busy_cores=1.95, ours_cores=1.9)
+    assert not alone.loaded and LOADED.loaded and not QUIET.loaded
+    with pytest.raises(pytest.fail.Exception, match="left alone"):
+        judged(_runs(9.0)[0], lambda m: m, "x", _machine(alone))
+
+
 def test_a_missing_report_fails_and_is_never_skipped():
     for load in (QUIET, LOADED):
         with pytest.raises(pytest.fail.Exception, match="did not arrive"):
