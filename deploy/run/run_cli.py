@@ -72,8 +72,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     finally:
         if live is not None:
             live.close()
-            print(f"live view: {live.published} messages served, {live.cpu_s:.2f} s CPU; stopped",
-                  file=sys.stderr)
+            front = live.server.front
+            print(f"live view: {live.published} messages served to {sum(front.served.values())} "
+                  f"client(s), {live.cpu_s:.2f} s CPU"
+                  + (f"; {front.refused} client(s) refused (no Foxglove subprotocol offered)"
+                     if front.refused else "") + "; stopped", file=sys.stderr)
     banner = divergence_banner(metrics["verdict"])
     if banner:
         print(banner, file=sys.stderr)
@@ -147,7 +150,7 @@ def _start_live(args: argparse.Namespace, sc):
     except (LiveAddressError, RuntimeError, OSError) as exc:
         print(f"omnifleet run: --live {args.live}: {exc}", file=sys.stderr)
         return False
-    print(f"live view: {url(host, live.port)} (Foxglove: Open connection -> "
+    print(f"live view: {url(host, live.port)} (Foxglove or Lichtblick: Open connection -> "
           "Foxglove WebSocket; layout docs/foxglove-layout.json)", file=sys.stderr, flush=True)
     return live
 
