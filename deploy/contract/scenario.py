@@ -9,14 +9,11 @@ is a :class:`ScenarioError` carrying the file name; the CLI exits with code 2.
 
 from __future__ import annotations
 
-import difflib
 import math
-import re
 from dataclasses import MISSING, dataclass, fields, replace
 from functools import cached_property
 from pathlib import Path
-from types import UnionType
-from typing import Literal, Union, get_args, get_origin, get_type_hints
+from typing import Literal, get_args, get_type_hints
 
 import msgspec
 import numpy as np
@@ -30,6 +27,7 @@ from agents.formation import ScaleChange
 from agents.leader import Harmonic, LeaderGenerator, LeaderSpec
 from agents.waypoint_path import waypoint_path
 from deploy.contract.options import MAX_RATE_HZ
+from deploy.contract.schema_hints import readable
 from plant.bodies import Body
 from plant.interface import DEFAULT_SUBSTEPS
 from plant.mecanum import MecanumModel, RobotParams
@@ -110,8 +108,10 @@ class Leader(_S, kw_only=True):
     waypoints: list[list[float]] | None = None
     speed_mps: float | None = None
     accel_mps2: float | None = None
-    theta0: float = 0.0
-    theta_rate: float = 1.0
+    # the harmonic path's parameter theta = theta0 + theta_rate t (None: 0 and 1; only with
+    # path = "harmonic": a waypoint path has its own speed)
+    theta0: float | None = None
+    theta_rate: float | None = None
     follow_gain: float = 3.5
     heading: Literal["tangent", "polar"] = "tangent"
 
@@ -335,7 +335,8 @@ class Scenario:
         wp = None
         if ld.path == "waypoints":
             wp = waypoint_path(ld.waypoints, ld.speed_mps, ld.accel_mps2)
-        return LeaderSpec(harm(ld.x), harm(ld.y), ld.theta0, ld.theta_rate, ld.kind,
+        return LeaderSpec(harm(ld.x), harm(ld.y), 0.0 if ld.theta0 is None else ld.theta0,
+                          1.0 if ld.theta_rate is None else ld.theta_rate, ld.kind,
                           ld.follow_gain, ld.heading, wp)
 
     def obstacle_bodies(self) -> list[Body]:
@@ -537,10 +538,12 @@ def _check_leader_path(path: str, ld: Leader, notes: list[str]) -> None:
                 raise _fail(path, f"leader.{key}", 'required with path = "harmonic" (the default); '
                             'or set path = "waypoints" with waypoints, speed_mps, accel_mps2')
         return
-    for key, value in (("x", ld.x), ("y", ld.y)):
+    for key, value in (("x", ld.x), ("y", ld.y), ("theta0", ld.theta0),
+                       ("theta_rate", ld.theta_rate)):
         if value is not None:
             raise _fail(path, f"leader.{key}", 'only with path = "harmonic"; with path = '
-                        '"waypoints" the path is the waypoints')
+                        '"waypoints" the path is the waypoints, driven at speed_mps: remove '
+                        'x, y, theta0 and theta_rate')
     for key, value in wp_keys.items():
         if value is None:
             raise _fail(path, f"leader.{key}", 'required with path = "waypoints"')
@@ -784,58 +787,5 @@ def parse_scenario(raw: bytes | str, path: str = "<scenario>") -> Scenario:
 
 
 def _readable(msg: str) -> str:
-    """msgspec says `Object contains unknown field `x` - at `$.a``; keep it, drop `$.`,
-    and add what the schema allows there (:func:`_hint`)."""
-    return msg.replace("`$.", "`").replace("`$`", "top level") + _hint(msg)
-
-
-_UNKNOWN_FIELD = re.compile(r"unknown field `([^`]*)`(?: - at `\$([^`]*)`)?")
-_BAD_ENUM = re.compile(r"Invalid enum value .* - at `\$([^`]*)`")
-
-
-def _hint(msg: str) -> str:
-    """For an unknown key, the nearest known one at that place ("did you mean"); for a
-    value outside an enum, the allowed values. Empty when there is nothing to add."""
-    if m := _UNKNOWN_FIELD.search(msg):
-        known = _keys_at(m.group(2) or "")
-        near = difflib.get_close_matches(m.group(1), known, n=1, cutoff=0.6)
-        if near:
-            return f"; did you mean `{near[0]}`?"
-        return f"; known keys here: {', '.join(known)}" if known else ""
-    if m := _BAD_ENUM.search(msg):
-        allowed = _enum_at(m.group(1))
-        return f"; expected one of: {', '.join(allowed)}" if allowed else ""
-    return ""
-
-
-def _types_at(path: str) -> list:
-    """The schema types at a msgspec path such as ``.leader.x`` or ``.obstacles[0]``
-    (several where the schema has a union there)."""
-    types: list = [ScenarioFile]
-    for name, index in re.findall(r"\.(\w+)|\[(\d+)\]", path):
-        nxt: list = []
-        for t in types:
-            for u in _members(t):
-                if index and get_origin(u) is list:
-                    nxt += list(get_args(u)[:1])
-                elif name and isinstance(u, type) and issubclass(u, msgspec.Struct):
-                    nxt += [f.type for f in msgspec.structs.fields(u) if f.encode_name == name]
-        types = nxt
-    return types
-
-
-def _members(t) -> tuple:
-    """A union's members (``X | None`` included), or the type itself."""
-    return get_args(t) if get_origin(t) in (Union, UnionType) else (t,)
-
-
-def _keys_at(path: str) -> list[str]:
-    keys = {f.encode_name for t in _types_at(path) for u in _members(t)
-            if isinstance(u, type) and issubclass(u, msgspec.Struct)
-            for f in msgspec.structs.fields(u)}
-    return sorted(keys)
-
-
-def _enum_at(path: str) -> list[str]:
-    return [str(v) for t in _types_at(path) for u in _members(t)
-            if get_origin(u) is Literal for v in get_args(u)]
+    """msgspec's message, readable, with the nearest known key or the allowed values."""
+    return readable(msg, ScenarioFile)
