@@ -227,6 +227,12 @@ class Degradation(_S, kw_only=True):
 
 class Metrics(_S, kw_only=True):
     settle_threshold: float = 0.05
+    # a robot within this of its formation position (x_0 + rho_i, the true leader's) has
+    # reached it (deploy/report/formation_reach.py); the verdict wants every robot there
+    # at the end, except those the scenario expects never to get there, and why
+    formation_threshold_m: float = 0.1
+    expect_unreached: list[int] = msgspec.field(default_factory=list)
+    expect_unreached_why: str = ""
 
 
 class ScenarioFile(_S, kw_only=True):
@@ -570,6 +576,24 @@ def _check_leader_path(path: str, ld: Leader, notes: list[str]) -> None:
                  f"from t = {wp.profile.duration:.4g} s")
 
 
+def _check_metrics(path: str, m: Metrics, ids: list[int]) -> None:
+    if m.settle_threshold <= 0:
+        raise _fail(path, "metrics.settle_threshold", "must be positive")
+    if m.formation_threshold_m <= 0:
+        raise _fail(path, "metrics.formation_threshold_m", "must be positive")
+    stray = [r for r in m.expect_unreached if r not in ids]
+    if stray:
+        raise _fail(path, "metrics.expect_unreached", f"no robot {stray[0]} in this scenario "
+                    f"(its robots: {', '.join(map(str, ids))})")
+    if len(set(m.expect_unreached)) != len(m.expect_unreached):
+        raise _fail(path, "metrics.expect_unreached", "names a robot twice")
+    if m.expect_unreached and not m.expect_unreached_why.strip():
+        raise _fail(path, "metrics.expect_unreached_why", "say why those robots never reach "
+                    "their formation position (it goes into the summary and metrics.json)")
+    if m.expect_unreached_why and not m.expect_unreached:
+        raise _fail(path, "metrics.expect_unreached_why", "given without expect_unreached")
+
+
 MAX_COORDINATE_M = 1e6  # walls, polygons, waypoints: a world of +-1000 km (no overflow)
 MIN_FEATURE_M = 1e-3  # a wall's length and thickness, a polygon's edge: at least 1 mm
 
@@ -743,6 +767,7 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
                     f"must be between 0 (off) and {MAX_COMMAND_HORIZON} steps")
     if s.plant.substeps < 1:
         raise _fail(path, "plant.substeps", "must be >= 1")
+    _check_metrics(path, s.metrics, ids)
     p = s.robot
     for key in ("wheel_radius_m", "mass_kg", "inertia_z_kgm2", "inertia_wheel_kgm2",
                 "half_wheelbase_m", "half_track_m", "body_radius_m", "coulomb_smoothing_radps"):

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from deploy.contract.scenario import Scenario
+from deploy.report.formation_reach import formation_figures
 from deploy.report.timeseries import TimeSeries
 
 # Wall-clock, process and transport figures differ between two runs of the same
@@ -150,6 +151,14 @@ def compute_metrics(
     ro = sc.obstacle_gaps(series.q[:, :, :2]).reshape(len(t), -1)
     sim_time = series.steps * sc.dt
     lim = s.limits
+    reach = formation_figures(series, sc.robot_ids, sc.dt, s.metrics.formation_threshold_m,
+                              s.metrics.expect_unreached, s.metrics.expect_unreached_why)
+    for u in reach["formation_unreached"]:
+        if u["expected"]:  # a PASS beside a large formation error says why
+            notes.append(f"robot {u['robot']} is not at its formation position (" + (
+                "no state" if u["distance_end_m"] is None else
+                f"{u['distance_end_m']:.2f} m from it at the end") + f"), as the scenario "
+                f"expects: {u['why']}")
     return {
         "scenario": s.name,
         "plant": plant,
@@ -169,6 +178,7 @@ def compute_metrics(
         "settling_time_s": settling,
         "formation_rms_whole_run_m": whole,
         "formation_rms_after_settling_m": after,
+        **reach,
         "min_obstacle_gap_m": float(ro.min()) if ro.size else None,
         "min_robot_gap_m": float(rr.min()) if rr.size else None,
         "contacts": (contact_onsets(rr) + contact_onsets(ro) if contact_log is None

@@ -13,6 +13,7 @@ from deploy.contract.scenario import Scenario
 from deploy.report.figures import write_figures
 from deploy.report.metrics import compute_metrics, write_metrics
 from deploy.report.recorder import McapRecorder
+from deploy.report.run_folder import FIGURE_FILES
 from deploy.report.timeseries import TimeSeries
 from deploy.report.verdict import divergence, judge
 
@@ -52,9 +53,11 @@ def write_run(
             recorder.close({"scenario": sc.name, "plant": plant, "clock": clock})
         metrics["recording"] = recorder.summary()
     metrics["verdict"] = judge(metrics, divergence(series, sc.robot_ids))
-    # what this run writes, and nothing else (the summary names exactly these)
+    # what this run writes, file by file, and nothing else (the summary names exactly these;
+    # logs/ is the launcher's, each node's output)
     metrics["files"] = ["metrics.json", "timeseries.npz", *(
-        [recorder.path.name] if recorder is not None else []), *(["figures"] if figures else [])]
+        [recorder.path.name] if recorder is not None else []),
+        *(FIGURE_FILES if figures else ()), *(["logs/"] if (out_dir / "logs").is_dir() else [])]
     metrics["folder"] = str(out_dir)
     try:
         _write_files(sc, series, metrics, out_dir, figures)

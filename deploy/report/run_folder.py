@@ -15,9 +15,9 @@ from pathlib import Path
 
 # every name `omnifleet run` / `record` writes into its folder (deploy/report/outputs.py,
 # deploy/report/figures.py, the recorder, the launcher's logs/)
-RUN_OUTPUTS = ("metrics.json", "timeseries.npz", "recording.mcap", "logs",
-               "fig4_trajectories.png", "fig5_errors.png", "fig6_distances_torques.png",
-               "CAPTIONS.md")
+FIGURE_FILES = ("fig4_trajectories.png", "fig5_errors.png", "fig6_distances_torques.png",
+                "CAPTIONS.md")  # what deploy/report/figures.py writes, in this order
+RUN_OUTPUTS = ("metrics.json", "timeseries.npz", "recording.mcap", "logs", *FIGURE_FILES)
 
 
 class RunFolderError(ValueError):

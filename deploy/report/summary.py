@@ -43,9 +43,21 @@ def summary(m: dict, out: Path) -> str:
         *_law_lines(m),
         *_transport_lines(m),
         *_hardening_lines(m),
+        *_formation_lines(m),
+        *[f"  note: {n}" for n in m.get("notes") or []],
         f"  written to {m.get('folder') or out}/ ({', '.join(m.get('files') or ['metrics.json'])})",
         *([verdict_line(m["verdict"])] if "verdict" in m else []),
     ])
+
+
+def _formation_lines(m: dict) -> list[str]:
+    """Where each robot ended against its formation position, apart from settling
+    (deploy/report/formation_reach.py)."""
+    end = m.get("formation_distance_end_m")
+    if end is None:
+        return []
+    return [f"  formation position, end    {_fmt_list(end)} m away; first within "
+            f"{m['formation_threshold_m']:g} m at {_fmt_list(m['formation_reached_s'])} s"]
 
 
 def _simulated(m: dict) -> str:
@@ -94,11 +106,9 @@ def _hardening_lines(m: dict) -> list[str]:
         lines.append(f"  refused on arrival         {sum(refused.values())} message(s) by "
                      f"{len({k.split(':')[0] for k in refused})} node(s) "
                      "(metrics.json messages.refused: by node and reason)")
-    clipped = m.get("torque_clipped") or {}
-    if any(clipped.values()):
-        lines.append("  torque clipped to bound    "
-                     + ", ".join(f"robot {r}: {n}" for r, n in clipped.items() if n)
-                     + " command(s)")
+    clipped = m.get("torque_clipped") or []
+    if any(clipped):
+        lines.append(f"  torque clipped to bound    {_fmt_ints(clipped)} command(s)")
     return lines
 
 

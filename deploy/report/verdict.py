@@ -117,12 +117,32 @@ def judge(metrics: dict[str, Any], diverged: dict[str, Any] | None = None) -> di
                        + ("" if at is None else f" at t = {at:.3f} s"))
     whole = _whole(metrics, reasons)
     on_time = _on_time(metrics, reasons)
+    in_formation = _in_formation(metrics, reasons)
     return {"pass": (bool(settled) and no_contact and finite and not unpowered and complete
-                     and not stopped and whole and on_time),
-            "settled": settled, "no_contact": no_contact, "finite": finite,
+                     and not stopped and whole and on_time and in_formation),
+            "settled": settled, "in_formation": in_formation,
+            "expected_unreached": [u["robot"] for u in metrics.get("formation_unreached") or []
+                                   if u["expected"]],
+            "no_contact": no_contact,
+            "finite": finite,
             "powered": not unpowered, "complete": complete, "stopped": bool(stopped),
             "whole": whole, "on_time": on_time, "realtime": metrics.get("clock") == "realtime",
             "diverged": diverged, "settling_bound_s": bound, "reasons": reasons}
+
+
+def _in_formation(metrics: dict[str, Any], reasons: list[str]) -> bool:
+    """Every robot within the formation threshold of its formation position at the end,
+    but those the scenario expects never to get there (deploy/report/formation_reach.py)."""
+    off = [u for u in metrics.get("formation_unreached") or [] if not u["expected"]]
+    threshold = metrics.get("formation_threshold_m")
+    for u in off:
+        where = ("no state" if u["distance_end_m"] is None
+                 else f"{u['distance_end_m']:.2f} m from it at the end")
+        came = (f"never within {threshold:g} m" if u["reached_s"] is None
+                else f"within {threshold:g} m from t = {u['reached_s']:.2f} s, then left")
+        reasons.append(f"robot {u['robot']} not at its formation position ({where}; {came}): "
+                       f"{u['why']}")
+    return not off
 
 
 def _slack_steps(metrics: dict[str, Any]) -> int:
@@ -184,9 +204,13 @@ def _on_time(metrics: dict[str, Any], reasons: list[str]) -> bool:
 def verdict_line(v: dict[str, Any]) -> str:
     """The summary's last line."""
     if v["pass"]:
-        return (f"verdict: PASS (every robot settled before {v['settling_bound_s']:.3f} s, "
-                "no contact, nothing non-finite, never unpowered, the whole run simulated "
-                "and heard" + (", on time" if v.get("realtime") else "") + ")")
+        expected = v.get("expected_unreached") or []
+        where = ("ended at its formation position" if not expected else
+                 "ended at its formation position but robot(s) "
+                 f"{', '.join(map(str, expected))}, as the scenario expects (notes)")
+        return (f"verdict: PASS (every robot settled before {v['settling_bound_s']:.3f} s and "
+                f"{where}, no contact, nothing non-finite, never unpowered, the whole run "
+                "simulated and heard" + (", on time" if v.get("realtime") else "") + ")")
     return "verdict: FAIL (" + "; ".join(v["reasons"]) + ")"
 
 

@@ -103,7 +103,8 @@ def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, l
                             on_series=None if live is None else live.follow)
     extra = {} if plan is None else {"faults": fault_metrics(plan, result.faults or {})}
     extra["law_resets"] = result.law_resets
-    extra["torque_clipped"] = {str(r): n for r, n in (result.torque_clipped or {}).items()}
+    clipped = result.torque_clipped or {}
+    extra["torque_clipped"] = [clipped.get(r, 0) for r in sc.robot_ids]  # per robot, a list
     recorder = None
     if not args.no_record:
         # the folder may have gone while the run went: the recording goes where the

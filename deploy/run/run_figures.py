@@ -110,13 +110,14 @@ def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: f
     # per robot, in the scenario's order (None: its agent's report never came); a
     # restarted agent reports for its second life too (the collector keeps the last)
     out |= agent_figures([reports.get(agent_role(r)) for r in sc.robot_ids])
-    # commands that asked for more torque than the bound, clipped, per robot
+    # commands that asked for more torque than the bound, clipped: per robot, a list in the
+    # scenario's order like every per-robot figure (the reports key them by id, as text)
     clipped = {str(r): 0 for r in sc.robot_ids}
     for rep in reports.values():
         for rid, n in rep.torque_clipped.items():
             if rid in clipped:
                 clipped[rid] += n
-    out["torque_clipped"] = clipped
+    out["torque_clipped"] = [clipped[str(r)] for r in sc.robot_ids]
     if obs.stopped_by is not None:
         out["stopped_by"] = obs.stopped_by
     plant = reports.get(PLANT_ROLE)

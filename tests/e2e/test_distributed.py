@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from outputs_doc import undocumented
 from procs import assert_same_series, finish, kill_run, pids_with, start
 from realtime_clock import judged
 
@@ -56,6 +57,8 @@ def test_run_reports_processes_messages_and_a_recording(distributed_run):
     from mcap.reader import make_reader
 
     m = json.loads((distributed_run / "metrics.json").read_text())
+    assert undocumented(m) == []  # docs/outputs.md lists every key a fleet's run writes
+    assert m["files"] == ["metrics.json", "timeseries.npz", "recording.mcap", "logs/"]
     roles = sorted(p["role"] for p in m["processes"])
     assert roles == ["agent-1", "agent-2", "agent-3", "launcher", "leader", "plant"]
     assert all(p["peak_rss_mb"] and p["peak_rss_mb"] > 0 for p in m["processes"])
@@ -234,6 +237,7 @@ def test_realtime_run_reports_latency_jitter_and_misses(tmp_path):
         return out, json.loads((out / "metrics.json").read_text())
     out, m = judged(run, lambda r: r[1], "lab realtime")
     assert m["clock"] == "realtime"
+    assert undocumented(m) == []  # docs/outputs.md lists every key a realtime run writes
     lat, jit = m["latency_ms"], m["jitter_ms"]
     assert 0 < lat["p50"] <= lat["p99"] and jit["p50"] <= jit["p99"] <= 5.0  # one period
     # every node reported its misses, within the verdict's share of the 400 steps
