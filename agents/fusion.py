@@ -115,7 +115,7 @@ def supervise_tasks(ordered: Sequence[Task], engage: str,
     ``limit``: what the agent does to the fused velocity before it becomes the command
     (the explicit speed, slow-down and acceleration limits); the returned velocity has
     been through it. "approaching" engages a task when the fused velocity OR the
-    commanded one (after the limits) closes on its body, J v < 0 (issue 17): judged on
+    commanded one (after the limits) closes on its body, J v < 0 (docs/safety.md): judged on
     the fused one alone, a robot whose acceleration limit still carried it toward an
     obstacle at 0.75 m/s was told avoidance was not needed; judged on the commanded one
     alone, the command's own inertia from the step before (moving away) switched

@@ -14,7 +14,7 @@ import sys
 from deploy.contract.fault_plan import FaultPlanError
 from deploy.contract.options import EXIT_BAD_INPUT, OptionError, add_option
 from deploy.contract.output_paths import OutputPathError
-from deploy.contract.scenario import PLANT_KINDS, ScenarioError
+from deploy.contract.scenario import PLANT_KINDS, ScenarioError, bundled_names
 from deploy.contract.wire import FleetNameError
 from deploy.nodes.cli import CLOCKS, add_node_commands
 from deploy.run.run_cli import cmd_run
@@ -41,8 +41,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     run = sub.add_parser(
         "run", help="run a scenario and write its report folder",
-        description="Run a scenario (a TOML file, or the name of a bundled one: paper, lab, "
-        "reference-code) and write metrics.json, timeseries.npz and figures to --out.",
+        description="Run a scenario (a TOML file, or the name of a bundled one: "
+        f"{', '.join(bundled_names())}; `omnifleet scenario list` says what each is) and "
+        "write metrics.json, timeseries.npz, recording.mcap and the figures to --out, "
+        "ending with the verdict (docs/outputs.md).",
     )
     run.add_argument("scenario", help="scenario file or bundled scenario name")
     run.add_argument("--in-process", action="store_true",
@@ -96,7 +98,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "loss; counted per link in metrics.json")
     run.add_argument("--check", action="store_true",
                      help="exit 1 unless the verdict is PASS: every robot settles before "
-                     "sqrt(2) T_p, no contact, nothing non-finite")
+                     "sqrt(2) T_p and ends at its formation position, no contact, nothing "
+                     "non-finite, the whole run simulated and heard (docs/outputs.md)")
     run.set_defaults(func=cmd_run)
     add_node_commands(sub)
     from deploy.bench.suite import add_bench_command

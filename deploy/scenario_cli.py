@@ -23,13 +23,21 @@ from pathlib import Path
 from deploy.contract.options import EXIT_BAD_INPUT, add_option, check_duration
 from deploy.contract.output_paths import check_file
 from deploy.contract.scaled_scenarios import scale_scenario
-from deploy.contract.scenario import SCENARIO_DIR, Scenario, ScenarioError, load_scenario, parse_scenario
+from deploy.contract.scenario import (
+    SCENARIO_DIR,
+    Scenario,
+    ScenarioError,
+    bundled_names,
+    load_scenario,
+    parse_scenario,
+)
 
 STARTER = Path(__file__).resolve().parent / "scenario_starter.toml"
 
 
 def _cmd_list(_args: argparse.Namespace) -> int:
-    for path in sorted(SCENARIO_DIR.glob("*.toml")):
+    for name in bundled_names():
+        path = SCENARIO_DIR / f"{name}.toml"
         try:
             sc = load_scenario(path)
             print(f"{path.stem:18s} {sc.n} robots, {1.0 / sc.dt:g} Hz, {sc.spec.duration_s:g} s: "
@@ -44,7 +52,7 @@ def _bundled(name: str, command: str) -> Path | None:
     path = SCENARIO_DIR / f"{name.removesuffix('.toml')}.toml"
     if path.exists():
         return path
-    known = ", ".join(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
+    known = ", ".join(bundled_names())
     print(f"omnifleet scenario {command}: no bundled scenario {name!r} (bundled: {known})",
           file=sys.stderr)
     return None

@@ -1,4 +1,4 @@
-"""Fault plans: the schema of ``--faults PLAN.toml`` and its validation (DESIGN §9).
+"""Fault plans: the schema of ``--faults PLAN.toml`` and its validation (docs/faults.md).
 
 A plan says what goes wrong in a run, per directed edge of the run's graph and
 per process, reproducibly from one seed::

@@ -34,6 +34,11 @@ from plant.mecanum import MecanumModel, RobotParams
 from plant.shapes import Polygon, convex_ccw, signed_distances, wall_vertices
 
 SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios"
+
+
+def bundled_names() -> list[str]:
+    """The bundled scenarios' names (the files in SCENARIO_DIR), sorted."""
+    return sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
 BEHAVIOR_NAMES = ("FDB", "FOCB", "FRCB")
 
 

@@ -1,4 +1,4 @@
-"""The wire contract (DESIGN §3): key expressions and message types, in one place.
+"""The wire contract (docs/distributed.md): key expressions and message types, in one place.
 
 Every node imports this module; nobody re-types a key string. Messages are
 msgspec Structs encoded as msgpack arrays (``array_like``: field order is the
@@ -13,7 +13,7 @@ ever compared with the same process's clock (a command echoes the stamp of the
 state it answers, so the plant measures state-to-command latency on its own
 clock), so hosts need no clock synchronisation for it.
 
-The control path carries two messages per robot per step (version 2, DESIGN §3):
+The control path carries two messages per robot per step (version 2, docs/distributed.md):
 the plant's :class:`Sample` (state + perception; in lockstep its arrival is the
 tick) and the agent's :class:`Reply` (command + look-ahead plan + the share its
 neighbours read from the same key). The leader's states travel in batches ahead

@@ -2,7 +2,7 @@
 
 Publishes one ``robot/i/sample`` (state + perception) per robot each step and
 takes ``robot/i/cmd`` (the agent's reply). It is the time master of a lockstep
-run (DESIGN §4): step k publishes the samples at t_k (their arrival is the
+run (docs/distributed.md): step k publishes the samples at t_k (their arrival is the
 agents' tick), waits for every robot's command of step k (per-step deadline; a
 missing one is counted late), then integrates to t_{k+1}; ``ctl/tick`` goes out
 every ``TICK_EVERY`` steps only, to pace the leader's batches. The robot states

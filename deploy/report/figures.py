@@ -1,7 +1,7 @@
 """Figures like the paper's Fig. 4 (trajectories), Fig. 5 (errors), Fig. 6
 (distances, torques), drawn from a run's time series. Headless (Agg).
 
-For a reader of the paper (issue 19, item 6): robots drawn as bodies with a heading
+For a reader of the paper (docs/outputs.md): robots drawn as bodies with a heading
 arrow at every scale (enlarged, and said so, where to scale they would be dots), the
 desired formation paths x0 + rho_i dashed beside the travelled ones, a unit on every
 axis and every threshold line labelled, legends beside the axes (never over the data),
@@ -230,7 +230,7 @@ def distances_figure(sc: Scenario, ts: TimeSeries, caption: str = ""):
 
 
 def mark_safety_filter(ax, ts: TimeSeries) -> None:
-    """Shade the spans where the safety filter changed some robot's command (issue 17);
+    """Shade the spans where the safety filter changed some robot's command (docs/safety.md);
     nothing where it never acted, so a run it left alone looks like the paper's."""
     acting = ts.safety_active.any(axis=1)
     if not acting.any():

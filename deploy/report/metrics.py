@@ -1,4 +1,4 @@
-"""metrics.json: what "it works" means for a run (DESIGN §6), from the time series.
+"""metrics.json: what "it works" means for a run (docs/outputs.md), from the time series.
 
 Keys (every run, in-process or distributed): scenario, plant, clock, robots,
 sim_time_s, steps, control_rate_hz, wall_time_s, real_time_factor,

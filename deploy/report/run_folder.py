@@ -1,4 +1,4 @@
-"""A run folder holds one run's outputs, never two runs' (issue 19 item 3, issue 21).
+"""A run folder holds one run's outputs, never two runs' (docs/hardening.md).
 
 ``--out`` on a folder that already holds a run's outputs is refused (exit 2) unless
 ``--overwrite``, which removes those outputs first. Only the names a run writes are

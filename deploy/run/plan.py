@@ -1,5 +1,5 @@
 """The run's plan: which processes a run starts, with which arguments, and who links
-to whom (DESIGN §3). Pure: nothing is started here (deploy/run/supervisor.py starts
+to whom (docs/distributed.md). Pure: nothing is started here (deploy/run/supervisor.py starts
 and watches them; deploy/run/launcher.py puts the two together).
 
 Every node listens on a unix socket of its own in the run's private directory and

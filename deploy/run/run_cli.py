@@ -87,8 +87,8 @@ def cmd_run(args: argparse.Namespace) -> int:
               f"{metrics['recording']['lost']} message(s) not recorded", file=sys.stderr)
         return 1
     if args.check and not metrics["verdict"]["pass"]:
-        print("omnifleet run: the run does NOT meet the criteria (settling, no contact, "
-              "nothing non-finite)", file=sys.stderr)
+        print("omnifleet run: the run does NOT meet the criteria (the verdict above says "
+              "which)", file=sys.stderr)
         return 1
     return 0
 

@@ -21,6 +21,13 @@ from pathlib import Path
 from deploy.contract.options import add_option, check_duration
 from deploy.contract.output_paths import check_folder
 
+SWEEP_HELP = ("Run seeds 0..K-1 of a seeded perturbation of SCENARIO (every obstacle and "
+              "start jittered, as `omnifleet scenario perturb` writes them), each in process "
+              "on the scenario's plant or --plant, --jobs at once. Writes sweep.csv (a row "
+              "per seed) and sweep.md (contacts, the smallest gaps, the safety filter's "
+              "activity, settling) to --out, and prints a line per run. --check: exit 1 "
+              "when any run touched (docs/safety.md).")
+
 
 @dataclass(frozen=True)
 class SweepRow:
@@ -115,7 +122,7 @@ def add_safety_command(sub: argparse._SubParsersAction) -> None:
     s = p.add_subparsers(dest="safety_cmd", required=True)
     sw = s.add_parser("sweep", help="run N seeded perturbations of a scenario in process "
                       "(obstacles and starts jittered) and count contacts",
-                      description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                      description=SWEEP_HELP)
     sw.add_argument("scenario", help="bundled scenario name or TOML file")
     add_option(sw, "--seeds", default=10, help="seeds 0..K-1")
     sw.add_argument("--plant", choices=["pybullet", "model", "kinematic"],

@@ -1,4 +1,4 @@
-"""The whole fleet on emulated CAN (issue 5's acceptance, measured end to end):
+"""The whole fleet on emulated CAN (measured end to end; docs/hardware.md):
 ``omnifleet run lab --plant can-emulated`` starts the leader, an agent and a CAN
 bridge per robot and one driver emulator for the fleet (udp_multicast buses, no
 kernel module), on the wall clock.

@@ -261,7 +261,7 @@ def test_a_bad_fleet_name_is_refused_before_anything_starts(tmp_path):
 
 @pytest.mark.parametrize("robots", [3, 7])
 def test_each_node_links_only_to_the_nodes_it_talks_to(tmp_path, robots):
-    """Links as the graph (DESIGN §3), read from every node's own zenoh session: an
+    """Links as the graph (docs/distributed.md), read from every node's own zenoh session: an
     agent has a link with its plant, the leader iff b_i != 0, its graph neighbours
     in either direction, and the launcher; no other pair of nodes is linked (3:
     paper, whose agents all talk; 7: a binary tree, where most pairs do not)."""
@@ -298,7 +298,7 @@ def test_each_node_links_only_to_the_nodes_it_talks_to(tmp_path, robots):
 
 
 def test_a_forged_stop_from_a_peer_on_the_fleet_neither_stops_nor_steers_the_run(tmp_path):
-    """Found by probing (issue 21): a well-formed ``ctl/stop`` or ``ctl/estop`` from any
+    """Found by probing (docs/hardening.md): a well-formed ``ctl/stop`` or ``ctl/estop`` from any
     process that reached the fleet ended the run early with exit 0, and ``--check``
     passed it. Control messages are now signed with the run's secret (given to the
     nodes in their environment, never on the wire): the forged ones are refused and

@@ -1,4 +1,4 @@
-"""One forged message cannot stop, hang or steer a run (issue 21, items 2 and 3),
+"""One forged message cannot stop, hang or steer a run (docs/hardening.md),
 probed from outside: a zenoh peer of its own (tests/attacker.py) that reached the
 run's endpoints, reads its traffic to learn the step, and publishes well-formed
 messages with the project's codec, without the run's secret.

@@ -1,4 +1,4 @@
-"""A paused agent recovers, and the run says what happened (issue 21, item 1).
+"""A paused agent recovers, and the run says what happened (docs/hardening.md).
 
 Found by probing: ``lab --clock realtime`` with agent 2 SIGSTOPped for 2 s, then
 SIGCONT: the agent answered its backlog of samples seconds old, its law went

@@ -2,7 +2,7 @@
 numbers in-process and distributed (lockstep), a run with contacts fails --check.
 
 The collision scenario is the lab scenario with obstacle and robot avoidance
-disabled (only FDB) and no safety filter (issue 17's last layer would stop them):
+disabled (only FDB) and no safety filter (the last layer, docs/safety.md, would stop them):
 without them robots 1 and 2 touch at t ~ 1.08 s and robot 3
 drives into obstacle 1 at t ~ 5.4 s (the model plant, which has no bodies, sees
 the same encounters as overlapping circles).

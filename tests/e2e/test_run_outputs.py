@@ -1,8 +1,6 @@
-"""A run's folder says what the run did and nothing else (issue 21 items 3-4, issue 19
-item 3): an interrupted run leaves metrics.json marked interrupted with what was
-measured and a readable recording; --out on another run's folder is refused unless
---overwrite; --version; progress lines when not on a terminal; the summary names only
-the files written."""
+"""A run's folder says what the run did (docs/hardening.md): an interrupted fleet leaves
+metrics.json marked interrupted with what was measured and a readable recording (the
+folder's other checks, in process: tests/integration/test_run_folder.py)."""
 
 from __future__ import annotations
 

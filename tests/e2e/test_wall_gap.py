@@ -1,4 +1,4 @@
-"""A scenario a user writes (issue 19): ``omnifleet scenario new --from wall-gap`` (a
+"""A scenario a user writes (docs/scenarios.md): ``omnifleet scenario new --from wall-gap`` (a
 waypoint leader through the gap between a wall and a polygon) run distributed, one
 process per node in lockstep, and in process: the same series and control figures,
 through the gap with no contact; and one robot sent at a wall stops short of it."""

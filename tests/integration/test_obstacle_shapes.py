@@ -1,4 +1,4 @@
-"""Walls and convex polygons as obstacles (issue 19): the geometry against hand-worked
+"""Walls and convex polygons as obstacles (docs/scenarios.md): the geometry against hand-worked
 distances, the loader (loads, refuses bad shapes and overlapping starts with the key),
 perception (the nearest point, in range only; pybullet's the same), pybullet contacts
 with the real shapes, the metrics' gaps, the Foxglove scene and perturbed()."""
