@@ -255,8 +255,10 @@ def test_the_starters_commented_wall_polygon_and_waypoints_load_when_uncommented
 
     from deploy.scenario_cli import STARTER
 
-    text = re.sub(r"^#   (?=\[\[|\w+ = )", "", STARTER.read_text(), flags=re.M)
-    text = re.sub(r"^[xy] = \{.*\n", "", text, flags=re.M)  # the waypoints replace x and y
+    # the waypoints replace the harmonic path's lines, as the starter says
+    text = re.sub(r'^(path = "harmonic"|[xy] = \{.*|theta_rate = .*)\n', "", STARTER.read_text(),
+                  flags=re.M)
+    text = re.sub(r"^#   (?=\[\[|\w+ = )", "", text, flags=re.M)
     sc = parse_scenario(text, "starter-uncommented.toml")
     assert sc.spec.leader.path == "waypoints"
     assert [p.name for p in sc.obstacle_shapes()] == ["walls[0]", "polygons[0]"]
