@@ -35,7 +35,10 @@ def package_version() -> str:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="omnifleet",
-        description="Collision-free formation control for mecanum-wheel robot fleets.",
+        description="Collision-free formation control for mecanum-wheel robot fleets. "
+        "Start with `omnifleet scenario list` and `omnifleet run lab --in-process` (a report "
+        "folder in runs/lab/, ending with a verdict); COMMAND --help says more, README.md "
+        "and docs/ the rest.",
     )
     p.add_argument("--version", action="version", version=f"omnifleet {package_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
