@@ -41,15 +41,16 @@ def refused(m: dict, node: str) -> dict[str, int]:
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory) -> TimeSeries:
+def reference(tmp_path_factory) -> tuple[TimeSeries, dict]:
     out = tmp_path_factory.mktemp("ref")
     rc, _, err = finish(start("run", "lab", "--plant", "model", "--in-process", "--duration",
                               LOCKSTEP_S, "--out", str(out), "--no-figures"))
     assert rc == 0, err
-    return TimeSeries.load(out / "timeseries.npz")
+    return TimeSeries.load(out / "timeseries.npz"), metrics(out)
 
 
-def test_lockstep_forgeries_cost_only_themselves(tmp_path: Path, reference: TimeSeries):
+def test_lockstep_forgeries_cost_only_themselves(tmp_path: Path,
+                                                 reference: tuple[TimeSeries, dict]):
     """Before: one sample for a future step hung a lockstep run (the plant waited its 2 s
     deadline every step); 50k future-step commands grew the plant's table without bound;
     a 'plant' report on report/agent-2 put a fake contact in metrics.json."""
@@ -94,7 +95,12 @@ def test_lockstep_forgeries_cost_only_themselves(tmp_path: Path, reference: Time
     m = metrics(out)
     assert m["steps"] == STEPS and "stopped_by" not in m
     assert m["messages"]["late"] == 0  # no deadline was ever waited: nothing hung
-    assert m["verdict"]["pass"], m["verdict"]
+    # the reference's verdict, word for word: every criterion but robot 3's place, which
+    # 8 s of lab ends while it passes an obstacle (held off by obstacle avoidance)
+    assert m["verdict"]["reasons"] == reference[1]["verdict"]["reasons"]
+    v = m["verdict"]
+    assert all(v[k] for k in ("settled", "no_contact", "finite", "powered", "complete",
+                              "whole", "on_time")), v["reasons"]
     assert refused(m, "agent-2") == {"sample: step ahead of our clock": 3,
                                      "sample: seq ahead of our clock": 1, "forged control": 3}
     plant = refused(m, "plant")
@@ -114,7 +120,7 @@ def test_lockstep_forgeries_cost_only_themselves(tmp_path: Path, reference: Time
     # the misfiled report and state log, the unsigned one, the negative one, the oversized
     assert m["messages"]["invalid"] >= 5
     # nothing was steered: the run is the in-process reference, bit for bit
-    assert_same_series(TimeSeries.load(out / "timeseries.npz"), reference)
+    assert_same_series(TimeSeries.load(out / "timeseries.npz"), reference[0])
 
 
 def _secret_of(fleet_text: str) -> str:
