@@ -127,6 +127,8 @@ def clock_missed(metrics: dict[str, Any]) -> str | None:
     if verdict.get("on_time") is False:
         why += [r for r in verdict.get("reasons", [])
                 if r.startswith(("deadline misses", "the plant stalled", "the bridge"))]
+    # a restarted node that had not even started by the end: its start-up was starved
+    why += [r for r in verdict.get("reasons", []) if "still starting when the run ended" in r]
     if not why:
         return None
     return "; ".join(why) + f" ({metrics.get('deadline_misses')} deadline misses)"

@@ -170,6 +170,11 @@ def _whole(metrics: dict[str, Any], reasons: list[str]) -> bool:
         ok = False
         reasons.append(f"the robots' states were heard for {heard * dt:.3f} s of the "
                        f"{simulated * dt:.3f} s simulated: the rest cannot be judged")
+    late = metrics.get("restarts_not_rejoined") or []
+    if late:
+        ok = False
+        reasons.append(f"{', '.join(late)} restarted by the fault plan but still starting when "
+                       "the run ended (stopped; no report)")
     missing = metrics.get("reports_missing") or []
     if missing:
         ok = False

@@ -48,6 +48,7 @@ class Child:
     stop_after_run: bool = False  # runs until stopped (an emulator): SIGTERM after the run
     killed: bool = False  # killed by the fault plan: its exit status is expected
     restarted: bool = False  # started again by the fault plan, while the fleet runs
+    never_rejoined: bool = False  # restarted, and still starting when the run ended: stopped
 
     def tail(self, n: int = TAIL_LINES) -> str:
         try:

@@ -137,8 +137,15 @@ def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: f
         out["faults"] = fault_metrics(faults, merge_reports([r.faults for r in reports.values()]),
                                       kill_events or [])
     if expected_roles is None:
+        # a node the fault plan killed for good, or restarted too late to rejoin, has no
+        # report to send; the second is said in the verdict (restarts_not_rejoined)
         expected_roles = [c.role for c in children if c.zenoh and not (c.killed and not any(
-            o.role == c.role and o.restarted for o in children))]
+            o.role == c.role and o.restarted for o in children)) and not c.never_rejoined]
+        expected_roles = [r for r in expected_roles
+                          if not any(c.role == r and c.never_rejoined for c in children)]
+        late = sorted({c.role for c in children if c.never_rejoined})
+        if late:
+            out["restarts_not_rejoined"] = late
     out |= completeness_figures(sc.dt, expected_roles, reports, plant, bridges, obs.clock)
     if obs.clock == "realtime":
         out["latency_ms"] = percentiles_ms(plant.latency_ns if plant else [])

@@ -96,6 +96,9 @@ def test_the_verdicts_misses_and_stall_count_as_a_missed_clock():
         "robot #1 never settled", "deadline misses beyond 5% of the 400 steps: plant 90 (22%)"]})
     assert clock_missed(m).startswith("deadline misses beyond 5%")
     assert clock_missed(_metrics(1.0, verdict={"on_time": True, "reasons": []})) is None
+    late = _metrics(1.0, verdict={"on_time": True, "reasons": [
+        "agent-2 restarted by the fault plan but still starting when the run ended"]})
+    assert "still starting" in clock_missed(late)  # a start-up the machine starved
 
 
 def test_the_machine_measurement_sees_a_busy_child_as_ours():

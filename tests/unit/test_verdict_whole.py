@@ -52,6 +52,12 @@ def test_a_run_heard_for_less_than_it_simulated_fails():
     assert not v["pass"] and "heard for 16.000 s of the 19.998 s simulated" in verdict_line(v)
 
 
+def test_a_restart_that_never_rejoined_fails_and_is_not_a_missing_report():
+    v = judge(_realtime(restarts_not_rejoined=["agent-2"]))
+    assert not v["pass"] and "agent-2 restarted by the fault plan but still starting" in \
+        verdict_line(v)
+
+
 def test_a_missing_report_fails_naming_the_node():
     v = judge(_realtime(reports_missing=["agent-2"]))
     assert not v["pass"] and "no report from agent-2" in verdict_line(v)
