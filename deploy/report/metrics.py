@@ -46,6 +46,7 @@ TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "ji
                # what the nodes report of themselves (a distributed run only: in process
                # there is no command to time out, no sample to arrive stale)
                "command_timeout_s", "nonfinite_commands_reported", "stale_samples",
+               "overloaded_steps",
                "zero_torque_longest_s", "deadline_misses_by_node", "longest_stall",
                "reports_missing", "unanswered_states", "restarts_not_rejoined",
                # which output files the run wrote (a recording, figures): not a figure

@@ -4,18 +4,19 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from deploy.contract.output_paths import rescue_folder, usable_folder
 from deploy.contract.scenario import Scenario
-from deploy.report.figures import write_figures
 from deploy.report.metrics import compute_metrics, write_metrics
-from deploy.report.recorder import McapRecorder
 from deploy.report.run_folder import FIGURE_FILES
 from deploy.report.timeseries import TimeSeries
 from deploy.report.verdict import divergence, judge
+
+if TYPE_CHECKING:
+    from deploy.report.recorder import McapRecorder
 
 
 def write_run(
@@ -73,6 +74,9 @@ def _write_files(sc: Scenario, series: TimeSeries, metrics: dict[str, Any], out_
     write_metrics(metrics, out_dir / "metrics.json")
     series.save(out_dir / "timeseries.npz")
     if figures:
+        # matplotlib costs ~0.4 s to import: only a run that draws loads it
+        from deploy.report.figures import write_figures
+
         write_figures(sc, series, out_dir)
 
 

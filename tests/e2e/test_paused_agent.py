@@ -16,7 +16,6 @@ the run exited 0 with ``nonfinite_commands: 0``.
 from __future__ import annotations
 
 import json
-import math
 import os
 
 import numpy as np
@@ -25,23 +24,6 @@ import pytest
 from deploy.report.timeseries import TimeSeries
 from tests.procs import finish, pids_with, start
 from tests.realtime_clock import judged
-
-NAN3 = (math.nan, math.nan, math.nan)
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 
 PAUSE_AT, PAUSE_S, DURATION_S = 2.0, 2.0, 6.5
 

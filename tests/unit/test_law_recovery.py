@@ -30,25 +30,25 @@ def _step(agent, sc, i, t=0.0, dt=None):
 
 
 @pytest.mark.parametrize("field, value, restarted", [
-    ("_z2_hat", NAN3, ("observer",)),
-    ("_q_d", (math.inf, 0.0, 0.0), ("reference",)),
-    ("_q0_hat", NAN3, ("estimator",)),
+    ("z2_hat", NAN3, ("observer",)),
+    ("q_d", (math.inf, 0.0, 0.0), ("reference",)),
+    ("q0_hat", NAN3, ("estimator",)),
 ])
 def test_a_non_finite_state_is_restarted_from_the_measurement(lab, field, value, restarted):
     agent = make_agents(lab)[0]
     assert _step(agent, lab, 0).reset == ()  # a healthy step restarts nothing
-    setattr(agent, field, value)
+    agent.law.restore(field, value)  # the compiled law's state (agents/law_kernel.pyx)
     out = _step(agent, lab, 0, lab.dt)
     assert set(restarted) <= set(out.reset)
     assert np.isfinite(out.torques).all()  # zero torques when the law diverged, never NaN
     nxt = _step(agent, lab, 0, 2 * lab.dt)
     assert nxt.reset == () and not nxt.nonfinite and np.isfinite(nxt.torques).all()
-    assert all(map(math.isfinite, getattr(agent, field)))
-    if field == "_q_d":  # the reference restarts at the robot: no tracking error
+    assert all(map(math.isfinite, agent.law.state()[field]))
+    if field == "q_d":  # the reference restarts at the robot: no tracking error
         q, _ = lab.initial_state()
         assert np.allclose(nxt.q_d, q[0], atol=0.05)
-    if field == "_q0_hat":  # robot 1 hears the leader: the estimate restarts from it
-        assert abs(agent._q0_hat[0]) < 0.1
+    if field == "q0_hat":  # robot 1 hears the leader: the estimate restarts from it
+        assert abs(agent.law.state()["q0_hat"][0]) < 0.1
 
 
 def test_a_diverged_step_restarts_the_dynamic_level():
@@ -59,7 +59,7 @@ def test_a_diverged_step_restarts_the_dynamic_level():
     paper = load_scenario("paper")
     agent = make_agents(paper)[0]
     _step(agent, paper, 0)
-    agent._v_d_prev = (1.0, 0.0, 0.0)
+    agent.law.restore("v_d_prev", (1.0, 0.0, 0.0))
     out = _step(agent, paper, 0, paper.dt, dt=1e-320)
     assert out.nonfinite and not out.torques.any()
     assert {"reference", "observer"} <= set(out.reset)
