@@ -74,6 +74,12 @@ def test_a_run_that_missed_its_clock_on_a_quiet_machine_fails():
     assert len(calls) == 1
 
 
+def test_others_taking_a_quarter_of_an_unsaturated_machine_starve_it_too():
+    """Busy 1.7 of 2 cores, 0.5 of them others': eight CAN fleet processes late by 20 ms."""
+    assert MachineLoad(cores=2, wall_s=10.0, busy_cores=1.7, ours_cores=1.2).loaded
+    assert not MachineLoad(cores=2, wall_s=10.0, busy_cores=1.5, ours_cores=1.2).loaded
+
+
 def test_a_run_that_saturates_the_machine_by_itself_fails():
     """Busy 1.95 of 2 cores, 1.90 of them the run's: too big for this machine, not starved."""
     alone = MachineLoad(cores=2, wall_s=10.0, busy_cores=1.95, ours_cores=1.9)
