@@ -1,4 +1,4 @@
-"""An outside peer that forges messages into a running fleet (issue 21).
+"""An outside peer that forges messages into a running fleet (docs/hardening.md).
 
 What a hostile or faulty local process can do: read the run's
 ``logs/endpoints.json``, connect a zenoh peer of its own to the nodes' endpoints,

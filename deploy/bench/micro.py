@@ -174,7 +174,8 @@ def _median_us(fn: Callable[[], object], calls: int) -> float:
 
 
 def defence_us(sc: Scenario, calls: int, repeats: int) -> dict[str, list[float]]:
-    """What the issue-21 defences cost (µs), in the form the nodes run them:
+    """What the defences against one forged message (docs/hardening.md) cost (µs), in
+    the form the nodes run them:
 
     - ``guard_message``: one received control-path message judged against the
       receiver's own clock and its stream (``OwnClock.refusal`` + ``StepGuard.admit``,

@@ -1,4 +1,4 @@
-"""Who may say ``ctl/*`` on one host (issue 21): the processes of the run, and
+"""Who may say ``ctl/*`` on one host (docs/hardening.md): the processes of the run, and
 nobody else.
 
 ``omnifleet run`` draws a secret for the run and hands it to every node it starts

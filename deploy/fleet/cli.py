@@ -10,6 +10,7 @@ from pathlib import Path
 
 from deploy.contract.hosts import Hosts, HostsError, load_hosts
 from deploy.contract.options import EXIT_BAD_INPUT, OPTIONS, add_option, check_duration
+from deploy.contract.output_paths import check_folder
 from deploy.fleet.certs import CA_NAME, make_ca, make_role_cert
 
 
@@ -41,6 +42,8 @@ def make_hosts_certs(hosts: Hosts, out: str | Path, days: int = 365) -> dict[str
 def _cmd_plan(args: argparse.Namespace) -> int:
     from deploy.fleet.deploy_plan import RunOptions, plan_text, write_configs
 
+    if args.write:
+        check_folder(args.write, "--write")  # OutputPathError: exit 2 (cli.main)
     try:
         sc, hosts = _load(args)
     except HostsError as exc:
@@ -59,6 +62,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
 
 def _cmd_certs(args: argparse.Namespace) -> int:
+    check_folder(args.out, "--out")  # OutputPathError: exit 2 (cli.main), before anything
     try:
         _sc, hosts = _load(args)
     except HostsError as exc:
