@@ -2,7 +2,7 @@
 behaviors -> fusion -> controller -> torques. No I/O: the in-process runner and
 the distributed node both call :meth:`AgentCore.step` with the same inputs.
 
-Data flow per control step k (DESIGN §4, lockstep): own state at t_k, the
+Data flow per control step k (docs/distributed.md, lockstep): own state at t_k, the
 neighbours' shares of step k-1, the leader state at t_k iff b_i != 0, and what
 perception sees at t_k. The share published at step k carries the estimate
 already advanced to k+1, so estimator consensus runs as the synchronous Euler
@@ -75,7 +75,7 @@ class AgentConfig:
     max_yaw_accel_radps2: float = float("inf")
     max_tracking_error: float = float("inf")  # on ||q - q_d|| (anti-windup, see AgentCore._step)
     degradation: DegradationConfig = field(default_factory=DegradationConfig)
-    # issue 17 (docs/safety.md): which bodies the avoidance behaviors guard ("every" body
+    # docs/safety.md: which bodies the avoidance behaviors guard ("every" body
     # in range, one task each, nearest first; "nearest": only the nearest, as the
     # authors' script), and the safety filter, the last layer of the agent
     guard: str = "every"

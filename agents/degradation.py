@@ -1,4 +1,4 @@
-"""Graceful degradation of one agent when its inputs go stale (DESIGN §9).
+"""Graceful degradation of one agent when its inputs go stale (docs/faults.md).
 
 Every input reaches the step with its age: how much older it is than what a
 fault-free run would use at that step (0 in a fault-free lockstep run; in

@@ -1,5 +1,5 @@
 """What torque a bridge may put on the bus, decided from the newest command and
-the drivers' health. Pure logic, no I/O (DESIGN §8, §9):
+the drivers' health. Pure logic, no I/O (docs/hardware.md, docs/faults.md):
 
 - a command older than ``command_timeout_s`` (or none yet) -> zero torque, and
   the axes go idle: a dead agent must not leave a robot pushing;

@@ -2,7 +2,7 @@
 
 Exit codes: 0 success, 1 the run failed (a node died) or did not meet the
 scenario's criteria (with ``--check``), 2 bad input (scenario, arguments,
-zenoh configuration), 3 a node lost a peer it cannot run without, 130
+zenoh configuration, an output path that cannot be written), 3 a node lost a peer it cannot run without, 130
 interrupted (SIGINT), 143 terminated (SIGTERM).
 """
 
@@ -13,7 +13,8 @@ import sys
 
 from deploy.contract.fault_plan import FaultPlanError
 from deploy.contract.options import EXIT_BAD_INPUT, OptionError, add_option
-from deploy.contract.scenario import PLANT_KINDS, ScenarioError
+from deploy.contract.output_paths import OutputPathError
+from deploy.contract.scenario import PLANT_KINDS, ScenarioError, bundled_names
 from deploy.contract.wire import FleetNameError
 from deploy.nodes.cli import CLOCKS, add_node_commands
 from deploy.run.run_cli import cmd_run
@@ -34,14 +35,19 @@ def package_version() -> str:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="omnifleet",
-        description="Collision-free formation control for mecanum-wheel robot fleets.",
+        description="Collision-free formation control for mecanum-wheel robot fleets. "
+        "Start with `omnifleet scenario list` and `omnifleet run lab --in-process` (a report "
+        "folder in runs/lab/, ending with a verdict); COMMAND --help says more, README.md "
+        "and docs/ the rest.",
     )
     p.add_argument("--version", action="version", version=f"omnifleet {package_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     run = sub.add_parser(
         "run", help="run a scenario and write its report folder",
-        description="Run a scenario (a TOML file, or the name of a bundled one: paper, lab, "
-        "reference-code) and write metrics.json, timeseries.npz and figures to --out.",
+        description="Run a scenario (a TOML file, or the name of a bundled one: "
+        f"{', '.join(bundled_names())}; `omnifleet scenario list` says what each is) and "
+        "write metrics.json, timeseries.npz, recording.mcap and the figures to --out, "
+        "ending with the verdict (docs/outputs.md).",
     )
     run.add_argument("scenario", help="scenario file or bundled scenario name")
     run.add_argument("--in-process", action="store_true",
@@ -95,7 +101,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "loss; counted per link in metrics.json")
     run.add_argument("--check", action="store_true",
                      help="exit 1 unless the verdict is PASS: every robot settles before "
-                     "sqrt(2) T_p, no contact, nothing non-finite")
+                     "sqrt(2) T_p and ends at its formation position, no contact, nothing "
+                     "non-finite, the whole run simulated and heard (docs/outputs.md)")
     run.set_defaults(func=cmd_run)
     add_node_commands(sub)
     from deploy.bench.suite import add_bench_command
@@ -147,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     except (TransportError, FleetNameError) as exc:
         print(f"omnifleet: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except OptionError as exc:
+    except (OptionError, OutputPathError) as exc:
         print(f"{_prog(args)}: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:

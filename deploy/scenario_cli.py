@@ -21,14 +21,23 @@ import sys
 from pathlib import Path
 
 from deploy.contract.options import EXIT_BAD_INPUT, add_option, check_duration
+from deploy.contract.output_paths import check_file
 from deploy.contract.scaled_scenarios import scale_scenario
-from deploy.contract.scenario import SCENARIO_DIR, Scenario, ScenarioError, load_scenario, parse_scenario
+from deploy.contract.scenario import (
+    SCENARIO_DIR,
+    Scenario,
+    ScenarioError,
+    bundled_names,
+    load_scenario,
+    parse_scenario,
+)
 
 STARTER = Path(__file__).resolve().parent / "scenario_starter.toml"
 
 
 def _cmd_list(_args: argparse.Namespace) -> int:
-    for path in sorted(SCENARIO_DIR.glob("*.toml")):
+    for name in bundled_names():
+        path = SCENARIO_DIR / f"{name}.toml"
         try:
             sc = load_scenario(path)
             print(f"{path.stem:18s} {sc.n} robots, {1.0 / sc.dt:g} Hz, {sc.spec.duration_s:g} s: "
@@ -43,7 +52,7 @@ def _bundled(name: str, command: str) -> Path | None:
     path = SCENARIO_DIR / f"{name.removesuffix('.toml')}.toml"
     if path.exists():
         return path
-    known = ", ".join(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
+    known = ", ".join(bundled_names())
     print(f"omnifleet scenario {command}: no bundled scenario {name!r} (bundled: {known})",
           file=sys.stderr)
     return None
@@ -69,6 +78,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
+    check_file(args.out, "--out")  # OutputPathError: exit 2 (cli.main), before anything
     check_duration(args.duration, args.control_rate)  # the ranges: checked on parse
     text = scale_scenario(args.robots, args.control_rate, args.duration, args.seed)
     return _write(Path(args.out), text, args.force, "generate")
@@ -81,6 +91,7 @@ def scenario_name(path: Path) -> str:
 
 
 def _cmd_new(args: argparse.Namespace) -> int:
+    check_file(args.file, "FILE")  # OutputPathError: exit 2 (cli.main), before anything
     src = STARTER if args.source is None else _bundled(args.source, "new")
     if src is None:
         return EXIT_BAD_INPUT
@@ -111,7 +122,7 @@ def _write(out: Path, text: str, force: bool, command: str) -> int:
 def _cmd_perturb(args: argparse.Namespace) -> int:
     from deploy.contract.scenario_variants import perturbed, scenario_toml
 
-    out = Path(args.out)
+    out = check_file(args.out, "--out")  # OutputPathError: exit 2 (cli.main)
     if out.exists() and not args.force:
         print(f"omnifleet scenario perturb: {out} exists (--force to replace it)", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -2,8 +2,10 @@
 the markers, applied here by where a test lives and what it needs (one place):
 
 - ``e2e``: tests/e2e/, whole fleets of processes (``pytest -m "not e2e"``: the rest);
-- ``realtime``: judged against the wall clock (tests/realtime_clock.py: retried once,
-  then skipped with the measured jitter on a starved machine);
+  a test there that starts no process belongs in tests/unit or tests/integration;
+- ``realtime``: a test that (or whose fixture) judges a run against the wall clock
+  with tests/realtime_clock.py (skipped only when other programs measurably took the
+  CPU), or marked so explicitly;
 - ``root``: network namespaces (tests/netns.py; skipped without root);
 - ``slow``: integration modules whose runs take tens of seconds here.
 """
@@ -52,8 +54,20 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.slow)
         if path.stem in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
-        if "realtime" in item.name or (module is not None and (
-                hasattr(module, "judged") or hasattr(module, "starved"))):
+        if path.parent.name != "unit" and _judges_the_clock(item):
             item.add_marker(pytest.mark.realtime)
         if path.stem == "test_netns" or (module is not None and hasattr(module, "netns_problem")):
             item.add_marker(pytest.mark.root)
+
+
+CLOCK_JUDGES = {"judged", "judge_clock"}
+
+
+def _judges_the_clock(item: pytest.Item) -> bool:
+    """Whether the test, or a fixture it uses, calls the realtime judge: the marker
+    follows what a test does, not its name or its folder."""
+    funcs = [getattr(item, "function", None)]
+    info = getattr(item, "_fixtureinfo", None)
+    if info is not None:
+        funcs += [d.func for defs in info.name2fixturedefs.values() for d in defs]
+    return any(f is not None and CLOCK_JUDGES & set(f.__code__.co_names) for f in funcs)

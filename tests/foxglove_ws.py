@@ -5,9 +5,11 @@ schemas (``foxglove_decode``).
 
 The protocol's name: foxglove-sdk's server accepts only ``foxglove.sdk.v1`` in
 the handshake (``rust/foxglove/src/websocket/handshake.rs``) — the same
-protocol as ``foxglove.websocket.v1`` under a new name. Foxglove and Lichtblick
-(since lichtblick-suite/lichtblick#819) offer both names; so does this client,
-and it checks that the server picked one of them."""
+protocol as ``foxglove.websocket.v1`` under a new name; the live view's door
+(deploy/report/ws_front.py) serves both. Foxglove and Lichtblick (since
+lichtblick-suite/lichtblick#819) offer both names; older clients only the old one.
+This client offers what it is told (both by default) and checks that the server
+picked one of them."""
 
 from __future__ import annotations
 
@@ -43,12 +45,13 @@ def _schema_bytes(ch: dict[str, Any]) -> bytes:
     return ch["schema"].encode()
 
 
-async def _watch(url: str, topics: set[str], done, timeout_s: float) -> Session:
+async def _watch(url: str, topics: set[str], done, timeout_s: float,
+                 subprotocols: list[str]) -> Session:
     s = Session()
     subs: dict[int, int] = {}  # subscription id -> channel id
     deadline = time.monotonic() + timeout_s
-    async with websockets.connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
-        assert ws.subprotocol in SUBPROTOCOLS
+    async with websockets.connect(url, subprotocols=subprotocols, max_size=None) as ws:
+        assert ws.subprotocol in subprotocols
         s.subprotocol = ws.subprotocol
         while time.monotonic() < deadline and not done(s):
             try:
@@ -78,6 +81,8 @@ async def _watch(url: str, topics: set[str], done, timeout_s: float) -> Session:
     return s
 
 
-def watch(url: str, topics: set[str], done, timeout_s: float = 30.0) -> Session:
-    """Connect, subscribe to ``topics``, collect until ``done(session)`` or timeout."""
-    return asyncio.run(_watch(url, topics, done, timeout_s))
+def watch(url: str, topics: set[str], done, timeout_s: float = 30.0,
+          subprotocols: list[str] = SUBPROTOCOLS) -> Session:
+    """Connect offering ``subprotocols`` (default: both names, as Foxglove and Lichtblick
+    do today), subscribe to ``topics``, collect until ``done(session)`` or timeout."""
+    return asyncio.run(_watch(url, topics, done, timeout_s, subprotocols))

@@ -1,4 +1,4 @@
-"""Measure recovery from a partition of leader -> agent 1 (issue 6's acceptance):
+"""Measure recovery from a partition of leader -> agent 1 (docs/faults.md):
 the scenario in-process, fault-free and with the link cut over [--cut-from,
 --cut-to), side by side.
 

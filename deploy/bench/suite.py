@@ -1,7 +1,7 @@
 """``omnifleet bench``: what users care about, measured side by side in one sitting.
 
 Writes ``bench.json`` and ``bench.md`` to --out. Every figure is the median of
-its repeats with the spread (min, max); targets (issue: benchmarks) are stated
+its repeats with the spread (min, max); targets (docs/bench.md) are stated
 next to the figures and judged met or not, never asserted by a test. Fleet
 figures come from real ``omnifleet run`` processes (no recording, no figures);
 the costs underneath from :mod:`deploy.bench.micro` and
@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from deploy.contract.options import EXIT_BAD_INPUT, add_option
+from deploy.contract.output_paths import check_folder
 from deploy.contract.scaled_scenarios import scale_scenario
 
 BENCH_VERSION = 3  # 3: compiled kernels: in-process wall, per robot-step CPU, lab and CAN at speed
@@ -401,7 +402,7 @@ class Bench:
         self.log("costs underneath (agent math, plant step, codec, transport floor)")
         self.figure("cost.agent_step_us", "µs", "AgentCore.step, paper, per robot per step"
                     ).samples += agent_step_us(paper, self.s.agent_math_s, self.s.repeats)
-        # the safety filter inside that step (issue 17): checking every perceived body on
+        # the safety filter inside that step (docs/safety.md): checking every perceived body on
         # paper (it never acts there), and solving its QP where it acts (gap at 1.05x)
         every, _ = safety_filter_us(paper, self.s.agent_math_s, self.s.repeats)
         self.figure("cost.safety_filter_check_us", "µs", "safety filter per agent step, paper "
@@ -515,7 +516,7 @@ def _num(x: float) -> str:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    out = Path(args.out)
+    out = check_folder(args.out, "--out")  # OutputPathError: exit 2 (cli.main), before anything
     out.mkdir(parents=True, exist_ok=True)
     settings = Settings.of(args.quick, args.repeats)
     started = time.monotonic()

@@ -1,4 +1,4 @@
-"""Fault plans: the schema of ``--faults PLAN.toml`` and its validation (DESIGN §9).
+"""Fault plans: the schema of ``--faults PLAN.toml`` and its validation (docs/faults.md).
 
 A plan says what goes wrong in a run, per directed edge of the run's graph and
 per process, reproducibly from one seed::
@@ -42,6 +42,7 @@ from pathlib import Path
 import msgspec
 
 from deploy.contract.scenario import Scenario
+from deploy.contract.schema_hints import readable
 from deploy.contract.wire import LEADER_ROLE, PLANT_ROLE, agent_role
 
 
@@ -233,8 +234,7 @@ def decode_plan(text: bytes | str, sc: Scenario, path: str = "<fault plan>") -> 
     try:
         raw = msgspec.toml.decode(text, type=FaultPlanFile)
     except msgspec.ValidationError as exc:
-        raise FaultPlanError(f"{path}: {str(exc).replace('`$.', '`').replace('`$`', 'top level')}"
-                             ) from exc
+        raise FaultPlanError(f"{path}: {readable(str(exc), FaultPlanFile)}") from exc
     except (msgspec.DecodeError, UnicodeDecodeError) as exc:
         raise FaultPlanError(f"{path}: not valid TOML: {exc}") from exc
     if not (0 <= raw.seed < 2**63):

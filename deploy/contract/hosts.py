@@ -35,6 +35,7 @@ from pathlib import Path
 import msgspec
 
 from deploy.contract.scenario import Scenario
+from deploy.contract.schema_hints import hint
 from deploy.contract.wire import LAUNCHER_ROLE, LEADER_ROLE, PLANT_ROLE, FleetNameError, Keys
 
 ROUTER = "router"
@@ -178,7 +179,7 @@ def _convert(path: Path, prefix: str, raw: object, kind: type):
         # msgspec says e.g. "Object contains unknown field `adress`" or "... - at `$.port`"
         msg, _, where = str(exc).partition(" - at `$")
         key = ".".join(x for x in (prefix, where.rstrip("`").lstrip(".")) if x)
-        raise _fail(path, key or "(top level)", msg) from exc
+        raise _fail(path, key or "(top level)", msg + hint(str(exc), kind)) from exc
 
 
 def _check_port(path: Path, key: str, port: int) -> None:

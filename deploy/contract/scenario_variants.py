@@ -1,4 +1,4 @@
-"""Variants of a scenario, made in memory and validated like a file (issue 17):
+"""Variants of a scenario, made in memory and validated like a file (docs/safety.md):
 
 - :func:`perturbed`: obstacles (discs, walls, polygons: each moved rigidly) and starts
   jittered, seeded (the same seed gives the same

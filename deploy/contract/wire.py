@@ -1,4 +1,4 @@
-"""The wire contract (DESIGN §3): key expressions and message types, in one place.
+"""The wire contract (docs/distributed.md): key expressions and message types, in one place.
 
 Every node imports this module; nobody re-types a key string. Messages are
 msgspec Structs encoded as msgpack arrays (``array_like``: field order is the
@@ -13,7 +13,7 @@ ever compared with the same process's clock (a command echoes the stamp of the
 state it answers, so the plant measures state-to-command latency on its own
 clock), so hosts need no clock synchronisation for it.
 
-The control path carries two messages per robot per step (version 2, DESIGN §3):
+The control path carries two messages per robot per step (version 2, docs/distributed.md):
 the plant's :class:`Sample` (state + perception; in lockstep its arrival is the
 tick) and the agent's :class:`Reply` (command + look-ahead plan + the share its
 neighbours read from the same key). The leader's states travel in batches ahead
@@ -312,16 +312,24 @@ class NodeReport(Message, frozen=True):
     torque_clipped: dict[str, int] = {}
     # agent (realtime): steps its loop ran slower than its period allows, robot slowed (agents/pace.py)
     overloaded_steps: int = 0
+    # realtime: the node's longest late wake (ns; a stall) and the step it was due for
+    longest_late_ns: int = 0
+    longest_late_k: int = -1
+    # plant (realtime): per robot, in the scenario's order, the steps at which the newest
+    # command did not answer the newest state (the agent late or silent)
+    unanswered: list[int] = []
 
     def __post_init__(self) -> None:
         if min(self.sent, self.dropped, self.late, self.invalid, self.steps, self.nonfinite,
                self.deadline_misses, self.law_resets, self.nonfinite_commands,
-               self.stale_samples, self.contacts_total, self.overloaded_steps) < 0:
+               self.stale_samples, self.contacts_total, self.overloaded_steps,
+               self.longest_late_ns, *self.unanswered) < 0:
             raise ValueError("a negative count")  # a forged "invalid = -1000"
         if (len(self.latency_ns) > MAX_REPORT_SAMPLES or len(self.jitter_ns) > MAX_REPORT_SAMPLES
                 or len(self.received) > MAX_REPORT_KEYS or len(self.faults) > MAX_REPORT_KEYS
                 or len(self.refused) > MAX_REPORT_KEYS or len(self.command_stops) > 1000
-                or len(self.zero_torque) > 1000 or len(self.torque_clipped) > MAX_BODIES):
+                or len(self.zero_torque) > 1000 or len(self.torque_clipped) > MAX_BODIES
+                or len(self.unanswered) > MAX_BODIES):
             raise ValueError("report too large")
         if len(self.zid) > MAX_ROLE_CHARS or len(self.peers) > MAX_BODIES or any(
                 len(p) > MAX_ROLE_CHARS for p in self.peers):

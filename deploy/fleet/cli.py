@@ -11,6 +11,7 @@ from pathlib import Path
 from deploy.contract.hosts import Hosts, HostsError, load_hosts
 from deploy.contract.keyring import keyring_text, new_master, write_file
 from deploy.contract.options import EXIT_BAD_INPUT, OPTIONS, add_option, check_duration
+from deploy.contract.output_paths import check_folder
 from deploy.fleet.certs import CA_NAME, make_ca, make_role_cert
 from deploy.fleet.deploy_plan import MASTER_FILE, key_roles, keys_file_name
 
@@ -53,6 +54,8 @@ def make_hosts_certs(hosts: Hosts, out: str | Path, days: int = 365) -> dict[str
 def _cmd_plan(args: argparse.Namespace) -> int:
     from deploy.fleet.deploy_plan import RunOptions, plan_text, write_configs
 
+    if args.write:
+        check_folder(args.write, "--write")  # OutputPathError: exit 2 (cli.main)
     try:
         sc, hosts = _load(args)
     except HostsError as exc:
@@ -71,6 +74,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
 
 def _cmd_certs(args: argparse.Namespace) -> int:
+    check_folder(args.out, "--out")  # OutputPathError: exit 2 (cli.main), before anything
     try:
         _sc, hosts = _load(args)
     except HostsError as exc:

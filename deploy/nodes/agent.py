@@ -1,6 +1,6 @@
 """One robot's agent as a process: a zenoh peer around :class:`AgentCore`.
 
-Hears only what the scenario's graph gives it (DESIGN §3): its robot's sample
+Hears only what the scenario's graph gives it (docs/distributed.md): its robot's sample
 (state + perception), the replies of the j with a_ij != 0 (their shares), the
 leader iff b_i != 0, and ``ctl/*``. Publishes one reply per step (its robot's
 wheel command with the share its listeners read) and batched telemetry.

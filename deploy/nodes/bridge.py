@@ -1,5 +1,5 @@
 """One robot's CAN bridge as a process: a zenoh peer in place of the simulated
-plant for that robot (DESIGN §8). Realtime only: hardware has no lockstep.
+plant for that robot (docs/hardware.md). Realtime only: hardware has no lockstep.
 
 - ``robot/i/cmd`` -> torque frames, sent as the command arrives (the gate of
   :mod:`bridges.safety` clamps them to the scenario's limit, or to the protocol's

@@ -17,9 +17,9 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
-from pathlib import Path
 
 from deploy.contract.options import EXIT_BAD_INPUT, add_option
+from deploy.contract.output_paths import check_file
 from deploy.nodes.can_options import CanBusError, add_can_options, open_buses
 from deploy.runtime.priority import add_priority_argument, raise_priority
 
@@ -85,7 +85,7 @@ def run_emulate(args: argparse.Namespace) -> int:
     if args.silent_node is not None and args.silent_node not in args.node_ids:
         return bad(f"--silent-node {args.silent_node} is not one of --node-ids "
                    f"{','.join(map(str, args.node_ids))}")
-    truths = [Path(t) for t in args.truth_out or []]
+    truths = [check_file(t, "--truth-out") for t in args.truth_out or []]  # exit 2 (cli.main)
     if truths and len(truths) != len(robots):
         return bad(f"give --truth-out once per --robot ({len(robots)}), or not at all")
     for truth in truths:

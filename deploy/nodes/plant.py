@@ -2,7 +2,7 @@
 
 Publishes one ``robot/i/sample`` (state + perception) per robot each step and
 takes ``robot/i/cmd`` (the agent's reply). It is the time master of a lockstep
-run (DESIGN §4): step k publishes the samples at t_k (their arrival is the
+run (docs/distributed.md): step k publishes the samples at t_k (their arrival is the
 agents' tick), waits for every robot's command of step k (per-step deadline; a
 missing one is counted late), then integrates to t_{k+1}; ``ctl/tick`` goes out
 every ``TICK_EVERY`` steps only, to pace the leader's batches. The robot states
@@ -118,6 +118,7 @@ class PlantNode:
         self.clipped: dict[int, int] = {}
         self.command_stops: list[tuple[int, float, float]] = []  # (robot, command age, t)
         self.zero_torque = ZeroTorqueSpans()  # how long each stop lasted
+        self.unanswered = [0] * sc.n  # realtime: per robot, steps whose state went unanswered
         for rid in self.ids:
             on_cmd = self._on_cmd if self.gate is None else self.gate.wrap(
                 agent_role(rid), PLANT_ROLE, self._on_cmd)
@@ -234,7 +235,7 @@ class PlantNode:
             self.plant.step(t, dt, self.torques, self.v_cmd)
             self.steps_done += 1
         self.flush_log()
-        self._control("end", steps, steps * dt)
+        self._control("end", self.steps_done, self.steps_done * dt)
 
     def _take_lockstep_commands(self, k: int) -> None:
         """Each robot's command of step k. For a missing one (late: counted) or one
@@ -311,7 +312,9 @@ class PlantNode:
                         self.unpowered.discard(rid)
                         self.zero_torque.end(rid, self.steps_done * self.sc.dt)
                 if cmd is None or cmd.state_seq != self.last_state_seq.get(rid):
-                    self.timing.deadline_misses += 1  # the latest state went unanswered
+                    # the latest state went unanswered: the agent's lateness (or silence),
+                    # not a miss of this loop (its own: Periodic's skipped periods)
+                    self.unanswered[i] += 1
             self.commands.clear()
 
     def _play_plans(self, k: int) -> None:
@@ -340,6 +343,7 @@ class PlantNode:
                        contacts_total=0 if log is None else len(log),
                        faults=self.faults.report(), command_stops=self.command_stops[:1000],
                        zero_torque=self.zero_torque.close(self.steps_done * self.sc.dt),
-                       torque_clipped={str(r): n for r, n in self.clipped.items()})
+                       torque_clipped={str(r): n for r, n in self.clipped.items()},
+                       unanswered=self.unanswered)
         others = set(self.peers) - {LAUNCHER_ROLE}
         self.node.mailbox.wait_until(lambda: not (others & self.node.peers_alive), linger_s)

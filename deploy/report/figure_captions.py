@@ -1,4 +1,4 @@
-"""What each figure shows, and where and why it differs from the paper (issue 19, item 6).
+"""What each figure shows, and where and why it differs from the paper (docs/outputs.md).
 
 Pure: (Scenario, TimeSeries) in, text out. The sentences are computed from the run, so a
 caption says what this run did (the estimate's lag after 5 s, whether the estimator's

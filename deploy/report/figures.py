@@ -1,7 +1,7 @@
 """Figures like the paper's Fig. 4 (trajectories), Fig. 5 (errors), Fig. 6
 (distances, torques), drawn from a run's time series. Headless (Agg).
 
-For a reader of the paper (issue 19, item 6): robots drawn as bodies with a heading
+For a reader of the paper (docs/outputs.md): robots drawn as bodies with a heading
 arrow at every scale (enlarged, and said so, where to scale they would be dots), the
 desired formation paths x0 + rho_i dashed beside the travelled ones, a unit on every
 axis and every threshold line labelled, legends beside the axes (never over the data),
@@ -26,6 +26,7 @@ from deploy.contract.scenario import Scenario  # noqa: E402
 from deploy.report.figure_captions import Captions, body_scale, captions  # noqa: E402
 from deploy.report.metrics import leader_estimate_error  # noqa: E402
 from deploy.report.palette import COLORS  # noqa: E402
+from deploy.report.run_folder import FIGURE_FILES
 from deploy.report.timeseries import TimeSeries  # noqa: E402
 from plant.shapes import offset_outline  # noqa: E402
 
@@ -229,7 +230,7 @@ def distances_figure(sc: Scenario, ts: TimeSeries, caption: str = ""):
 
 
 def mark_safety_filter(ax, ts: TimeSeries) -> None:
-    """Shade the spans where the safety filter changed some robot's command (issue 17);
+    """Shade the spans where the safety filter changed some robot's command (docs/safety.md);
     nothing where it never acted, so a run it left alone looks like the paper's."""
     acting = ts.safety_active.any(axis=1)
     if not acting.any():
@@ -243,12 +244,11 @@ def mark_safety_filter(ax, ts: TimeSeries) -> None:
 
 def write_figures(sc: Scenario, ts: TimeSeries, out_dir: Path) -> list[Path]:
     """The three figures, each with its caption under it, and CAPTIONS.md beside them."""
-    paths = [out_dir / "fig4_trajectories.png", out_dir / "fig5_errors.png",
-             out_dir / "fig6_distances_torques.png"]
+    paths = [out_dir / name for name in FIGURE_FILES[:3]]
     caps: Captions = captions(sc, ts, body_scale(sc, _extent(sc, ts), MIN_BODY_FRACTION))
     for fn, p, text in zip((fig_trajectories, fig_errors, fig_distances), paths,
                            (caps.fig4, caps.fig5, caps.fig6), strict=True):
         fn(sc, ts, p, text)
-    notes = out_dir / "CAPTIONS.md"
+    notes = out_dir / FIGURE_FILES[3]
     notes.write_text(caps.markdown(sc.name))
     return [*paths, notes]

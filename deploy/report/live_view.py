@@ -1,5 +1,6 @@
 """``--live``: the run's scene and plots over Foxglove's WebSocket protocol
-(``foxglove.websocket.v1``, served by ``foxglove-sdk``) while the run goes.
+(served by ``foxglove-sdk`` as ``foxglove.sdk.v1``, and as ``foxglove.websocket.v1``
+through deploy/report/ws_front.py: Foxglove and Lichtblick connect) while the run goes.
 
 Off the control path: the run only tells the view how far its time series is
 filled (:meth:`LiveView.publish` stores an int, or the view polls a ``ready``
@@ -40,6 +41,7 @@ from deploy.report.foxglove_topics import (
 )
 from deploy.report.timeseries import TimeSeries
 from deploy.report.ws_address import DEFAULT_HOST, DEFAULT_PORT
+from deploy.report.ws_front import ViewServer
 
 LIVE_PLOT_RATE_HZ = 50.0  # plot rows per simulated second, live (the recording has more)
 LIVE_TRACE_HISTORY_S = 0.25  # live: trace points older than 2 s this far apart (scenes stay small)
@@ -54,9 +56,9 @@ class LiveView:
         self.scene = FleetScene(sc, LIVE_TRACE_HISTORY_S)
         self.plots = FleetPlots(sc)
         self.context = foxglove.Context()
-        self.server = foxglove.start_server(
-            name=f"omnifleet {sc.name}", host=host, port=port, context=self.context,
-            capabilities=[] if realtime else [Capability.Time])
+        # the SDK's server behind a door that lets Lichtblick in too (ws_front.py)
+        self.server = ViewServer(host, port, name=f"omnifleet {sc.name}", context=self.context,
+                                 capabilities=[] if realtime else [Capability.Time])
         ctx = self.context
         self.channels: dict[str, object] = {
             **{t: fc.SceneUpdateChannel(t, context=ctx) for t in SCENE_TOPICS},

@@ -1,4 +1,4 @@
-"""metrics.json: what "it works" means for a run (DESIGN §6), from the time series.
+"""metrics.json: what "it works" means for a run (docs/outputs.md), from the time series.
 
 Keys (every run, in-process or distributed): scenario, plant, clock, robots,
 sim_time_s, steps, control_rate_hz, wall_time_s, real_time_factor,
@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from deploy.contract.scenario import Scenario
+from deploy.report.formation_reach import formation_figures
 from deploy.report.timeseries import TimeSeries
 
 # Wall-clock, process and transport figures differ between two runs of the same
@@ -46,9 +47,10 @@ TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "ji
                # there is no command to time out, no sample to arrive stale)
                "command_timeout_s", "nonfinite_commands_reported", "stale_samples",
                "overloaded_steps",
-               "zero_torque_longest_s",
+               "zero_torque_longest_s", "deadline_misses_by_node", "longest_stall",
+               "reports_missing", "unanswered_states", "restarts_not_rejoined",
                # which output files the run wrote (a recording, figures): not a figure
-               "files")
+               "files", "folder")
 
 
 def settling_time(t: np.ndarray, err_norm: np.ndarray, threshold: float) -> float | None:
@@ -125,9 +127,12 @@ def compute_metrics(
     messages: dict[str, int] | None = None,
     contact_log: list[dict[str, Any]] | None = None,
     contacts_total: int | None = None,
+    steps_asked: int | None = None,
 ) -> dict[str, Any]:
     """``contact_log``: the plant's physical contact events (None: it has no bodies);
-    ``contacts_total``: their number when the log was truncated in transit."""
+    ``contacts_total``: their number when the log was truncated in transit;
+    ``steps_asked``: the steps the run was asked for (None: the series' own, as a run
+    in process simulates exactly what it records)."""
     s = sc.spec
     t = series.t
     n = sc.n
@@ -147,6 +152,14 @@ def compute_metrics(
     ro = sc.obstacle_gaps(series.q[:, :, :2]).reshape(len(t), -1)
     sim_time = series.steps * sc.dt
     lim = s.limits
+    reach = formation_figures(series, sc.robot_ids, sc.dt, s.metrics.formation_threshold_m,
+                              s.metrics.expect_unreached, s.metrics.expect_unreached_why)
+    for u in reach["formation_unreached"]:
+        if u["expected"]:  # a PASS beside a large formation error says why
+            notes.append(f"robot {u['robot']} is not at its formation position (" + (
+                "no state" if u["distance_end_m"] is None else
+                f"{u['distance_end_m']:.2f} m from it at the end") + f"), as the scenario "
+                f"expects: {u['why']}")
     return {
         "scenario": s.name,
         "plant": plant,
@@ -154,6 +167,10 @@ def compute_metrics(
         "robots": n,
         "sim_time_s": sim_time,
         "steps": series.steps,
+        # what was asked, and what the node that integrates simulated (a distributed run:
+        # the plant's own count, in its report); the verdict compares the three
+        "steps_asked": series.steps if steps_asked is None else steps_asked,
+        "steps_simulated": series.steps,
         "control_rate_hz": s.control_rate_hz,
         "wall_time_s": wall_time_s,
         "real_time_factor": sim_time / wall_time_s if wall_time_s > 0 else None,
@@ -162,6 +179,7 @@ def compute_metrics(
         "settling_time_s": settling,
         "formation_rms_whole_run_m": whole,
         "formation_rms_after_settling_m": after,
+        **reach,
         "min_obstacle_gap_m": float(ro.min()) if ro.size else None,
         "min_robot_gap_m": float(rr.min()) if rr.size else None,
         "contacts": (contact_onsets(rr) + contact_onsets(ro) if contact_log is None

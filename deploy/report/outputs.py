@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from deploy.contract.output_paths import rescue_folder, usable_folder
 from deploy.contract.scenario import Scenario
 from deploy.report.metrics import compute_metrics, write_metrics
+from deploy.report.run_folder import FIGURE_FILES
 from deploy.report.timeseries import TimeSeries
 from deploy.report.verdict import divergence, judge
 
@@ -31,13 +34,18 @@ def write_run(
     recorder: McapRecorder | None = None,
     step_unix_ns: np.ndarray | None = None,
     t0_unix_ns: int | None = None,
+    steps_asked: int | None = None,
 ) -> dict[str, Any]:
     """``recorder``: the run's open recording; the scene and plots of ``series``
     are added to it (``step_unix_ns``: each step's wall clock, when known;
-    ``t0_unix_ns``: the wall clock at t = 0) and it is closed."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+    ``t0_unix_ns``: the wall clock at t = 0) and it is closed. ``steps_asked``: the
+    steps the run was asked for (metrics.json ``steps_asked``). A folder that cannot be
+    written any more (it vanished, or became a file, while the run went) is not the end of
+    the results: they go to a folder under the temporary directory, said on stderr and in
+    ``folder``."""
+    out_dir = _usable(out_dir, sc.name)
     metrics = compute_metrics(sc, series, plant, clock, wall_time_s, messages, contact_log,
-                              contacts_total)
+                              contacts_total, steps_asked)
     metrics.update(extra or {})
     if recorder is not None:
         try:
@@ -46,9 +54,23 @@ def write_run(
             recorder.close({"scenario": sc.name, "plant": plant, "clock": clock})
         metrics["recording"] = recorder.summary()
     metrics["verdict"] = judge(metrics, divergence(series, sc.robot_ids))
-    # what this run writes, and nothing else (the summary names exactly these)
+    # what this run writes, file by file, and nothing else (the summary names exactly these;
+    # logs/ is the launcher's, each node's output)
     metrics["files"] = ["metrics.json", "timeseries.npz", *(
-        [recorder.path.name] if recorder is not None else []), *(["figures"] if figures else [])]
+        [recorder.path.name] if recorder is not None else []),
+        *(FIGURE_FILES if figures else ()), *(["logs/"] if (out_dir / "logs").is_dir() else [])]
+    metrics["folder"] = str(out_dir)
+    try:
+        _write_files(sc, series, metrics, out_dir, figures)
+    except OSError as exc:  # the folder went away between the check and the writing
+        rescue = _usable(rescue_folder(sc.name), sc.name, f"{out_dir}: {exc.strerror or exc}")
+        metrics["folder"] = str(rescue)
+        _write_files(sc, series, metrics, rescue, figures)
+    return metrics
+
+
+def _write_files(sc: Scenario, series: TimeSeries, metrics: dict[str, Any], out_dir: Path,
+                 figures: bool) -> None:
     write_metrics(metrics, out_dir / "metrics.json")
     series.save(out_dir / "timeseries.npz")
     if figures:
@@ -56,7 +78,16 @@ def write_run(
         from deploy.report.figures import write_figures
 
         write_figures(sc, series, out_dir)
-    return metrics
+
+
+def _usable(out_dir: Path, name: str, failed: str | None = None) -> Path:
+    """``out_dir`` if it can be written now, else a rescue folder, said on stderr."""
+    folder, why = usable_folder(out_dir, name)
+    why = failed or (None if why is None else f"{out_dir}: {why}")
+    if why is not None:
+        print(f"omnifleet: cannot write the run's results to {why}; they are in {folder}/",
+              file=sys.stderr, flush=True)
+    return folder
 
 
 def run_wall_clock(end_unix_ns: int, wall_s: float, run_t0_monotonic: float | None, steps: int,

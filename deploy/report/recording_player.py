@@ -27,6 +27,8 @@ from foxglove.websocket import (
     ServerListener,
 )
 
+from deploy.report.ws_front import ViewServer
+
 MIN_SPEED, MAX_SPEED = 0.01, 100.0
 TIME_BROADCAST_NS = 1_000_000_000 // 30
 
@@ -153,8 +155,8 @@ def serve_recording(path: Path, host: str, port: int, speed: float = 1.0, play: 
     """Serve until ``stop`` is set (or Ctrl-C); ``on_ready(port)`` once listening."""
     context = foxglove.Context()
     player = RecordingPlayer(path, context, speed)
-    server = foxglove.start_server(
-        name=f"omnifleet {path.parent.name}", host=host, port=port, context=context,
+    server = ViewServer(  # the SDK's server, Lichtblick let in too (ws_front.py)
+        host, port, name=f"omnifleet {path.parent.name}", context=context,
         capabilities=[Capability.PlaybackControl, Capability.Time],
         playback_time_range=player.time_range, server_listener=_Listener(player, True))
     stop = stop or threading.Event()

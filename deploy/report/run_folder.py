@@ -1,4 +1,4 @@
-"""A run folder holds one run's outputs, never two runs' (issue 19 item 3, issue 21).
+"""A run folder holds one run's outputs, never two runs' (docs/hardening.md).
 
 ``--out`` on a folder that already holds a run's outputs is refused (exit 2) unless
 ``--overwrite``, which removes those outputs first. Only the names a run writes are
@@ -15,9 +15,9 @@ from pathlib import Path
 
 # every name `omnifleet run` / `record` writes into its folder (deploy/report/outputs.py,
 # deploy/report/figures.py, the recorder, the launcher's logs/)
-RUN_OUTPUTS = ("metrics.json", "timeseries.npz", "recording.mcap", "logs",
-               "fig4_trajectories.png", "fig5_errors.png", "fig6_distances_torques.png",
-               "CAPTIONS.md")
+FIGURE_FILES = ("fig4_trajectories.png", "fig5_errors.png", "fig6_distances_torques.png",
+                "CAPTIONS.md")  # what deploy/report/figures.py writes, in this order
+RUN_OUTPUTS = ("metrics.json", "timeseries.npz", "recording.mcap", "logs", *FIGURE_FILES)
 
 
 class RunFolderError(ValueError):

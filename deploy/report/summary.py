@@ -23,7 +23,7 @@ def summary(m: dict, out: Path) -> str:
 
     return "\n".join([
         f"{m['scenario']}: {m['robots']} robots, {m['plant']} plant, {m['clock']}, "
-        f"{m['sim_time_s']:.2f} s simulated in {m['wall_time_s']:.2f} s "
+        f"{_simulated(m)} in {m['wall_time_s']:.2f} s "
         f"(x{m['real_time_factor']:.2f} real time)",
         *([f"  INTERRUPTED ({m.get('interrupted_by')}): what follows covers the "
            f"{m['sim_time_s']:.2f} s measured before it; no figures"] if m.get("interrupted")
@@ -43,9 +43,35 @@ def summary(m: dict, out: Path) -> str:
         *_law_lines(m),
         *_transport_lines(m),
         *_hardening_lines(m),
-        f"  written to {out}/ ({', '.join(m.get('files') or ['metrics.json'])})",
+        *_formation_lines(m),
+        *[f"  note: {n}" for n in m.get("notes") or []],
+        f"  written to {m.get('folder') or out}/ ({', '.join(m.get('files') or ['metrics.json'])})",
         *([verdict_line(m["verdict"])] if "verdict" in m else []),
     ])
+
+
+def _formation_lines(m: dict) -> list[str]:
+    """Where each robot ended against its formation position, apart from settling
+    (deploy/report/formation_reach.py)."""
+    end = m.get("formation_distance_end_m")
+    if end is None:
+        return []
+    return [f"  formation position, end    {_fmt_list(end)} m away; first within "
+            f"{m['formation_threshold_m']:g} m at {_fmt_list(m['formation_reached_s'])} s"]
+
+
+def _simulated(m: dict) -> str:
+    """"20.00 s simulated", or what fell short: "4.90 s of the 20.00 s asked simulated,
+    4.88 s heard" (the steps the plant simulated, and those whose states arrived)."""
+    dt = 1.0 / float(m["control_rate_hz"])
+    asked, done = m.get("steps_asked"), m.get("steps_simulated", m["steps"])
+    text = f"{done * dt:.2f} s"
+    if asked is not None and asked != done:
+        text += f" of the {asked * dt:.2f} s asked"
+    text += " simulated"
+    if done != m["steps"]:
+        text += f" ({m['sim_time_s']:.2f} s of it heard)"
+    return text
 
 
 def _law_lines(m: dict) -> list[str]:
@@ -84,11 +110,9 @@ def _hardening_lines(m: dict) -> list[str]:
         lines.append(f"  refused on arrival         {sum(refused.values())} message(s) by "
                      f"{len({k.split(':')[0] for k in refused})} node(s) "
                      "(metrics.json messages.refused: by node and reason)")
-    clipped = m.get("torque_clipped") or {}
-    if any(clipped.values()):
-        lines.append("  torque clipped to bound    "
-                     + ", ".join(f"robot {r}: {n}" for r, n in clipped.items() if n)
-                     + " command(s)")
+    clipped = m.get("torque_clipped") or []
+    if any(clipped):
+        lines.append(f"  torque clipped to bound    {_fmt_ints(clipped)} command(s)")
     return lines
 
 
@@ -127,6 +151,22 @@ def _transport_lines(m: dict) -> list[str]:
             lines.append(f"  state->command latency     p50 {ms(lat['p50'])} ms, p99 {ms(lat['p99'])} ms")
         lines.append(f"  loop jitter                p50 {ms(jit['p50'])} ms, p99 {ms(jit['p99'])} ms; "
                      f"deadline misses {m['deadline_misses']}")
+        by_node = m.get("deadline_misses_by_node")
+        if by_node and m['deadline_misses']:
+            lines.append("  deadline misses by node    " + ", ".join(
+                f"{role} {n}" for role, n in by_node.items() if n)
+                + f" (of {m.get('steps_asked', m['steps'])} steps)")
+        unanswered = m.get("unanswered_states")
+        if unanswered and any(unanswered):
+            lines.append(f"  states unanswered in time {_fmt_ints(unanswered)} step(s) (the "
+                         "agent's command had not come by the plant's next step)")
+        stall = m.get("longest_stall")
+        if stall:
+            lines.append(f"  longest stall              {stall['node']} {stall['duration_s']:.3f} s "
+                         f"from t = {stall['t_s']:.3f} s (its latest wake)")
+    missing = m.get("reports_missing")
+    if missing:
+        lines.append(f"  reports missing            {', '.join(missing)}")
     if "odometry_drift" in m:
         d = m["odometry_drift"]
 

@@ -45,9 +45,10 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
 def add_view_command(sub) -> None:
     p = sub.add_parser(
-        "view", help="serve a finished run's recording to Foxglove over WebSocket",
-        description="Serve RUN_DIR/recording.mcap over Foxglove's WebSocket protocol (the same "
-        "scene and plots as --live, with playback control). docs/foxglove.md.")
+        "view", help="serve a finished run's recording to Foxglove or Lichtblick over WebSocket",
+        description="Serve RUN_DIR/recording.mcap to Foxglove or Lichtblick over Foxglove's "
+        "WebSocket protocol (the same scene and plots as --live, with playback control). "
+        "docs/foxglove.md.")
     p.add_argument("run_dir", metavar="RUN_DIR", help="a run's folder (or an .mcap file)")
     p.add_argument("--listen", metavar="[HOST:]PORT", default=str(DEFAULT_PORT),
                    help=f"where to serve (default 127.0.0.1:{DEFAULT_PORT}; loopback unless HOST "

@@ -30,6 +30,7 @@ import numpy as np
 
 from deploy.contract.fault_plan import uniform_drop_plan
 from deploy.contract.options import add_option, check_duration
+from deploy.contract.output_paths import check_folder
 from deploy.contract.scenario import load_scenario
 
 
@@ -224,7 +225,7 @@ def _drops(text: str) -> list[float]:
 def cmd_sweep(args: argparse.Namespace) -> int:
     sc = load_scenario(args.scenario)  # a bad scenario fails here, before any run
     check_duration(args.duration, sc.spec.control_rate_hz)
-    out = Path(args.out or f"runs/{sc.name}-fault-sweep")
+    out = check_folder(args.out or f"runs/{sc.name}-fault-sweep", "--out")  # exit 2 (cli.main)
     out.mkdir(parents=True, exist_ok=True)
     jobs = args.jobs or os.cpu_count() or 1
     n = sum(args.seeds if d > 0.0 else 1 for d in args.drop)

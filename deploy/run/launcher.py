@@ -7,7 +7,7 @@ start, watch, fault-plan kills, stop by pid) and the observer
 (deploy/run/observer.py: hear, judge and file the fleet's messages). This module
 puts them together on one clock.
 
-Topology (links as the graph, DESIGN §3): every node, the launcher included,
+Topology (links as the graph, docs/distributed.md): every node, the launcher included,
 listens on a unix socket of its own in a private run directory (mode 0700: other
 users' processes cannot connect) and connects to exactly the nodes it talks to.
 Gossip and multicast scouting are off, so no other link forms and two runs on one
@@ -136,8 +136,8 @@ class Launcher:
             self._announce_start(node)
         self._supervise(node, progress)
         wall = time.perf_counter() - start
-        if progress is not None:
-            progress(self.steps, self.steps)
+        if progress is not None:  # the steps the plant says it simulated, no more
+            progress(self.observer.progress_k + 1, self.steps)
         sup.wait_for_exit(self.stop, lambda s: node.mailbox.wait_until(self.stop, s))
         # reports travel before the session closes; wait for stragglers (a launcher
         # behind on a large fleet's traffic reads them late)

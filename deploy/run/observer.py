@@ -109,6 +109,8 @@ class Observer:
             self.progress_k = max(self.progress_k, msg.k)
             self.tick_k = max(self.tick_k, msg.k)
         elif msg.command == "end":
+            # the plant's end carries the steps it simulated (progress never claims more)
+            self.progress_k = max(self.progress_k, min(msg.k, self.steps) - 1)
             self.ended = True
             self.end_unix_ns = self.end_unix_ns or time.time_ns()
         elif msg.command in ("stop", "estop") and self.stopped_by is None:

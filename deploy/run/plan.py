@@ -1,5 +1,5 @@
 """The run's plan: which processes a run starts, with which arguments, and who links
-to whom (DESIGN §3). Pure: nothing is started here (deploy/run/supervisor.py starts
+to whom (docs/distributed.md). Pure: nothing is started here (deploy/run/supervisor.py starts
 and watches them; deploy/run/launcher.py puts the two together).
 
 Every node listens on a unix socket of its own in the run's private directory and
@@ -48,6 +48,7 @@ class Child:
     stop_after_run: bool = False  # runs until stopped (an emulator): SIGTERM after the run
     killed: bool = False  # killed by the fault plan: its exit status is expected
     restarted: bool = False  # started again by the fault plan, while the fleet runs
+    never_rejoined: bool = False  # restarted, and still starting when the run ended: stopped
 
     def tail(self, n: int = TAIL_LINES) -> str:
         try:

@@ -19,6 +19,7 @@ from typing import Any
 
 from deploy.contract.keyring import Keyring, KeysError
 from deploy.contract.options import EXIT_BAD_INPUT, add_option
+from deploy.contract.output_paths import check_folder
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, run_roles
 from deploy.nodes.cli import add_keys_options, keyring_of, run_scenario
@@ -78,11 +79,13 @@ class Recorder:
                 node.mailbox.wait_until(
                     lambda: obs.ended or obs.stopped_by is not None or self.stop(), 0.1)
             wall = time.perf_counter() - start
+            if progress is not None:  # the steps the plant says it simulated, no more
+                progress(obs.progress_k + 1, obs.steps)
             # every node reports as it ends; wait for those still alive
             node.mailbox.wait_until(
                 lambda: set(obs.collector.reports) >= set(roles) or self.stop(), 10.0)
             closing_ns = time.time_ns()  # tokens seen to go after this: our own closing
-        out = run_figures(obs, [], zid, wall)
+        out = run_figures(obs, [], zid, wall, expected_roles=list(roles))
         out["processes"] += [  # the nodes ran elsewhere: what each reported
             {"role": r.role, "robot": None if r.robot < 0 else r.robot, "pid": None,
              "peak_rss_mb": round(r.peak_rss_kb / 1024.0, 1) if r.peak_rss_kb else None,
@@ -138,6 +141,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
     plant = args.plant or sc.spec.plant.kind
     from deploy.report.run_folder import RunFolderError, prepare
 
+    check_folder(args.out, "--out")  # OutputPathError: exit 2 (cli.main), before anything
     try:
         removed = prepare(Path(args.out), args.overwrite)
     except RunFolderError as exc:
@@ -184,7 +188,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
     contact_log, total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
     metrics = write_run(sc, series, Path(args.out), plant, args.clock, wall, messages, extra,
                         figures=not args.no_figures, contact_log=contact_log,
-                        contacts_total=total, recorder=recording,
+                        contacts_total=total, recorder=recording, steps_asked=opts.steps(sc),
                         **run_wall_clock(end_unix_ns, wall, rec.observer.run_t0, series.steps,
                                          args.clock == "lockstep"))
     print(f"omnifleet record: {series.steps} steps written to {args.out} "

@@ -8,8 +8,9 @@ import sys
 from pathlib import Path
 
 from deploy.contract.options import EXIT_BAD_INPUT
+from deploy.contract.output_paths import check_folder, usable_folder
 from deploy.contract.wire import Keys
-from deploy.nodes.cli import fault_plan, gui_problem, run_scenario
+from deploy.nodes.cli import fault_plan, gui_problem, run_scenario, steps_of
 from deploy.report.emulator_truth import can_fault_counts, emulator_lag_ms
 from deploy.report.run_folder import RunFolderError
 from deploy.report.run_folder import prepare as prepare_run_folder
@@ -48,7 +49,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"note: {note}", file=sys.stderr)
     if not args.in_process:
         Keys(args.fleet or sc.name)  # FleetNameError: exit 2 (main), before --out is touched
-    out = Path(args.out) if args.out else Path("runs") / sc.name
+    out = check_folder(Path(args.out) if args.out else Path("runs") / sc.name, "--out")
     try:
         removed = prepare_run_folder(out, args.overwrite)
     except RunFolderError as exc:
@@ -71,8 +72,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     finally:
         if live is not None:
             live.close()
-            print(f"live view: {live.published} messages served, {live.cpu_s:.2f} s CPU; stopped",
-                  file=sys.stderr)
+            front = live.server.front
+            print(f"live view: {live.published} messages served to {sum(front.served.values())} "
+                  f"client(s), {live.cpu_s:.2f} s CPU"
+                  + (f"; {front.refused} client(s) refused (no Foxglove subprotocol offered)"
+                     if front.refused else "") + "; stopped", file=sys.stderr)
     banner = divergence_banner(metrics["verdict"])
     if banner:
         print(banner, file=sys.stderr)
@@ -83,8 +87,8 @@ def cmd_run(args: argparse.Namespace) -> int:
               f"{metrics['recording']['lost']} message(s) not recorded", file=sys.stderr)
         return 1
     if args.check and not metrics["verdict"]["pass"]:
-        print("omnifleet run: the run does NOT meet the criteria (settling, no contact, "
-              "nothing non-finite)", file=sys.stderr)
+        print("omnifleet run: the run does NOT meet the criteria (the verdict above says "
+              "which)", file=sys.stderr)
         return 1
     return 0
 
@@ -99,10 +103,17 @@ def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, l
                             on_series=None if live is None else live.follow)
     extra = {} if plan is None else {"faults": fault_metrics(plan, result.faults or {})}
     extra["law_resets"] = result.law_resets
-    extra["torque_clipped"] = {str(r): n for r, n in (result.torque_clipped or {}).items()}
+    clipped = result.torque_clipped or {}
+    extra["torque_clipped"] = [clipped.get(r, 0) for r in sc.robot_ids]  # per robot, a list
     recorder = None
     if not args.no_record:
-        out.mkdir(parents=True, exist_ok=True)
+        # the folder may have gone while the run went: the recording goes where the
+        # results will (write_run names a rescue folder then)
+        usable, why = usable_folder(out, sc.name)
+        if why is not None:
+            print(f"omnifleet run: cannot write to {out} any more ({why}); the run's results "
+                  f"go to {usable}/", file=sys.stderr)
+        out = usable
         recorder = McapRecorder(out / RECORDING, sim_dt=sc.dt)
     if result.interrupted:
         from deploy.report.outputs import write_interrupted
@@ -113,7 +124,8 @@ def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, l
         _interrupted(metrics, out)
     return write_run(sc, result.series, out, plant, "lockstep", result.wall_time_s,
                      extra=extra, figures=not args.no_figures, contact_log=result.contacts,
-                     recorder=recorder, step_unix_ns=result.step_unix_ns)
+                     recorder=recorder, step_unix_ns=result.step_unix_ns,
+                     steps_asked=steps_of(sc, args))
 
 
 def _interrupted(metrics: dict, out: Path) -> None:
@@ -139,7 +151,7 @@ def _start_live(args: argparse.Namespace, sc):
     except (LiveAddressError, RuntimeError, OSError) as exc:
         print(f"omnifleet run: --live {args.live}: {exc}", file=sys.stderr)
         return False
-    print(f"live view: {url(host, live.port)} (Foxglove: Open connection -> "
+    print(f"live view: {url(host, live.port)} (Foxglove or Lichtblick: Open connection -> "
           "Foxglove WebSocket; layout docs/foxglove-layout.json)", file=sys.stderr, flush=True)
     return live
 
@@ -233,5 +245,6 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     return write_run(sc, series, out, plant, args.clock, wall, messages, extra,
                      figures=not args.no_figures, contact_log=contact_log,
                      contacts_total=contacts_total, recorder=recorder,
+                     steps_asked=opts.steps(sc),
                      **run_wall_clock(end_unix_ns, wall, launcher.observer.run_t0, series.steps,
                                       args.clock == "lockstep"))

@@ -100,9 +100,11 @@ def process_rows(children: list[Child], reports: dict[str, NodeReport],
 
 
 def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: float,
-                faults: FaultPlan | None = None, kill_events: list[dict] | None = None
-                ) -> dict[str, Any]:
-    """Everything a run adds to metrics.json beside its series and scene."""
+                faults: FaultPlan | None = None, kill_events: list[dict] | None = None,
+                expected_roles: list[str] | None = None) -> dict[str, Any]:
+    """Everything a run adds to metrics.json beside its series and scene.
+    ``expected_roles``: the nodes that must report (default: the zenoh nodes among
+    ``children``, those the fault plan killed for good left out)."""
     sc = obs.sc
     reports: dict[str, NodeReport] = dict(obs.collector.reports)
     out: dict[str, Any] = {"wall_time_s": wall, "messages": message_figures(reports, obs),
@@ -110,13 +112,14 @@ def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: f
     # per robot, in the scenario's order (None: its agent's report never came); a
     # restarted agent reports for its second life too (the collector keeps the last)
     out |= agent_figures([reports.get(agent_role(r)) for r in sc.robot_ids])
-    # commands that asked for more torque than the bound, clipped, per robot
+    # commands that asked for more torque than the bound, clipped: per robot, a list in the
+    # scenario's order like every per-robot figure (the reports key them by id, as text)
     clipped = {str(r): 0 for r in sc.robot_ids}
     for rep in reports.values():
         for rid, n in rep.torque_clipped.items():
             if rid in clipped:
                 clipped[rid] += n
-    out["torque_clipped"] = clipped
+    out["torque_clipped"] = [clipped[str(r)] for r in sc.robot_ids]
     if obs.stopped_by is not None:
         out["stopped_by"] = obs.stopped_by
     plant = reports.get(PLANT_ROLE)
@@ -135,10 +138,44 @@ def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: f
     if faults is not None:
         out["faults"] = fault_metrics(faults, merge_reports([r.faults for r in reports.values()]),
                                       kill_events or [])
+    if expected_roles is None:
+        # a node the fault plan killed for good, or restarted too late to rejoin, has no
+        # report to send; the second is said in the verdict (restarts_not_rejoined)
+        expected_roles = [c.role for c in children if c.zenoh and not (c.killed and not any(
+            o.role == c.role and o.restarted for o in children)) and not c.never_rejoined]
+        expected_roles = [r for r in expected_roles
+                          if not any(c.role == r and c.never_rejoined for c in children)]
+        late = sorted({c.role for c in children if c.never_rejoined})
+        if late:
+            out["restarts_not_rejoined"] = late
+    out |= completeness_figures(sc.dt, expected_roles, reports, plant, bridges, obs.clock)
     if obs.clock == "realtime":
         out["latency_ms"] = percentiles_ms(plant.latency_ns if plant else [])
         if bridges:  # on CAN: each command's arrival -> its torque frames on the bus
             out["bridge_latency_ms"] = percentiles_ms([x for b in bridges for x in b.latency_ns])
         out["jitter_ms"] = percentiles_ms([j for r in reports.values() for j in r.jitter_ns])
         out["deadline_misses"] = sum(r.deadline_misses for r in reports.values())
+        out["deadline_misses_by_node"] = {role: r.deadline_misses
+                                          for role, r in sorted(reports.items())}
+        if plant is not None and len(plant.unanswered) == sc.n:
+            out["unanswered_states"] = list(plant.unanswered)
+    return out
+
+
+def completeness_figures(dt: float, expected_roles: list[str], reports: dict[str, NodeReport],
+                         plant: NodeReport | None, bridges: list[NodeReport], clock: str
+                         ) -> dict[str, Any]:
+    """What the verdict needs to know the run went whole (deploy/report/verdict.py): the
+    steps the node that integrates (the plant; on CAN each bridge) simulated, the nodes
+    whose report never came, and (realtime) the longest stall of a node that applies
+    torques, when it began."""
+    out: dict[str, Any] = {}
+    holders = [r for r in [plant, *bridges] if r is not None]
+    if holders:
+        out["steps_simulated"] = min(r.steps for r in holders)
+    out["reports_missing"] = sorted({role for role in expected_roles if role not in reports})
+    if clock == "realtime" and holders:
+        worst = max(holders, key=lambda r: r.longest_late_ns)
+        out["longest_stall"] = {"node": worst.role, "duration_s": worst.longest_late_ns * 1e-9,
+                                "t_s": max(worst.longest_late_k, 0) * dt}
     return out

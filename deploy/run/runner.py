@@ -1,6 +1,6 @@
 """In-process reference runner: leader, plant and every agent in one loop.
 
-It follows the lockstep contract of DESIGN §4 exactly (own state at t_k,
+It follows the lockstep contract of docs/distributed.md exactly (own state at t_k,
 neighbours' shares from step k-1, leader at t_k), so the distributed runtime
 can be checked against it number for number.
 """

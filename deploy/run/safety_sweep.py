@@ -19,6 +19,14 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from deploy.contract.options import add_option, check_duration
+from deploy.contract.output_paths import check_folder
+
+SWEEP_HELP = ("Run seeds 0..K-1 of a seeded perturbation of SCENARIO (every obstacle and "
+              "start jittered, as `omnifleet scenario perturb` writes them), each in process "
+              "on the scenario's plant or --plant, --jobs at once. Writes sweep.csv (a row "
+              "per seed) and sweep.md (contacts, the smallest gaps, the safety filter's "
+              "activity, settling) to --out, and prints a line per run. --check: exit 1 "
+              "when any run touched (docs/safety.md).")
 
 
 @dataclass(frozen=True)
@@ -80,6 +88,7 @@ def markdown(rows: list[SweepRow], scenario: str, plant: str) -> str:
 def cmd_sweep(args: argparse.Namespace) -> int:
     from deploy.contract.scenario import load_scenario
 
+    check_folder(args.out, "--out")  # OutputPathError: exit 2 (cli.main), before anything
     sc = load_scenario(args.scenario)  # ScenarioError: exit 2 with file and key (cli.main)
     check_duration(args.duration, sc.spec.control_rate_hz)  # OptionError: exit 2 (cli.main)
     plant = args.plant or sc.spec.plant.kind
@@ -113,7 +122,7 @@ def add_safety_command(sub: argparse._SubParsersAction) -> None:
     s = p.add_subparsers(dest="safety_cmd", required=True)
     sw = s.add_parser("sweep", help="run N seeded perturbations of a scenario in process "
                       "(obstacles and starts jittered) and count contacts",
-                      description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                      description=SWEEP_HELP)
     sw.add_argument("scenario", help="bundled scenario name or TOML file")
     add_option(sw, "--seeds", default=10, help="seeds 0..K-1")
     sw.add_argument("--plant", choices=["pybullet", "model", "kinematic"],

@@ -186,6 +186,7 @@ class Supervisor:
             # a restarted node still starting when the run ended (a loaded host: imports and
             # the handshake took longer than the run had left) missed the end: stop it
             if c.restarted and self._terminate(c):
+                c.never_rejoined = True  # it has no report to send (run_figures.py)
                 print(f"omnifleet run: {c.role} (restarted) was still rejoining when the run "
                       "ended: stopped", file=sys.stderr)
         for c in self.children:

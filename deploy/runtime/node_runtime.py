@@ -68,10 +68,18 @@ class Timing:
     jitter_ns: list[int] = field(default_factory=list)
     latency_ns: list[int] = field(default_factory=list)
     deadline_misses: int = 0
+    # the loop's longest late wake (a stall: the process off the CPU, or a wait that
+    # held it) and the step it was due for; kept whole, whatever MAX_SAMPLES dropped
+    longest_late_ns: int = 0
+    longest_late_k: int = -1
 
     def add_jitter(self, ns: int) -> None:
         if len(self.jitter_ns) < MAX_SAMPLES:
             self.jitter_ns.append(ns)
+
+    def note_late(self, ns: int, k: int) -> None:
+        if ns > self.longest_late_ns:
+            self.longest_late_ns, self.longest_late_k = ns, k
 
     def add_latency(self, ns: int) -> None:
         if len(self.latency_ns) < MAX_SAMPLES:
@@ -102,15 +110,19 @@ class Periodic:
                 if self.mailbox is not None:
                     # late: still handle what arrived. A plant that ran late every period
                     # (the paper at 1 kHz on 2 cores) never waited, so never heard a
-                    # command during the whole run: the robots ran open loop
-                    self.mailbox.drain()
+                    # command during the whole run: the robots ran open loop. At most
+                    # one period of it: messages that keep coming faster than their
+                    # handlers run (a flood, a backlog) never hold the loop
+                    self.mailbox.drain(until=now + self.period)
                 break
             if self.mailbox is not None:
-                self.mailbox.wait_until(stop, min(target - now, 0.05))
+                # bounded: the wait returns by its timeout whatever keeps arriving
+                self.mailbox.wait_until(stop, min(target - now, 0.05), bounded=True)
             else:
                 time.sleep(min(target - now, 0.05))
         lateness = now - target
         self.timing.add_jitter(int(lateness * 1e9))
+        self.timing.note_late(int(lateness * 1e9), self.k)
         if lateness > self.period:
             skipped = int(lateness / self.period)
             self.timing.deadline_misses += skipped
@@ -246,6 +258,7 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
         dropped=c.dropped, late=c.late, invalid=c.invalid, steps=steps, nonfinite=c.nonfinite,
         latency_ns=timing.latency_ns, jitter_ns=timing.jitter_ns,
         deadline_misses=timing.deadline_misses, peak_rss_kb=peak_rss_kb(),
+        longest_late_ns=timing.longest_late_ns, longest_late_k=timing.longest_late_k,
         received=dict(node.received), refused=dict(node.refused), zid=node.zid,
         peers=node.linked_peers(), **extra,
     ))

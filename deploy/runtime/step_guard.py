@@ -1,4 +1,4 @@
-"""Which received step may become a node's newest (issue 21: one forged message must
+"""Which received step may become a node's newest (docs/hardening.md: one forged message must
 cost at most itself).
 
 A plant's samples, a neighbour's replies and the leader's states arrive step after
@@ -94,7 +94,7 @@ DEADLINE_MARGIN = 0.9  # lockstep: a plant's deadline wait measured on our clock
 @dataclass
 class OwnClock:
     """The newest step any sender of this run can have reached, judged on the
-    receiver's own clock (issue 21: a message is judged against the receiver's
+    receiver's own clock (docs/hardening.md: a message is judged against the receiver's
     clock, not only against the sender's history, which a forger writes).
 
     - lockstep (``deadline_s`` set): the plant publishes step k + 1 only once every

@@ -4,7 +4,7 @@ publishers and subscribers over the wire contract, liveliness, counters.
 This is the only module (with the launcher) that imports zenoh; the math in
 ``agents/`` and ``plant/`` never sees it.
 
-Receive where you work (DESIGN §3): every subscription is a *direct* zenoh
+Receive where you work (docs/distributed.md): every subscription is a *direct* zenoh
 callback (``indirect=False``: it runs on zenoh's own receive thread, no extra
 Python thread) that only copies the payload into the node's :class:`Mailbox`, a
 ``queue.SimpleQueue``. The node's working thread decodes, validates and handles

@@ -20,6 +20,7 @@ import time
 import numpy as np
 import pytest
 from procs import finish, start
+from realtime_clock import judge_clock, measured
 
 from bridges.protocol import CMD_SET_INPUT_TORQUE, OdriveCanSimple, SetInputTorque
 from deploy.contract.scenario import load_scenario
@@ -79,50 +80,52 @@ def test_bridge_drives_the_emulated_robot_and_zeroes_torque_when_commands_stop(t
     node.subscribe(keys.sample(1), Sample, lambda m: states.append((m.stamp_ns * 1e-9, m)),
                    robot=1)
     node.subscribe(keys.report("bridge-1"), NodeReport, reports.append)
-    emulator = start("emulate", "--scenario", "lab", "--robot", "1", *can_opts,
-                     "--duration", "12", "--truth-out", str(truth))
-    bridge = start("bridge", "--scenario", "lab", "--robot", "1", *can_opts, "--fleet", fleet,
-                   "--listen", "tcp/127.0.0.1:0", "--connect", endpoint, "--self-start",
-                   "--duration", "5", "--command-timeout", str(COMMAND_TIMEOUT_S))
-    try:
-        # the bridge is up and hears healthy drivers
-        assert node.mailbox.wait_until(
-            lambda: any(not m.faulted for _, m in states[-5:]), 30.0), "no healthy state"
-        x0 = states[-1][1].q[0]
-        end = time.monotonic() + DRIVE_S
-        while time.monotonic() < end:
-            last = states[-1][1]
-            node.publish(keys.cmd(1), lambda s, stamp, last=last: Reply(
-                WIRE_VERSION, 1, s, stamp, robot=1, k=last.k, t=last.t,
-                torques=(FORWARD_NM,) * 4, v_cmd=(0.0, 0.0, 0.0), state_seq=last.seq,
-                state_stamp_ns=last.stamp_ns, share=ShareData(*[(0.0, 0.0, 0.0)] * 6)))
-            last_command_at = time.monotonic()
-            # a 100 Hz commander (pacing, not synchronisation); the states it hears
-            # are handled meanwhile, on this thread
-            node.mailbox.wait_until(lambda: False, 0.01)
-        x1 = max(m.q[0] for _, m in states)
-        rc_b, _, err_b = finish(bridge, timeout=60)
-        assert rc_b == 0, err_b
-        node.mailbox.wait_until(lambda: bool(reports), 10.0)  # its report, handled here
-        rc_e, _, err_e = finish(emulator, timeout=60)
-        assert rc_e == 0, err_e
-    finally:
-        for p in (bridge, emulator):
-            if p.poll() is None:
-                p.kill()
-                p.wait()
-        node.close()
-        sniffer.close()
+    with measured() as load:  # who took the CPU meanwhile (tests/realtime_clock.py)
+        emulator = start("emulate", "--scenario", "lab", "--robot", "1", *can_opts,
+                         "--duration", "12", "--truth-out", str(truth))
+        bridge = start("bridge", "--scenario", "lab", "--robot", "1", *can_opts, "--fleet",
+                       fleet, "--listen", "tcp/127.0.0.1:0", "--connect", endpoint,
+                       "--self-start", "--duration", "5", "--command-timeout",
+                       str(COMMAND_TIMEOUT_S))
+        try:
+            # the bridge is up and hears healthy drivers
+            assert node.mailbox.wait_until(
+                lambda: any(not m.faulted for _, m in states[-5:]), 30.0), "no healthy state"
+            x0 = states[-1][1].q[0]
+            end = time.monotonic() + DRIVE_S
+            while time.monotonic() < end:
+                last = states[-1][1]
+                node.publish(keys.cmd(1), lambda s, stamp, last=last: Reply(
+                    WIRE_VERSION, 1, s, stamp, robot=1, k=last.k, t=last.t,
+                    torques=(FORWARD_NM,) * 4, v_cmd=(0.0, 0.0, 0.0), state_seq=last.seq,
+                    state_stamp_ns=last.stamp_ns, share=ShareData(*[(0.0, 0.0, 0.0)] * 6)))
+                last_command_at = time.monotonic()
+                # a 100 Hz commander (pacing, not synchronisation); the states it hears
+                # are handled meanwhile, on this thread
+                node.mailbox.wait_until(lambda: False, 0.01)
+            x1 = max(m.q[0] for _, m in states)
+            rc_b, _, err_b = finish(bridge, timeout=60)
+            assert rc_b == 0, err_b
+            node.mailbox.wait_until(lambda: bool(reports), 10.0)  # its report, handled here
+            rc_e, _, err_e = finish(emulator, timeout=60)
+            assert rc_e == 0, err_e
+        finally:
+            for p in (bridge, emulator):
+                if p.poll() is None:
+                    p.kill()
+                    p.wait()
+            node.close()
+            sniffer.close()
 
     # the claims hold for a bridge whose loop kept its period: judge what the clock
     # allowed first (tests/realtime_clock.py), from the bridge's own report (under a load
     # average of 7 the emulator lagged the wall clock by 239 ms at p99 and the robot did
     # not move in the 2 s of commands; alone it moves, and this passes)
-    node_jitter_ms = np.array(reports[0].jitter_ns) / 1e6 if reports else np.array([])
-    if node_jitter_ms.size and np.percentile(node_jitter_ms, 99) > sc.dt * 1e3:
-        pytest.skip(f"the scheduler starved the bridge: loop jitter p99 "
-                    f"{np.percentile(node_jitter_ms, 99):.1f} ms > one period {sc.dt * 1e3:.1f} ms; "
-                    "its driving and zero-torque timing cannot be judged here")
+    if not reports or not reports[0].jitter_ns:
+        pytest.fail("the bridge's report (with its loop jitter) did not arrive")
+    p99 = float(np.percentile(np.array(reports[0].jitter_ns) / 1e6, 99))
+    judge_clock(f"bridge loop jitter p99 {p99:.1f} ms > one period {sc.dt * 1e3:.1f} ms"
+                if p99 > sc.dt * 1e3 else None, load, "CAN bridge")
     # the robot went forward (odometry from the encoders)
     assert x1 - x0 > 0.1, (x0, x1, err_e[-600:])
     # zero torque on the bus: the first all-zero torque frames after the last command

@@ -189,7 +189,7 @@ def test_bridge_without_a_scenario_limit_clamps_to_what_the_protocol_encodes() -
 
 @pytest.mark.parametrize("clock", ["lockstep", "realtime"])
 def test_a_command_for_a_step_not_yet_sent_is_refused_and_costs_only_itself(clock: str) -> None:
-    """Found by probing (issue 21): one command for step 2^62 made a realtime plant
+    """Found by probing (docs/hardening.md): one command for step 2^62 made a realtime plant
     order every real command after it (all dropped: robot 2 zeroed for the run), and
     future-step commands filled the lockstep table without bound. A command answers a
     sample already sent: a later step is refused, counted, and the real ones apply."""

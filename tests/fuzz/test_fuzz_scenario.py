@@ -121,7 +121,7 @@ def check_scenario(sc: Scenario) -> None:
     bad = [p for p in non_finite_floats(msgspec.to_builtins(sc.spec)) if not p.startswith("['limits']")]
     assert not bad, bad
     assert math.isfinite(sc.dt) and sc.dt > 0
-    assert sc.steps >= 0
+    assert sc.steps >= 1  # the loader refuses a run shorter than one control period
     q, qd = sc.initial_state()
     assert np.all(np.isfinite(q)) and np.all(np.isfinite(qd))
     model = sc.model()

@@ -1,4 +1,4 @@
-"""Figures a reader of the paper understands (issue 19, item 6), checked on what is drawn:
+"""Figures a reader of the paper understands (docs/outputs.md), checked on what is drawn:
 bodies with headings at every scale, desired formation paths, units and labelled
 thresholds, legends beside the data; and captions computed from the run (erratum 16's
 estimator lag, FRCB chatter at R_c) on series built here with known content."""

@@ -1,4 +1,4 @@
-"""Issue 18: what a person sees in Foxglove — the recording decodes as Foxglove
+"""What a person sees in Foxglove (docs/foxglove.md) — the recording decodes as Foxglove
 decodes it, the scene holds the fleet, ``--live`` and ``view`` serve it over
 Foxglove's WebSocket protocol and end cleanly, the layout points at real topics,
 and every run ends with a verdict."""
@@ -267,7 +267,7 @@ def test_the_verdict_passes_only_settled_contact_free_finite_runs():
     assert not judge(_metrics(nonfinite_commands=1))["pass"]
     assert not judge(_metrics(plant="kinematic"))["pass"]  # as --check always did
     stopped = judge(_metrics(stopped_by={"command": "stop", "sender": 0, "k": 64, "t_s": 0.32}))
-    assert not stopped["pass"] and stopped["stopped"]  # issue 21: a stopped run is no PASS
+    assert not stopped["pass"] and stopped["stopped"]  # docs/hardening.md: a stopped run is no PASS
     assert "STOPPED by ctl/stop at t = 0.320 s" in verdict_line(stopped)
 
 

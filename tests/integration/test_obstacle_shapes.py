@@ -1,4 +1,4 @@
-"""Walls and convex polygons as obstacles (issue 19): the geometry against hand-worked
+"""Walls and convex polygons as obstacles (docs/scenarios.md): the geometry against hand-worked
 distances, the loader (loads, refuses bad shapes and overlapping starts with the key),
 perception (the nearest point, in range only; pybullet's the same), pybullet contacts
 with the real shapes, the metrics' gaps, the Foxglove scene and perturbed()."""
@@ -12,8 +12,10 @@ import pytest
 from scenario_edits import WALL_GAP, refused
 
 from deploy.cli import main
-from deploy.contract.scenario import load_scenario, parse_scenario
+from deploy.contract.scenario import SCENARIO_DIR, load_scenario, parse_scenario
 from deploy.contract.scenario_variants import perturbed
+from deploy.report.metrics import compute_metrics
+from deploy.run.runner import run_in_process
 from plant.perception import sense
 from plant.shapes import Polygon, convex_ccw, offset_outline, signed_distances, wall_vertices
 
@@ -253,8 +255,31 @@ def test_the_starters_commented_wall_polygon_and_waypoints_load_when_uncommented
 
     from deploy.scenario_cli import STARTER
 
-    text = re.sub(r"^#   (?=\[\[|\w+ = )", "", STARTER.read_text(), flags=re.M)
-    text = re.sub(r"^[xy] = \{.*\n", "", text, flags=re.M)  # the waypoints replace x and y
+    # the waypoints replace the harmonic path's lines, as the starter says
+    text = re.sub(r'^(path = "harmonic"|[xy] = \{.*|theta_rate = .*)\n', "", STARTER.read_text(),
+                  flags=re.M)
+    text = re.sub(r"^#   (?=\[\[|\w+ = )", "", text, flags=re.M)
     sc = parse_scenario(text, "starter-uncommented.toml")
     assert sc.spec.leader.path == "waypoints"
     assert [p.name for p in sc.obstacle_shapes()] == ["walls[0]", "polygons[0]"]
+
+
+def test_one_robot_sent_at_a_wall_stops_short_of_it():
+    """The leader drives straight through a wall; the robot, perceiving the wall's
+    nearest point, keeps the safety margin off its face (model plant, in process)."""
+    text = (SCENARIO_DIR / "wall-gap.toml").read_text()
+    robots = text[text.index("[[robots]]"):text.index("[graph]")]
+    graph = text[text.index("[graph]"):text.index("[leader]")]
+    one = text.replace(robots, "[[robots]]\nid = 1\nposition = [1.4, 1.5]\noffset = [0.0, 0.0]\n\n")
+    one = one.replace(graph, "[graph]\nadjacency = [[0]]\nleader = [1]\n\n")
+    one = one.replace("waypoints = [[1.4, 0.0], [2.5, 0.0], [3.6, 0.0], [5.0, 0.6], [6.0, 2.0]]",
+                      "waypoints = [[1.4, 1.5], [4.0, 1.5]]")
+    sc = parse_scenario(one.replace('kind = "pybullet"', 'kind = "model"'), "one.toml")
+    res = run_in_process(sc, duration_s=3.0)
+    m = compute_metrics(sc, res.series, res.plant, "lockstep", res.wall_time_s)
+    wall = sc.obstacle_shapes()[0]
+    gaps = np.array([wall.nearest(*p)[2] for p in res.series.q[:, 0, :2]]) - 0.2
+    assert m["contacts"] == 0 and gaps.min() == pytest.approx(m["min_obstacle_gap_m"])
+    assert gaps.min() >= sc.spec.safety.margin_m - 5e-3  # the margin, to a few mm (0.0503 m)
+    assert res.series.leader_q[-1, 0] > 3.0  # while the leader went through the wall
+    assert res.series.q[-1, 0, 0] < 2.45 - 0.2  # the robot stayed on its side

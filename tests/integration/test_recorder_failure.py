@@ -1,5 +1,5 @@
 """The recorder never dies on a value, and a recording that fails anyway fails the run
-loudly (issue 21, item 2).
+loudly (docs/hardening.md).
 
 Found by probing: one message with seq >= 2^32 killed the MCAP writer thread; the
 launcher printed a traceback and exited 0, everything after was held in memory

@@ -1,4 +1,4 @@
-"""Issue 17: no contact by construction, on scenarios made to break it.
+"""No contact by construction, on scenarios made to break it (docs/safety.md).
 
 Each bundled scenario below touched, or came within millimetres, before every body in
 range was guarded and the safety filter became the agents' last layer (the table in

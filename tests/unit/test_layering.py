@@ -1,4 +1,4 @@
-"""The house imports one way (issue 20): plant at the bottom, agents and bridges on it,
+"""The house imports one way (docs/layout.md): plant at the bottom, agents and bridges on it,
 deploy on top, and inside deploy its sub-packages from the contract up to the CLI.
 
 Every import counts, at module level or inside a function (a lazy import is still a

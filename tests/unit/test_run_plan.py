@@ -1,5 +1,5 @@
 """The run's plan, drawn without starting anything (deploy/run/plan.py): links as the
-graph (DESIGN §3), one socket per node in the run's private directory, and a
+graph (docs/distributed.md), one socket per node in the run's private directory, and a
 restarted node that dials every peer it talks with."""
 
 from __future__ import annotations

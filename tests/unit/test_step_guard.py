@@ -54,7 +54,7 @@ def _sample(k: int, seq: int) -> bytes:
 
 
 def test_an_agent_never_takes_a_forged_sample_as_its_newest():
-    """Found by probing (issue 21): one sample for a future step hung a lockstep run
+    """Found by probing (docs/hardening.md): one sample for a future step hung a lockstep run
     (the agent waited for that step's other inputs every step), one with a huge seq
     silenced a realtime agent (every real sample after it looked older)."""
     import pytest

@@ -1,4 +1,4 @@
-"""What one message from outside may do to a run's outputs (issue 21): a report is
+"""What one message from outside may do to a run's outputs (docs/hardening.md): a report is
 filed under the role of the key it came on, and its size is bounded."""
 
 from __future__ import annotations
