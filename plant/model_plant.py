@@ -90,6 +90,9 @@ class ModelPlant:
             qd = qd + h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
         self.q, self.q_dot = q, qd
 
+    def close(self) -> None:
+        """Nothing to release (the Plant protocol's close)."""
+
 
 class KinematicPlant:
     """q_{k+1} = q_k + dt v_cmd (explicit Euler, as in the authors' script)."""
@@ -103,3 +106,6 @@ class KinematicPlant:
     def step(self, t: float, dt: float, torques: np.ndarray, v_cmd: np.ndarray) -> None:
         self.q_dot = np.array(v_cmd, dtype=float)
         self.q = self.q + dt * self.q_dot
+
+    def close(self) -> None:
+        """Nothing to release (the Plant protocol's close)."""

@@ -104,7 +104,7 @@ def plant_step_us_per_robot(sc: Scenario, kind: str, steps: int, repeats: int) -
                 plant.step(k * sc.dt, sc.dt, torques[k], v_cmd)
                 times.append(time.perf_counter_ns() - t0)
         finally:
-            getattr(plant, "close", lambda: None)()
+            plant.close()
         samples.append(statistics.median(times) / 1e3 / sc.n)
     return samples
 

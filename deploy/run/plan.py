@@ -22,10 +22,10 @@ from deploy.contract.fault_plan import FaultPlan
 from deploy.contract.options import DEFAULT_STARTUP_TIMEOUT_S, DEFAULT_STEP_DEADLINE_S
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, LEADER_ROLE, PLANT_ROLE, agent_role, bridge_role
+from deploy.runtime.plants import CAN_EMULATED
 from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
 
 ENCODER_RATE_HZ = 100.0  # the driver emulator's encoder estimates (can-emulated)
-CAN_EMULATED = "can-emulated"  # every robot through a CAN bridge + driver emulator
 TAIL_LINES = 15
 
 

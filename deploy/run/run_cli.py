@@ -16,6 +16,7 @@ from deploy.report.run_folder import prepare as prepare_run_folder
 from deploy.report.summary import summary
 from deploy.report.verdict import divergence_banner, verdict_line
 from deploy.runtime.fault_model import fault_metrics
+from deploy.runtime.plants import PLANTS
 
 RECORDING = "recording.mcap"
 
@@ -25,9 +26,9 @@ RECORDING = "recording.mcap"
 def cmd_run(args: argparse.Namespace) -> int:
     sc = run_scenario(args)  # the ranges were checked on parse (deploy/contract/options.py)
     plant = args.plant or sc.spec.plant.kind
-    if plant == "can-emulated":  # hardware through emulated drivers runs on the wall clock
+    if PLANTS[plant].realtime_only:  # hardware through emulated drivers runs on the wall clock
         if args.in_process or args.clock == "lockstep":
-            print("omnifleet run: --plant can-emulated runs realtime, one process per node",
+            print(f"omnifleet run: --plant {plant} runs realtime, one process per node",
                   file=sys.stderr)
             return EXIT_BAD_INPUT
         args.clock = "realtime"
