@@ -16,7 +16,7 @@ from deploy.report.run_folder import prepare as prepare_run_folder
 from deploy.report.summary import summary
 from deploy.report.verdict import divergence_banner, verdict_line
 from deploy.runtime.fault_model import fault_metrics
-from deploy.runtime.plants import PLANTS
+from deploy.runtime.plants import CAN_EMULATED, PLANTS
 
 RECORDING = "recording.mcap"
 
@@ -33,6 +33,10 @@ def cmd_run(args: argparse.Namespace) -> int:
             return EXIT_BAD_INPUT
         args.clock = "realtime"
     args.clock = args.clock or "lockstep"
+    if args.driver is not None and plant != CAN_EMULATED:
+        print(f"omnifleet run: --driver {args.driver} drives CAN bridges: it needs --plant "
+              f"{CAN_EMULATED}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     problem = gui_problem(plant, args.gui)
     if problem:
         print(f"omnifleet run: {problem}", file=sys.stderr)
@@ -178,6 +182,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         record=not args.no_record, fleet=args.fleet, endpoint=args.endpoint, gui=args.gui,
         faults=fault_plan(args, sc), realtime_priority=args.priority, recorder=recorder,
         lowlatency=args.zenoh_transport == "lowlatency",
+        **({} if args.driver is None else {"driver": args.driver}),
     )
     launcher = Launcher(sc, opts)
     if live is not None:

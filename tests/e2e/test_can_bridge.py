@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from procs import finish, start
 
-from bridges.protocol import CMD_SET_INPUT_TORQUE, OdriveCanSimple, SetInputTorque
+from bridges.odrive import CMD_SET_INPUT_TORQUE, OdriveCanSimple, SetInputTorque
 from deploy.contract.scenario import load_scenario
 from deploy.contract.wire import WIRE_VERSION, Codec, Keys, NodeReport, Reply, Sample, ShareData
 from deploy.run.plan import free_tcp_port

@@ -194,7 +194,8 @@ def test_realtime_forgeries_neither_silence_an_agent_nor_zero_its_robot(tmp_path
 def _bridge(monkeypatch, secret: str | None):
     from fuzz_fakes import FakeNode, RecordingBus
 
-    from bridges.protocol import OdriveCanSimple
+    from bridges.driver import DriverSettings
+    from bridges.odrive import OdriveDriver
     from deploy.contract.scenario import load_scenario
     from deploy.nodes.bridge import BridgeNode
     from deploy.runtime.node_runtime import StopFlag
@@ -205,7 +206,8 @@ def _bridge(monkeypatch, secret: str | None):
     bus = RecordingBus()
     ids = [0, 1, 2, 3]
     b = BridgeNode(sc, 2, FakeNode(sc.robot_ids, "bridge-2"), StopFlag(), bus,
-                   OdriveCanSimple(ids), ids, command_timeout_s=1e9, heartbeat_timeout_s=1e9)
+                   OdriveDriver(DriverSettings(tuple(ids))), ids, command_timeout_s=1e9,
+                   heartbeat_timeout_s=1e9)
     return b, bus
 
 

@@ -26,8 +26,8 @@ from fuzzing import fuzz_decoder, fuzz_settings, non_finite_floats
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bridges.drive_emulator import DriverEmulator
-from bridges.protocol import (
+from bridges.driver import DriverSettings, FrameCounters
+from bridges.odrive import (
     AXIS_STATE_CLOSED_LOOP_CONTROL,
     CMD_GET_BUS_VOLTAGE_CURRENT,
     CMD_GET_ENCODER_ESTIMATES,
@@ -40,15 +40,16 @@ from bridges.protocol import (
     DriverErrors,
     EncoderEstimate,
     Estop,
-    FrameCounters,
     Heartbeat,
     OdriveCanSimple,
+    OdriveDriver,
     Request,
     SetAxisState,
     SetControllerMode,
     SetInputTorque,
     arbitration_id,
 )
+from bridges.odrive_emulator import OdriveEmulator as DriverEmulator
 from deploy.contract.scenario import load_scenario
 from deploy.nodes.bridge import BridgeNode
 from deploy.runtime.node_runtime import StopFlag
@@ -147,7 +148,7 @@ def bridge(request: pytest.FixtureRequest) -> Iterator[BridgeNode]:
     sc = load_scenario(request.param)
     bus = RecordingBus()
     b = BridgeNode(sc, 1, FakeNode(sc.robot_ids, "bridge-1"), StopFlag(), bus,
-                   OdriveCanSimple(NODE_IDS), NODE_IDS)
+                   OdriveDriver(DriverSettings(tuple(NODE_IDS))), NODE_IDS)
     yield b
     b.close()
     bus.shutdown()
@@ -206,7 +207,7 @@ def test_emulator_frame_handling(emulator: tuple[DriverEmulator, RecordingBus],
     tau = emu.wheel_torques()
     assert np.all(np.isfinite(tau)) and np.all(np.abs(tau) <= limit), tau
     assert np.all(np.isfinite(emu.q)) and np.all(np.isfinite(emu.q_dot))
-    assert all(math.isfinite(a.position_rev) for a in emu.axes)
+    assert np.all(np.isfinite(emu.wheel_rev))
     host = OdriveCanSimple(NODE_IDS)
     sent = [host.decode(f) for f in bus.sent]
     bus.sent.clear()
