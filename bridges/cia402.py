@@ -125,13 +125,21 @@ _POWERED = {State.READY_TO_SWITCH_ON, State.SWITCHED_ON, State.OPERATION_ENABLED
             State.QUICK_STOP_ACTIVE}
 
 
-def state_of(statusword: int) -> State | None:
-    """The state a statusword reports (None: a bit pattern of no state)."""
+def _state_of_bits(bits: int) -> State | None:
     for state in State:
-        mask, bits = State402.SW_MASK[state.value]
-        if statusword & mask == bits:
+        mask, pattern = State402.SW_MASK[state.value]
+        if bits & mask == pattern:
             return state
     return None
+
+
+# statusword bits 0-3, 5, 6 (mask 0x6F) -> state, every combination worked out once
+_STATE_OF_BITS = {bits: _state_of_bits(bits) for bits in range(0x80) if bits & 0x10 == 0}
+
+
+def state_of(statusword: int) -> State | None:
+    """The state a statusword reports (None: a bit pattern of no state)."""
+    return _STATE_OF_BITS[statusword & 0x6F]
 
 
 def statusword_of(state: State) -> int:

@@ -151,8 +151,10 @@ class Cia402Driver:
         if not 1 <= host <= 127 or host in ids:
             raise ValueError(f"the host's heartbeat node id {host} must be in 1..127 and not a "
                              f"drive's ({list(ids)})")
-        if not (math.isfinite(settings.period_s) and settings.period_s > 0):
-            raise ValueError(f"the control period must be positive, got {settings.period_s}")
+        for what, x in (("control period", settings.period_s),
+                        ("report rate", settings.report_rate_hz)):
+            if not (math.isfinite(x) and x > 0):
+                raise ValueError(f"the {what} must be positive, got {x}")
         self.settings = settings
         self.node_ids = ids
         self.host_node_id = host
@@ -162,6 +164,7 @@ class Cia402Driver:
         self._drives: dict[int, _Drive] = {}
         self._tpdo_by_cob: dict[int, tuple[_Drive, PdoLayout]] = {}
         self._next_heartbeat = -math.inf
+        self._max_abs_torque_nm: float | None = None  # known once every drive's units are
         self.syncs_sent = 0
         self._drive(ids[0])  # the EDS is read and checked now (the others when used)
 
@@ -234,7 +237,10 @@ class Cia402Driver:
     @property
     def max_abs_torque_nm(self) -> float:
         """The largest |wheel torque| every drive's target torque (int16 per mille) holds."""
-        return min(32767 * self._drive(n).units.wheel_nm_per_mille for n in self.node_ids)
+        if self._max_abs_torque_nm is None:
+            self._max_abs_torque_nm = min(32767 * self._drive(n).units.wheel_nm_per_mille
+                                          for n in self.node_ids)
+        return self._max_abs_torque_nm
 
     # --- bring-up -----------------------------------------------------------------------
     def bring_up(self, bus: can.BusABC, timeout_s: float, say: Callable[[str], None]) -> None:
@@ -274,6 +280,7 @@ class Cia402Driver:
             say(f"node {n}: SDO 0x1000 device type 0x{device:08X} (CiA 402); 0x6502 modes "
                 f"0x{modes:08X}: {mode_name}")
             d.units = _units_of(lambda i, s=None: node.sdo[i].raw if s is None else node.sdo[i][s].raw)
+            self._max_abs_torque_nm = None
             if d.units.problem():
                 raise DriveError(f"node {n}: {d.units.problem()}")
             u = d.units
@@ -298,24 +305,41 @@ class Cia402Driver:
             else:
                 say(f"node {n}: SDO 0x6060 mode {mode}, 0x6061 shows it")
             self._write_timing(d, say)
+            for m in node.tpdo.values():  # the drives report at report_rate_hz
+                if m.enabled:
+                    m.trans_type = self.sync_divider
+            self._adopt(d, self._with_mapping(n, node, d.units))
             node.rpdo.save()
             node.tpdo.save()
             node.rpdo.read()  # back from the drive: what it holds is what the bridge packs
             node.tpdo.read()
-            written = (d.control, d.torque, d.tpdos)
             fresh = self._with_mapping(n, node, d.units)
-            if (fresh.control, fresh.torque, fresh.tpdos) != written:
+            if (fresh.control, fresh.torque, fresh.tpdos) != (d.control, d.torque, d.tpdos):
                 raise DriveError(f"node {n}: the PDO mapping read back differs from the one "
                                  "written")
+            unique = {lay.cob_id: lay for lay in (d.control, d.torque, *d.tpdos)}
             say(f"node {n}: PDO mapping written by SDO and read back: "
-                + "; ".join(_describe(node, lay) for lay in (d.control, d.torque, *d.tpdos)
-                            if lay is not d.torque or d.torque is not d.control))
+                + "; ".join(_describe(node, lay) for lay in unique.values()))
             node.nmt.state = "OPERATIONAL"
         except (SdoAbortedError, SdoCommunicationError) as exc:
             raise DriveError(f"node {n}: SDO failed: {exc}") from None
         self._wait_operational(d, deadline)
         say(f"node {n}: NMT operational: PDOs on, SYNC every "
             f"{self.settings.period_s * 1e3:g} ms from the bridge")
+
+    @property
+    def sync_divider(self) -> int:
+        """The TPDOs' transmission type: every n-th SYNC, for report_rate_hz."""
+        n = round(1.0 / (self.settings.period_s * self.settings.report_rate_hz))
+        return max(1, min(240, n))
+
+    def _adopt(self, d: _Drive, fresh: _Drive) -> None:
+        """Drive ``d`` packs and unpacks with ``fresh``'s layouts from now on."""
+        for lay in d.tpdos:
+            self._tpdo_by_cob.pop(lay.cob_id, None)
+        d.control, d.torque, d.tpdos = fresh.control, fresh.torque, fresh.tpdos
+        for lay in d.tpdos:
+            self._tpdo_by_cob[lay.cob_id] = (d, lay)
 
     def _write_timing(self, d: _Drive, say: Callable[[str], None]) -> None:
         node, od = d.node, d.node.object_dictionary
@@ -398,12 +422,13 @@ class Cia402Driver:
     def torque_frame(self, node: int, torque_nm: float) -> can.Message:
         """The target torque in per mille of rated torque (rounded); ValueError for a
         torque that is not finite or beyond what the frame holds."""
-        d = self._drive(node)
+        d = self._drives.get(node) or self._drive(node)
         tau = float(torque_nm)
         if not math.isfinite(tau) or abs(tau) > self.max_abs_torque_nm:
             raise ValueError(f"cannot encode a torque of {torque_nm!r} N m for node {node}")
         d.image[p.TARGET_TORQUE] = max(-32767, min(32767, round(tau / d.units.wheel_nm_per_mille)))
-        return d.frames(d.torque)[0]
+        lay = d.torque
+        return can.Message(arbitration_id=lay.cob_id, data=lay.pack(d.image), is_extended_id=False)
 
     def cycle_frames(self, now_s: float) -> list[can.Message]:
         """SYNC (the drives apply nothing on it: the RPDO is applied on receipt; they
@@ -556,6 +581,8 @@ def _units_of(read: Callable[..., Any]) -> Units:
 def _describe(node: Any, lay: PdoLayout) -> str:
     od = node.object_dictionary
     names = ", ".join(od[index].name for index, _, _ in lay.fields)
-    when = (f"every {lay.trans_type} SYNC" if 1 < lay.trans_type <= 240 else "every SYNC"
-            if lay.synchronous else "on receipt" if lay.name.startswith("Rx") else "on event")
+    rx = lay.name.startswith("Rx")
+    when = (("applied on" if rx else "sent") + (f" on every {lay.trans_type}. SYNC"
+                                                if 1 < lay.trans_type <= 240 else " on every SYNC")
+            if lay.synchronous else "applied on receipt" if rx else "sent on events")
     return f"{lay.name} 0x{lay.cob_id:03X} [{names}] {when}"

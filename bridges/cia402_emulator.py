@@ -127,6 +127,7 @@ class _Drive:
     def __init__(self, emu: Cia402Emulator, node_id: int, eds: Path, heartbeat_ms: int,
                  refuse_enable: bool) -> None:
         self.emu, self.id, self.eds = emu, node_id, eds
+        self.wheel = emu.wheel_of(node_id)
         self.refuse_enable = refuse_enable
         self.tasks: list[_ClockedTask] = []
         self.network = _DriveNetwork(self)
@@ -250,14 +251,14 @@ class _Drive:
             return ERROR_REGISTER_GENERIC_COMMUNICATION if self.error_code else 0
         if index == p.MODES_OF_OPERATION_DISPLAY:
             return self.params.mode
-        w = self.emu.wheel_of(self.id)
+        w = self.wheel
         units = self.params.units
         per_rev = units.increments_per_wheel_rev
         if index == p.POSITION_ACTUAL:
             raw = round(float(self.emu.wheel_rev[w]) * per_rev)
             return (raw + (1 << 31)) % (1 << 32) - (1 << 31)  # int32, wrapping
         if index == p.VELOCITY_ACTUAL:
-            v = round(float(self.emu._wheel_speed[w]) / (2.0 * math.pi) * per_rev)
+            v = round(float(self.emu._wheel_speed[w]) * (per_rev / (2.0 * math.pi)))
             return max(-(1 << 31), min((1 << 31) - 1, v))
         if index == p.TORQUE_ACTUAL:
             return max(-32768, min(32767, round(self.applied_nm / units.wheel_nm_per_mille)))

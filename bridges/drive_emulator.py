@@ -51,7 +51,12 @@ class Fleet(Protocol):
     def initial_state(self) -> tuple[np.ndarray, np.ndarray]: ...
 
 
-MAX_FRAMES_PER_STEP = 10_000  # a flooded bus cannot stall the physics forever
+# frames read per step at most: a busy bus cannot stall the physics. Frames keep coming
+# while a step reads (a host sends ~6 per control period, and every frame the drives
+# send comes back on udp_multicast); reading until the bus was empty once kept a CiA 402
+# fleet emulator, whose drives answer every SYNC, reading for 150 ms at a time while its
+# physics fell seconds behind. What is left waits for the next step (a tick, or a batch).
+MAX_FRAMES_PER_STEP = 256
 
 
 @dataclass(frozen=True)

@@ -85,6 +85,9 @@ class DriverSettings:
     period_s: float = 0.005  # the bridge's control period (CiA 402: SYNC at this period)
     max_wheel_torque_nm: float = math.inf  # the scenario's limit (a CiA 402 drive is told it)
     eds: str | None = None  # CiA 402: the drives' EDS file (None: the emulated drive's)
+    # how often the drives report angles and states (CiA 402: its TPDOs every n-th SYNC;
+    # an ODrive's rates are set in the drive): ODrive's default encoder message rate
+    report_rate_hz: float = 100.0
     host_node_id: int = 127  # CiA 402: the node id of the bridge's own heartbeat
 
 
