@@ -55,6 +55,7 @@ QUICK_STOP_OPTION = 2  # quick stop: brake on the quick stop ramp, then switch o
 MAX_ABS_VELOCITY_REV_S = 1e4  # a wheel faster than this is an implausible value
 SDO_TIMEOUT_S = 1.0  # per request (a loaded host answers late), two tries
 NMT_COMMAND = 0x000
+TPDO_FUNCTIONS = (0x180, 0x280, 0x380, 0x480)  # TPDO1-4 of the predefined connection set
 SYNC_COB_ID = 0x080
 REQUIRED = (p.CONTROLWORD, p.STATUSWORD, p.TARGET_TORQUE, p.POSITION_ACTUAL, p.VELOCITY_ACTUAL,
             p.MODES_OF_OPERATION, p.MOTOR_RATED_TORQUE, p.SUPPORTED_DRIVE_MODES, p.DEVICE_TYPE)
@@ -475,6 +476,11 @@ class Cia402Driver:
             c.bad_length += 1
             return None
         hit = self._tpdo_by_cob.get(cob)
+        node, function = cob & 0x7F, cob & 0x780
+        if hit is None and function in TPDO_FUNCTIONS and node in self.node_ids \
+                and node not in self._drives:  # its object dictionary, read when first heard
+            self._drive(node)
+            hit = self._tpdo_by_cob.get(cob)
         if hit is not None:
             d, lay = hit
             if len(data) < lay.length:
@@ -486,7 +492,6 @@ class Cia402Driver:
                 return None
             c.decoded += 1
             return report
-        node, function = cob & 0x7F, cob & 0x780
         if cob in (NMT_COMMAND, SYNC_COB_ID) or node == self.host_node_id and function == 0x700:
             c.ignored_direction += 1
             return None
