@@ -56,7 +56,8 @@ DRIVERS: dict[str, DriverEntry] = {
         (0, 63), (0, 1, 2, 3), _odrive, _odrive_emulator),
     "cia402": DriverEntry(
         "CiA 402 servo drives over CANopen (NMT, SDO configuration from an EDS, PDOs, "
-        "SYNC; cyclic synchronous torque)", (1, 127), (1, 2, 3, 4), _cia402, _cia402_emulator),
+        "SYNC; cyclic synchronous torque; node 127 is the bridge's own heartbeat)", (1, 126),
+        (1, 2, 3, 4), _cia402, _cia402_emulator),
 }
 DEFAULT_DRIVER = "odrive-cansimple"
 
