@@ -222,6 +222,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
             series, sc.robot_ids, launcher.truth_files, launcher.observer.t0_mono,
             launcher.observer.collector.have_state)
         extra["emulator_lag_ms"] = emulator_lag_ms(launcher.truth_files)
+        extra["driver"] = opts.driver  # the drives' protocol on every robot's bus
         c = launcher.observer.collector
         got = c.have_state.sum(axis=0)
         extra["bridge_faulted_fraction"] = [
