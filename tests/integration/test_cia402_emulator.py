@@ -459,3 +459,70 @@ def test_cli_runs_cia402_drives_for_a_duration(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "cia402 drives 1,2,3,4" in err and "1: SWITCH ON DISABLED, error 0x0000, NMT 127" in err
     assert len(np.load(out)["t"]) == 21
+
+
+# --- the bridge's e-stop is the drives' own quick stop, held ----------------------------------
+def test_the_bridges_e_stop_is_each_drives_quick_stop_and_a_disarm_keeps_it(lab):
+    from fuzz_fakes import FakeNode, RecordingBus
+
+    from deploy.contract.wire import WIRE_VERSION, Control
+    from deploy.nodes.bridge import BridgeNode
+    from deploy.runtime.node_runtime import StopFlag
+
+    bus = RecordingBus()
+    b = BridgeNode(lab, 1, FakeNode(lab.robot_ids, "bridge-1"), StopFlag(), bus,
+                   Cia402Driver(DriverSettings(NODES)), list(NODES))
+    try:
+        b._on_ctl(Control(WIRE_VERSION, 0, 0, 0, command="estop"))
+        b.disarm()  # what the loop does next, on the gate's "estop"
+
+        def controlwords(frames):
+            return {(f.arbitration_id - 0x200, struct.unpack("<Hh", bytes(f.data))) for f in frames}
+
+        first, rest = bus.sent[:4], bus.sent[4:]
+        assert controlwords(first) == {(n, (0x02, 0)) for n in NODES}  # quick stop (11)
+        assert controlwords(rest) == {(n, (0x02, 0)) for n in NODES}  # held, zero target
+        assert b.gate.estopped
+    finally:
+        b.close()
+        bus.shutdown()
+
+
+def test_the_bridge_drives_no_wheel_until_every_drive_is_enabled_and_gives_up_on_one(lab):
+    """The gate behind every protocol (deploy/nodes/bridge.py), fed neutral reports."""
+    from fuzz_fakes import FakeNode, RecordingBus
+
+    from bridges.safety import Decision
+    from deploy.nodes.bridge import ENABLE_TIMEOUT_S, BridgeNode
+    from deploy.runtime.node_runtime import StopFlag
+
+    bus = RecordingBus()
+    b = BridgeNode(lab, 1, FakeNode(lab.robot_ids, "bridge-1"), StopFlag(), bus,
+                   Cia402Driver(DriverSettings(NODES)), list(NODES), heartbeat_timeout_s=1e9)
+    try:
+        b.arm()
+        t0 = b.armed_at
+        for n in NODES:  # three drives enabled, drive 3 stuck in SWITCHED ON
+            state = DriveState.STARTING if n == 3 else DriveState.ENABLED
+            b.monitor.feed(WheelReport(n, state=state, fault=0), t0 + 0.01)
+
+        def torques_sent():
+            frames, bus.sent[:] = list(bus.sent), []
+            return [struct.unpack("<Hh", bytes(f.data))[1] for f in frames if f.arbitration_id >= 0x200]
+
+        bus.sent.clear()
+        b._apply(Decision((0.5,) * 4, True, "command"))
+        assert torques_sent() == [0, 0, 0, 0]  # refused: one drive is not enabled
+        b._rearm_idle_axes(t0 + 0.02)  # drive 3 asked again (its status came after arming)
+        assert b.rearms == 1 and not b.monitor.faulted(t0 + 0.02)
+        b._rearm_idle_axes(t0 + ENABLE_TIMEOUT_S + 0.01)
+        assert b.monitor.faulted(t0 + ENABLE_TIMEOUT_S + 0.01)  # given up: faulted for good
+        assert "node 3: not enabled" in b.monitor.fault_reasons(t0 + ENABLE_TIMEOUT_S + 0.01)[0]
+        b.monitor.feed(WheelReport(3, state=DriveState.ENABLED, fault=0), t0 + 3.0)
+        bus.sent.clear()
+        b._apply(Decision((0.5,) * 4, True, "command"))
+        assert torques_sent() == [250] * 4  # every drive enabled: torques go out
+        assert b.monitor.faulted(t0 + 3.0)  # and the robot stays faulted: the gate zeroes it
+    finally:
+        b.close()
+        bus.shutdown()
