@@ -187,7 +187,7 @@ class Cia402Driver:
         node.pdo.read(from_od=True)  # the mapping the bridge will write
         # the EDS's units until bring-up reads the drive's own (an EDS may leave them out)
         try:
-            units = _units_of(lambda i, s=None: _od_default(od, i, s))
+            units = units_of(lambda i, s=None: _od_default(od, i, s))
         except (KeyError, TypeError, ValueError):
             units = Units()
         return self._with_mapping(n, node, units if units.problem() is None else Units())
@@ -280,7 +280,7 @@ class Cia402Driver:
                                  f"torque (0x6502 = 0x{modes:08X})")
             say(f"node {n}: SDO 0x1000 device type 0x{device:08X} (CiA 402); 0x6502 modes "
                 f"0x{modes:08X}: {mode_name}")
-            d.units = _units_of(lambda i, s=None: node.sdo[i].raw if s is None else node.sdo[i][s].raw)
+            d.units = units_of(lambda i, s=None: node.sdo[i].raw if s is None else node.sdo[i][s].raw)
             self._max_abs_torque_nm = None
             if d.units.problem():
                 raise DriveError(f"node {n}: {d.units.problem()}")
@@ -568,7 +568,7 @@ def _od_default(od: Any, index: int, sub: int | None = None) -> Any:
     return value
 
 
-def _units_of(read: Callable[..., Any]) -> Units:
+def units_of(read: Callable[..., Any]) -> Units:
     """The units from ``read(index, sub)``; the gear ratio and encoder resolution are
     optional objects (1:1, and the EDS's resolution where absent)."""
     u = Units(rated_torque_mnm=int(read(p.MOTOR_RATED_TORQUE)))

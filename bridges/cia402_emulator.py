@@ -51,13 +51,12 @@ from canopen.nmt import COMMAND_TO_STATE
 from canopen.sdo import SdoAbortedError
 
 from bridges import cia402 as p
-from bridges.cia402_driver import DEFAULT_EDS, Units, _units_of, load_od
+from bridges.cia402_driver import DEFAULT_EDS, Units, load_od, units_of
 from bridges.cia402_pdo import PdoLayout
 from bridges.drive_emulator import EmulatorFaults, Fleet, RobotEmulator
 from bridges.driver import FrameCounters
 
-NMT_OPERATIONAL = 5
-NMT_PRE_OPERATIONAL = 127
+NMT_ENTER_PRE_OPERATIONAL = 0x80  # the NMT command codes canopen's slave takes
 NMT_RESET_NODE, NMT_RESET_COMMUNICATION = 129, 130
 SYNC_COB_ID = 0x080
 ABORT_VALUE_RANGE = 0x06090030  # SDO abort: value range of parameter exceeded
@@ -157,12 +156,13 @@ class _Drive:
                                          is_extended_id=False), self.id)
 
     @property
-    def nmt(self) -> int:
-        return self.node.nmt._state
+    def nmt(self) -> str:
+        """The NMT state canopen's slave keeps ("PRE-OPERATIONAL", "OPERATIONAL", ...)."""
+        return self.node.nmt.state
 
     @property
     def operational(self) -> bool:
-        return self.nmt == NMT_OPERATIONAL
+        return self.nmt == "OPERATIONAL"
 
     def boot(self, reset: int = NMT_RESET_NODE) -> None:
         """Power-up (or an NMT reset): the EDS's values again, boot-up, pre-operational."""
@@ -181,7 +181,7 @@ class _Drive:
         self.rpdos, self.tpdos, self.pending, self.heartbeats = {}, [], {}, {}
         self._stale = True
         self.node.nmt.send_command(NMT_RESET_NODE)  # boot-up message (state 0)
-        self.node.nmt.send_command(0x80)  # pre-operational: the heartbeat starts
+        self.node.nmt.send_command(NMT_ENTER_PRE_OPERATIONAL)  # the heartbeat starts
 
     def on_nmt(self, data: bytes) -> bool:
         """An NMT command for everyone or for this drive; False if not one."""
@@ -190,11 +190,11 @@ class _Drive:
             return True
         if command not in COMMAND_TO_STATE:
             return False
-        was = self.nmt
+        was = self.operational
         self.node.nmt.on_command(0, data, self.emu.t)  # canopen's NMT slave: state, heartbeat
         if command in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION):
             self.boot(command)
-        elif self.nmt == NMT_OPERATIONAL and was != NMT_OPERATIONAL:
+        elif self.operational and not was:
             self._read_pdos()
         return True
 
@@ -258,7 +258,7 @@ class _Drive:
             raw = round(float(self.emu.wheel_rev[w]) * per_rev)
             return (raw + (1 << 31)) % (1 << 32) - (1 << 31)  # int32, wrapping
         if index == p.VELOCITY_ACTUAL:
-            v = round(float(self.emu._wheel_speed[w]) * (per_rev / (2.0 * math.pi)))
+            v = round(float(self.emu.wheel_speed(w)) * (per_rev / (2.0 * math.pi)))
             return max(-(1 << 31), min((1 << 31) - 1, v))
         if index == p.TORQUE_ACTUAL:
             return max(-32768, min(32767, round(self.applied_nm / units.wheel_nm_per_mille)))
@@ -279,7 +279,7 @@ class _Drive:
 
     def _read_params(self) -> _Params:
         od = self.node.object_dictionary
-        units = _units_of(self._object)
+        units = units_of(self._object)
         if units.problem():
             raise ValueError(f"EDS {self.eds}: {units.problem()}")
         consumers = []
@@ -333,7 +333,7 @@ class _Drive:
         if new is p.State.OPERATION_ENABLED:
             self.enabled_at = now
             self.applied_nm = 0.0 if old is not p.State.QUICK_STOP_ACTIVE else self.applied_nm
-            self.emu.disturbance.armed(self.emu._row, now)
+            self.emu.armed_now()
         elif new is p.State.QUICK_STOP_ACTIVE and option == 0:
             self._enter(p.State.SWITCH_ON_DISABLED)  # 0: disable the drive function at once
         elif new is p.State.SWITCH_ON_DISABLED and old is p.State.FAULT:
@@ -386,7 +386,7 @@ class _Drive:
         if par.mode not in TORQUE_MODES:
             return 0.0
         per_mille = max(-par.max_torque, min(par.max_torque, self.target))
-        return self.emu._clamp(per_mille * par.units.wheel_nm_per_mille)
+        return self.emu.clamp(per_mille * par.units.wheel_nm_per_mille)
 
     def wheel_torque(self) -> float:
         """What the drive applies to its wheel now (N m)."""

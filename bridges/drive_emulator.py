@@ -229,14 +229,23 @@ class RobotEmulator:
     def wheel_speeds_radps(self) -> np.ndarray:
         return self._wheel_speed.copy()
 
+    def wheel_speed(self, wheel: int) -> float:
+        """Wheel ``wheel``'s speed now (rad/s)."""
+        return float(self._wheel_speed[wheel])
+
     def wheel_of(self, node: int) -> int:
         return self._wheel_of[node]
+
+    def armed_now(self) -> None:
+        """A drive of this robot was armed (enabled) now: the disturbance starts."""
+        self.disturbance.armed(self._row, self.t)
 
     def _silent(self, node: int) -> bool:
         f = self.faults
         return f.silent_node == node and self.t >= f.silent_after_s
 
-    def _clamp(self, torque_nm: float) -> float:
+    def clamp(self, torque_nm: float) -> float:
+        """A torque within the scenario's wheel torque limit."""
         lim = self.max_torque_nm
         return min(max(torque_nm, -lim), lim)
 

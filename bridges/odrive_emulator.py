@@ -114,7 +114,7 @@ class OdriveEmulator(RobotEmulator):
 
     def wheel_torques(self) -> np.ndarray:
         """Setpoint in closed loop, clamped to the scenario's limit; else 0 (N m)."""
-        return np.array([self._clamp(a.torque_setpoint_nm) if a.armed else 0.0
+        return np.array([self.clamp(a.torque_setpoint_nm) if a.armed else 0.0
                          for a in self.axes])
 
     def describe_drives(self) -> str:
@@ -196,7 +196,7 @@ class OdriveEmulator(RobotEmulator):
                 if a.node == self.faults.refuse_enable_node:
                     return  # its enable input is off: it stays idle, without an error
                 a.state, a.torque_setpoint_nm, a.last_torque_s = AXIS_STATE_CLOSED_LOOP_CONTROL, 0.0, now
-                self.disturbance.armed(self._row, now)
+                self.armed_now()
                 a.procedure_result = 0
             case SetAxisState():
                 self._disarm(a, AXIS_ERROR_INVALID_STATE)

@@ -457,7 +457,7 @@ def test_cli_runs_cia402_drives_for_a_duration(tmp_path, capsys):
                          "--duration", "0.1", "--truth-out", str(out)])
     assert code == 0 and time.monotonic() - t < 30
     err = capsys.readouterr().err
-    assert "cia402 drives 1,2,3,4" in err and "1: SWITCH ON DISABLED, error 0x0000, NMT 127" in err
+    assert "cia402 drives 1,2,3,4" in err and "1: SWITCH ON DISABLED, error 0x0000, NMT PRE-OPERATIONAL" in err
     assert len(np.load(out)["t"]) == 21
 
 
