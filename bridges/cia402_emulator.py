@@ -208,8 +208,14 @@ class _Drive:
         self.emu._index_rpdos()
 
     def on_sync(self, now: float) -> None:
+        """Apply the synchronous RPDOs, sample and send the TPDOs due. A SYNC read at
+        the emulator time of the one before (the emulator behind the wall clock, reading
+        a backlog) samples nothing new: its TPDOs are shed and counted, as the ODrive
+        emulator sheds stale encoder estimates (sending them kept a starved emulator
+        falling further behind)."""
         if not self.operational:
             return
+        stale = self.last_sync == now
         self.last_sync = now
         self.syncs += 1
         for cob_id, data in list(self.pending.items()):
@@ -217,7 +223,10 @@ class _Drive:
         self.pending.clear()
         for lay in self.tpdos:
             if lay.synchronous and (lay.trans_type == 0 or self.syncs % lay.trans_type == 0):
-                self.send(lay.cob_id, lay.pack({i: self._value(i) for i, _, _ in lay.fields}))
+                if stale:
+                    self.emu.counters.shed += 1
+                else:
+                    self.send(lay.cob_id, lay.pack({i: self._value(i) for i, _, _ in lay.fields}))
 
     def on_rpdo(self, lay: PdoLayout, data: bytes) -> None:
         if not self.operational:

@@ -53,9 +53,13 @@ from plant.perception import sense
 
 MAX_POSE_LEAD_S = 0.02  # longest the published pose is carried past the newest encoder data
 LOG_ROWS = 20  # states per batch to observers (0.1 s at the lab's 200 Hz; ~1.3 kB)
-# a drive not enabled this long after the bridge armed it is given up (the robot faulted,
-# driven no more): it refused, or its state machine is stuck (ODrive re-arms at 0.25 s)
+# a drive not enabled for this long, having answered at least MIN_ARMING_ATTEMPTS arming
+# frames with a status that says so, is given up (the robot faulted, driven no more): it
+# refuses, or its state machine is stuck. A drive that does not answer at all is not
+# given up: its missing status faults the robot until it answers (a host or an emulator
+# off the CPU for seconds is not a drive that refuses)
 ENABLE_TIMEOUT_S = 2.0
+MIN_ARMING_ATTEMPTS = 5
 
 
 class BridgeNode:
@@ -87,6 +91,8 @@ class BridgeNode:
         self.zeroed_at = -1.0
         self.armed_at = -1.0
         self.arm_sent_at: dict[int, float] = {}  # each drive's newest arming frames
+        self.not_enabled_since: dict[int, float] = {}  # armed, each drive not enabled since
+        self.arm_attempts: dict[int, int] = {}  # arming frames answered "not enabled" since
         self.rearms = 0  # arming frames sent again to a drive not enabled yet
         # zero torque for want of a fresh command (a dead or silent agent), as
         # (robot, age of the newest command once the zero frames were sent, s; run time, s)
@@ -187,6 +193,8 @@ class BridgeNode:
     def arm(self) -> None:
         self._send_all(self.protocol.clear_faults_frames)
         self.armed_at = time.monotonic()
+        self.not_enabled_since.clear()
+        self.arm_attempts.clear()
         for n in self.node_ids:
             self._arm_axis(n, self.armed_at)
         self.armed = True
@@ -201,16 +209,23 @@ class BridgeNode:
         that rebooted), was stopped by its watchdog while this host was off the CPU
         (a recoverable fault: cleared first), or is one transition further on a state
         machine the driver walks one status at a time (CiA 402). Ask again. Other
-        faults are not cleared here: they fault the robot. A drive not enabled
-        ENABLE_TIMEOUT_S after the bridge armed it is given up: the bridge reports it
-        and drives the robot no more."""
+        faults are not cleared here: they fault the robot. A drive not enabled for
+        ENABLE_TIMEOUT_S that answered MIN_ARMING_ATTEMPTS of them so is given up: the
+        bridge reports it and drives the robot no more."""
         wait = self.protocol.rearm_after_s
         for a in self.monitor.axes:
-            if a.state is DriveState.ENABLED or a.node in self.monitor.given_up:
+            if a.state is DriveState.ENABLED:
+                self.not_enabled_since.pop(a.node, None)
+                self.arm_attempts[a.node] = 0
                 continue
-            if now - self.armed_at > ENABLE_TIMEOUT_S:
-                self.monitor.give_up(a.node, f"not enabled {now - self.armed_at:.2f} s after "
-                                     f"arming (state {a.state.value if a.state else 'unknown'}, "
+            if a.node in self.monitor.given_up:
+                continue
+            since = self.not_enabled_since.setdefault(a.node, self.armed_at)
+            attempts = self.arm_attempts.get(a.node, 0)
+            if now - since > ENABLE_TIMEOUT_S and attempts >= MIN_ARMING_ATTEMPTS:
+                self.monitor.give_up(a.node, f"not enabled {now - since:.2f} s after arming, "
+                                     f"{attempts} arming frames answered (state "
+                                     f"{a.state.value if a.state else 'unknown'}, "
                                      f"fault {self.protocol.describe_fault(a.fault)})")
                 print(f"{self.node.role}: {self.monitor.given_up[a.node]}: node {a.node} given "
                       "up, the robot is not driven", file=sys.stderr, flush=True)
@@ -220,6 +235,7 @@ class BridgeNode:
                 if a.fault:
                     self._send(self.protocol.clear_faults_frames(a.node))
                 self._arm_axis(a.node, now)
+                self.arm_attempts[a.node] = attempts + 1
                 self.rearms += 1
 
     def disarm(self) -> None:
