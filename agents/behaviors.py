@@ -34,10 +34,12 @@ nor R at d = R). Desired value rho_d = R.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from math import cos, hypot, pi, sin
+from math import cos, pi, sin
 
 import numpy as np
 
+from agents.law_kernel import avoidance_task_of_ as _avoidance
+from agents.law_kernel import formation_task_of
 from agents.signals import Vec2, Vec3
 
 _TINY = 1e-12
@@ -152,13 +154,13 @@ def avoidance_behavior(
     return BehaviorOutput(name, True, pinv_task_jacobian(J) @ rate, J, safe_distance - rho, body)
 
 
-# --- hot path: the same behaviors on floats (tests/unit/test_hot_path.py checks them
-# against formation_behavior and avoidance_behavior above) ----------------------------
+# --- the compiled law's reduced tasks (agents/law_kernel.pyx; tests/unit/test_hot_path.py
+# checks them against formation_behavior and avoidance_behavior above) -------------------
 
 
 @dataclass(slots=True)
 class Task:
-    """An active behavior in reduced form, for the hot path of ``AgentCore.step``.
+    """An active behavior in reduced form, as the compiled law holds it.
 
     J = [[g_x, g_y, 0], [0, 0, 1], [0, 0, 0]] is fixed by the gradient g, and
     J^+ = J^T diag(1/|row|^2) (:func:`pinv_task_jacobian`) by g and inv_g2.
@@ -167,7 +169,7 @@ class Task:
     name: str
     gx: float
     gy: float
-    inv_g2: float  # 1/|g|^2, 0 for a zero row (see inverse_square_norm)
+    inv_g2: float  # 1/|g|^2, 0 for a zero row
     velocity: Vec3  # v
     task_error: float
     body: int = 0  # the body an avoidance task guards (its ident); 0 for FDB
@@ -176,33 +178,13 @@ class Task:
         """The same behavior as a :class:`BehaviorOutput`."""
         return BehaviorOutput(
             self.name, True, np.array(self.velocity),
-            _task_jacobian((self.gx, self.gy)), self.task_error, self.body,
+            _task_jacobian(np.array((self.gx, self.gy))), self.task_error, self.body,
         )
 
 
-def inverse_square_norm(gx: float, gy: float) -> float:
-    """1/|g|^2, the pseudo-inverse's factor for the row [g_x, g_y, 0]: 0 where
-    :func:`pinv_task_jacobian` treats the row as zero."""
-    g2 = gx * gx + gy * gy
-    return 1.0 / g2 if g2 > _TINY else 0.0
-
-
 def formation_task(q: Vec3, q_fd: Vec3, v_fd: Vec3, gains: tuple[float, float]) -> Task:
-    """:func:`formation_behavior` on floats: FDB, eqs. (15)-(19)."""
-    dx, dy = q[0] - q_fd[0], q[1] - q_fd[1]
-    dist = hypot(dx, dy)
-    gx, gy = (dx / dist, dy / dist) if dist > _TINY else (0.0, 0.0)
-    inv = inverse_square_norm(gx, gy)
-    vfx, vfy = v_fd[0], v_fd[1]
-    g_vfd = gx * vfx + gy * vfy  # -d rho/dt, and J [v_fd_xy, 0]
-    rate = g_vfd + gains[0] * (0.0 - dist)  # -d rho/dt + Lambda (rho_d - rho), rho_d = 0
-    # v = J^+ [rate, heading rate, 0] + (I - J^+ J) [v_fd_xy, 0] (see formation_behavior)
-    velocity = (
-        gx * inv * rate + (vfx - gx * inv * g_vfd),
-        gy * inv * rate + (vfy - gy * inv * g_vfd),
-        heading_row_rate(q[2], q_fd[2], v_fd[2], gains[1]),
-    )
-    return Task("FDB", gx, gy, inv, velocity, dist)
+    """:func:`formation_behavior` reduced: FDB, eqs. (15)-(19)."""
+    return Task("FDB", *formation_task_of(q, q_fd, v_fd, gains))
 
 
 def avoidance_task_of(
@@ -214,20 +196,10 @@ def avoidance_task_of(
     phi_d: float,
     phi_d_dot: float,
     gains: tuple[float, float],
-    min_gap: float = 1e-3,
     body: int = 0,
 ) -> Task | None:
-    """:func:`avoidance_behavior` on floats: FOCB (23)-(25) / FRCB (20)-(22); None if inactive.
+    """:func:`avoidance_behavior` reduced: FOCB (23)-(25) / FRCB (20)-(22); None if inactive.
     ``body``: the ident of the body guarded (kept on the task for the supervisor)."""
-    dx, dy = q[0] - other_xy[0], q[1] - other_xy[1]
-    d = hypot(dx, dy)
-    if d >= safe_distance:
-        return None
-    ux, uy = (dx / d, dy / d) if d > _TINY else (1.0, 0.0)
-    rho, drho_dd = avoidance_task(max(d, contact_distance + min_gap), safe_distance, contact_distance)
-    gx, gy = drho_dd * ux, drho_dd * uy
-    inv = inverse_square_norm(gx, gy)
-    rate = gains[0] * (safe_distance - rho)  # Lambda (rho_d - rho), rho_d = R
-    # v = J^+ [rate, heading rate, 0]
-    velocity = (gx * inv * rate, gy * inv * rate, heading_row_rate(q[2], phi_d, phi_d_dot, gains[1]))
-    return Task(name, gx, gy, inv, velocity, safe_distance - rho, body)
+    reduced = _avoidance(name, q, other_xy, contact_distance, safe_distance, phi_d, phi_d_dot,
+                         gains, body)
+    return None if reduced is None else Task(name, *reduced, body)

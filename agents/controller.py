@@ -35,12 +35,11 @@ Gamma is identically zero (n^T u = 0), so those are kept as 3-vectors.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from math import cos, sin, sqrt, tanh
 
 import numpy as np
 
-from agents.signals import Vec3, Vec4, smooth_norm
-from plant.mecanum import MecanumModel
+from agents.law_kernel import control_term_of
+from agents.signals import Vec3, smooth_norm
 
 
 @dataclass(frozen=True)
@@ -112,8 +111,9 @@ def saturate_torques(u: np.ndarray, limit: float) -> np.ndarray:
     return u
 
 
-# --- hot path: the same law on floats (tests/unit/test_hot_path.py checks it against
-# control_term, allocate, saturate_torques and the model's A0, A1 above) -----------------
+# --- the compiled law (agents/law_kernel.pyx) takes these constants; its form of the law
+# is checked against control_term, allocate and saturate_torques above in
+# tests/unit/test_hot_path.py ----------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -139,107 +139,6 @@ class ControlConstants:
 
 
 def control_term_vec(e: Vec3, e_dot: Vec3, z2_hat: Vec3, k: ControlConstants) -> tuple[Vec3, Vec3]:
-    """:func:`control_term` on float triples: (Gamma, s) of eq. (42)."""
-    ex, ey, ez = e
-    dx, dy, dz = e_dot
-    a, gp, mu2 = k.alpha, k.gamma_p, k.mu2
-    n = sqrt(ex * ex + ey * ey + ez * ez + k.eps2)  # ||e||_eps
-    scalar = n ** (-a) + mu2 * n**a
-    # s = e_dot + psi(e), psi(e) = gamma_p (n^-a + mu^2 n^a) e, eqs. (40), (41)
-    p = gp * scalar
-    sx, sy, sz = dx + p * ex, dy + p * ey, dz + p * ez
-    # psi_dot = gamma_p [(n^-a + mu^2 n^a) e_dot + a (mu^2 n^(a-2) - n^(-a-2)) e (e . e_dot)], erratum 5
-    radial = a * (mu2 * n ** (a - 2.0) - n ** (-a - 2.0)) * (ex * dx + ey * dy + ez * dz)
-    pdx = gp * (scalar * dx + radial * ex)
-    pdy = gp * (scalar * dy + radial * ey)
-    pdz = gp * (scalar * dz + radial * ez)
-    # reaching term gamma_p ((1/2)^((2-a)/2) |s|^-a + (1/2)^((2+a)/2) mu^2 |s|^a) s
-    ns = sqrt(sx * sx + sy * sy + sz * sz)
-    r = gp * (k.reach_low * ns ** (-a) + k.reach_high * ns**a) if ns != 0.0 else 0.0
-    # Gamma = -reaching - z2_hat - psi_dot - s / (2 upsilon^2), eq. (42)
-    zx, zy, zz = z2_hat
-    div = k.s_div
-    gamma = (
-        -r * sx - zx - pdx - sx / div,
-        -r * sy - zy - pdy - sy / div,
-        -r * sz - zz - pdz - sz / div,
-    )
-    return gamma, (sx, sy, sz)
-
-
-def _rows(m: np.ndarray) -> tuple[tuple[float, ...], ...]:
-    return tuple(tuple(row) for row in m.tolist())
-
-
-def matvec3(rows: tuple[Vec3, ...], v: Vec3) -> tuple[float, ...]:
-    """M v for a matrix with three columns, given as rows of floats."""
-    x, y, z = v
-    return tuple([r0 * x + r1 * y + r2 * z for r0, r1, r2 in rows])
-
-
-@dataclass(frozen=True)
-class ModelTerms:
-    """The constant matrices of the model (eq. 4) and of the allocation (36) as floats.
-
-    B(phi) = T(phi) B0, so B_bar(phi) = diag(T(phi), 1) B_bar(0) and
-    B_bar(phi)^-1 [v; 0] = B_bar(0)^-1 [T(phi)^T v; 0]: one constant inverse.
-    """
-
-    A0: tuple[Vec3, Vec3, Vec3]
-    body_input: tuple[Vec4, Vec4, Vec4]  # B0 = B(0)
-    P: tuple[Vec3, Vec3, Vec3, Vec3]
-    wheel_radius: float  # R
-    coulomb_torque: float  # C_f m g R / 4
-    coulomb_smoothing: float  # omega_s
-    allocation: tuple[Vec3, Vec3, Vec3, Vec3]  # B_bar(0)^-1 without its last column
-
-    @classmethod
-    def from_model(cls, model: MecanumModel) -> ModelTerms:
-        inverse = np.linalg.inv(model.augmented_input(0.0))
-        return cls(
-            A0=_rows(model.A0),  # type: ignore[arg-type]
-            body_input=_rows(model.body_input),  # type: ignore[arg-type]
-            P=_rows(model.P),  # type: ignore[arg-type]
-            wheel_radius=model.params.wheel_radius_m,
-            coulomb_torque=model.coulomb_torque_nm,
-            coulomb_smoothing=model.params.coulomb_smoothing_radps,
-            allocation=_rows(inverse[:, :3]),  # type: ignore[arg-type]
-        )
-
-
-def coulomb_term(m: ModelTerms, c: float, s: float, q_dot: Vec3) -> Vec3:
-    """A1 of eq. (4), B(phi) tau_c(theta_dot), as MecanumModel.A1; c, s = cos(phi), sin(phi).
-
-    theta_dot = (1/R) P T(phi)^T q_dot, tau_c = C tanh(theta_dot / omega_s).
-    """
-    x, y, w = q_dot
-    bx, by = c * x + s * y, -s * x + c * y  # T(phi)^T q_dot
-    R, ct, ws = m.wheel_radius, m.coulomb_torque, m.coulomb_smoothing
-    tau = [ct * tanh((p0 * bx + p1 * by + p2 * w) / R / ws) for p0, p1, p2 in m.P]
-    fx, fy, fw = [r[0] * tau[0] + r[1] * tau[1] + r[2] * tau[2] + r[3] * tau[3] for r in m.body_input]
-    return c * fx - s * fy, s * fx + c * fy, fw  # T(phi) B0 tau_c
-
-
-def acceleration_vec(m: ModelTerms, q: Vec3, q_dot: Vec3, u: Vec4) -> Vec3:
-    """q_ddot of eq. (4) without disturbance, as MecanumModel.acceleration:
-    -A0 q_dot - A1 + B(phi) u, with B(phi) u = T(phi) B0 u."""
-    c, s = cos(q[2]), sin(q[2])
-    a0 = matvec3(m.A0, q_dot)
-    a1 = coulomb_term(m, c, s, q_dot)
-    fx, fy, fw = [r[0] * u[0] + r[1] * u[1] + r[2] * u[2] + r[3] * u[3] for r in m.body_input]
-    return (c * fx - s * fy - a0[0] - a1[0], s * fx + c * fy - a0[1] - a1[1], fw - a0[2] - a1[2])
-
-
-def allocate_vec(m: ModelTerms, c: float, s: float, generalised: Vec3) -> Vec4:
-    """:func:`allocate` with B_bar = MecanumModel.augmented_input(phi): u = B_bar^-1 [v; 0] (36)."""
-    x, y, w = generalised
-    return matvec3(m.allocation, (c * x + s * y, -s * x + c * y, w))  # type: ignore[return-value]
-
-
-def saturate_torques_vec(u: Vec4, limit: float) -> Vec4:
-    """:func:`saturate_torques` on floats."""
-    peak = max([abs(x) for x in u])
-    if peak > limit:
-        k = limit / peak
-        return tuple([x * k for x in u])  # type: ignore[return-value]
-    return u
+    """:func:`control_term` on float triples: (Gamma, s) of eq. (42), the compiled law's."""
+    return control_term_of(e, e_dot, z2_hat, k.gamma_p, k.alpha, k.mu2, k.eps2, k.reach_low,
+                           k.reach_high, k.s_div)

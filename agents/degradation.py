@@ -35,8 +35,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from math import hypot
 
+from agents.law_kernel import freshest_of, next_speed_factor_of, reacquire_of, slow_down_of
 from agents.signals import Vec3
 
 MAX_COMMAND_HORIZON = 16  # steps; the wire refuses longer plans
@@ -89,47 +89,24 @@ def freshest_source(leader: tuple[Vec3, Vec3] | None, leader_age_s: float,
     (q0_hat, v0_hat, link age, the neighbour's own information age), the one
     whose information is freshest. A neighbour's estimate is only as fresh as
     what it was built from: ages add up along the graph."""
-    best: Freshest | None = None
-    if leader is not None:
-        best = Freshest(leader_age_s, predict(leader[0], leader[1], leader_age_s), leader[1])
-    for q0, v0, link_age, info_age in shares:
-        age = link_age + info_age
-        if best is None or age < best.age_s:
-            best = Freshest(age, predict(q0, v0, link_age), v0)
-    return best
+    found = freshest_of(leader, leader_age_s, shares)
+    return None if found is None else Freshest(*found)
 
 
 def next_speed_factor(f: float, age_s: float, cfg: DegradationConfig, h: float) -> float:
     """The speed factor after a step of h with information ``age_s`` old:
     down as fast as the age says, up by at most h / slow_ramp_s."""
-    if cfg.slow_ramp_s <= 0.0:
-        target = 0.0 if age_s > cfg.slow_after_s else 1.0
-    else:
-        target = min(1.0, max(0.0, 1.0 - (age_s - cfg.slow_after_s) / cfg.slow_ramp_s))
-    if target < f:
-        return target
-    step = h / cfg.slow_ramp_s if cfg.slow_ramp_s > 0.0 else 1.0
-    return min(target, f + step)
+    return next_speed_factor_of(f, age_s, cfg.slow_after_s, cfg.slow_ramp_s, h)
 
 
 def slow_down(v: Vec3, f: float, degraded_speed: float) -> Vec3:
     """v_d scaled so that its planar speed blends from |v| (f = 1) to
     min(|v|, degraded_speed) (f = 0); yaw rate scaled alike."""
-    if f >= 1.0:
-        return v
-    speed = hypot(v[0], v[1])
-    cap = 1.0 if speed <= degraded_speed else degraded_speed / speed
-    s = f + (1.0 - f) * cap
-    return v[0] * s, v[1] * s, v[2] * s
+    return v if f >= 1.0 else slow_down_of(v, f, degraded_speed)
 
 
 def reacquire(q_hat: Vec3, v_hat: Vec3, q0: Vec3, v0: Vec3, cfg: DegradationConfig,
               h: float) -> tuple[Vec3, Vec3, bool]:
     """One step of the blend toward the leader (q0, v0); the third value is
     False once the position estimate is within ``reacquire_tol_m``."""
-    a = min(1.0, h / cfg.reacquire_tau_s) if cfg.reacquire_tau_s > 0.0 else 1.0
-    q = (q_hat[0] + a * (q0[0] - q_hat[0]), q_hat[1] + a * (q0[1] - q_hat[1]),
-         q_hat[2] + a * (q0[2] - q_hat[2]))
-    v = (v_hat[0] + a * (v0[0] - v_hat[0]), v_hat[1] + a * (v0[1] - v_hat[1]),
-         v_hat[2] + a * (v0[2] - v_hat[2]))
-    return q, v, hypot(q0[0] - q[0], q0[1] - q[1]) > cfg.reacquire_tol_m
+    return reacquire_of(q_hat, v_hat, q0, v0, cfg.reacquire_tau_s, cfg.reacquire_tol_m, h)

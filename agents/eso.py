@@ -17,11 +17,11 @@ that takes tens of seconds to decay and drives the tracking error away
 from __future__ import annotations
 
 from dataclasses import dataclass
-from math import ceil
 
 import numpy as np
 
-from agents.signals import Vec3, sig, sig_scalar
+from agents.law_kernel import eso_advance_of
+from agents.signals import Vec3, sig
 
 
 @dataclass(frozen=True)
@@ -50,8 +50,8 @@ def eso_step(
     return z1_hat + dt * z1_rate, z2_hat + dt * z2_rate
 
 
-# --- hot path: the same step on float triples (tests/unit/test_hot_path.py checks it
-# against eso_step above) -------------------------------------------------------------
+# --- the compiled law's forms (agents/law_kernel.pyx; tests/unit/test_hot_path.py checks
+# them against eso_step above) -----------------------------------------------------------
 
 
 def eso_step_vec(
@@ -63,22 +63,7 @@ def eso_step_vec(
     dt: float,
 ) -> tuple[Vec3, Vec3]:
     """:func:`eso_step` on float triples: one explicit-Euler step of eq. (39)."""
-    mu1, mu2, r1, r2 = gains.mu1, gains.mu2, gains.r1, gains.r2
-    ax, ay, aw = z1_hat
-    bx, by, bw = z2_hat
-    gx, gy, gw = gamma
-    ex, ey, ew = z1_measured[0] - ax, z1_measured[1] - ay, z1_measured[2] - aw  # eps1
-    z1_next = (  # z1_hat' = Gamma + z2_hat + mu1 sig^r1(eps1)
-        ax + dt * (gx + bx + mu1 * sig_scalar(ex, r1)),
-        ay + dt * (gy + by + mu1 * sig_scalar(ey, r1)),
-        aw + dt * (gw + bw + mu1 * sig_scalar(ew, r1)),
-    )
-    z2_next = (  # z2_hat' = mu2 sig^r2(eps1)
-        bx + dt * (mu2 * sig_scalar(ex, r2)),
-        by + dt * (mu2 * sig_scalar(ey, r2)),
-        bw + dt * (mu2 * sig_scalar(ew, r2)),
-    )
-    return z1_next, z2_next
+    return eso_advance_vec(z1_hat, z2_hat, z1_measured, gamma, gains, dt, dt)
 
 
 def eso_advance_vec(
@@ -97,8 +82,5 @@ def eso_advance_vec(
     step across it multiplies the fractional powers' discrete chatter by the long dt:
     with mu = (6, 20) a 100 ms step kicked a converged disturbance estimate by 78 %
     (tests/unit/test_eso.py), sub-steps by 22 %."""
-    n = max(1, ceil(dt / max_step - 1e-9)) if max_step > 0 else 1
-    h = dt / n
-    for _ in range(n):
-        z1_hat, z2_hat = eso_step_vec(z1_hat, z2_hat, z1_measured, gamma, gains, h)
-    return z1_hat, z2_hat
+    return eso_advance_of(z1_hat, z2_hat, z1_measured, gamma, gains.mu1, gains.mu2, gains.r1,
+                          gains.r2, dt, max_step)

@@ -29,7 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.signals import Vec3, sig, sig_scalar
+from agents.law_kernel import estimator_step_of, implicit_sign_of
+from agents.signals import Vec3, sig
 
 
 @dataclass(frozen=True)
@@ -102,38 +103,13 @@ def estimator_step(
     return q_hat + dt * q_rate, v_hat + dt * v_rate
 
 
-# --- hot path: the same step on float triples (tests/unit/test_hot_path.py checks it
-# against estimator_step above) ------------------------------------------------------
-
-
-def consensus_errors_vec(
-    own: Vec3,
-    neighbours: Sequence[Vec3],
-    weights: Sequence[float],
-    leader_weight: float,
-    leader: Vec3 | None,
-) -> Vec3:
-    """:func:`consensus_errors` on float triples: the bracket of eq. (14)."""
-    ox, oy, oz = own
-    ex = ey = ez = 0.0
-    for w, (x, y, z) in zip(weights, neighbours, strict=False):
-        ex += w * (ox - x)
-        ey += w * (oy - y)
-        ez += w * (oz - z)
-    if leader_weight != 0.0 and leader is not None:
-        x, y, z = leader
-        ex += leader_weight * (ox - x)
-        ey += leader_weight * (oy - y)
-        ez += leader_weight * (oz - z)
-    return ex, ey, ez
+# --- the compiled law's forms (agents/law_kernel.pyx; tests/unit/test_hot_path.py checks
+# them against estimator_step above) ------------------------------------------------------
 
 
 def implicit_sign_scalar(e: float, reach: float) -> float:
     """:func:`implicit_sign` of one float."""
-    if reach <= 0.0:
-        return sig_scalar(e, 0.0)  # sign(e)
-    x = e / reach
-    return -1.0 if x < -1.0 else 1.0 if x > 1.0 else x  # a NaN passes through
+    return implicit_sign_of(e, reach)
 
 
 def estimator_step_vec(
@@ -149,22 +125,5 @@ def estimator_step_vec(
     dt: float,
 ) -> tuple[Vec3, Vec3]:
     """:func:`estimator_step` on float triples: one explicit-Euler step of eq. (14)."""
-    eqx, eqy, eqw = consensus_errors_vec(q_hat, neighbour_q, weights, leader_weight, leader_q)
-    evx, evy, evw = consensus_errors_vec(v_hat, neighbour_v, weights, leader_weight, leader_v)
-    deg = float(sum(weights)) + (leader_weight if leader_q is not None else 0.0)
-    i1, i2, i3, i4 = gains.iota
-    n1, n2 = gains.eta
-    rq, rv = deg * i2 * dt, deg * i4 * dt  # reach of the implicit sign
-    qx, qy, qw = q_hat
-    vx, vy, vw = v_hat
-    q_next = (  # q0_hat' = -iota1 sig^eta1(e_q) - iota2 sign(e_q) + v0_hat
-        qx + dt * (-i1 * sig_scalar(eqx, n1) - i2 * implicit_sign_scalar(eqx, rq) + vx),
-        qy + dt * (-i1 * sig_scalar(eqy, n1) - i2 * implicit_sign_scalar(eqy, rq) + vy),
-        qw + dt * (-i1 * sig_scalar(eqw, n1) - i2 * implicit_sign_scalar(eqw, rq) + vw),
-    )
-    v_next = (  # v0_hat' = -iota3 sig^eta2(e_v) - iota4 sign(e_v)
-        vx + dt * (-i3 * sig_scalar(evx, n2) - i4 * implicit_sign_scalar(evx, rv)),
-        vy + dt * (-i3 * sig_scalar(evy, n2) - i4 * implicit_sign_scalar(evy, rv)),
-        vw + dt * (-i3 * sig_scalar(evw, n2) - i4 * implicit_sign_scalar(evw, rv)),
-    )
-    return q_next, v_next
+    return estimator_step_of(q_hat, v_hat, neighbour_q, neighbour_v, weights, leader_weight,
+                             leader_q, leader_v, gains.iota, gains.eta, dt)

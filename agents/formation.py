@@ -16,15 +16,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from math import cos, erf, exp, pi, sin, sqrt
 
 import numpy as np
 
+from agents.law_kernel import desired_formation_of, offsets_of, scale_at_of, smooth_step_of
 from agents.signals import Vec2, Vec3
-
-_Z = 4.0  # the window spans +-4 sigma
-_CDF_LO = 0.5 * (1.0 + erf(-_Z / sqrt(2.0)))
-_CDF_SPAN = 1.0 - 2.0 * _CDF_LO
 
 
 @dataclass(frozen=True)
@@ -37,16 +33,10 @@ class ScaleChange:
 
 
 def smooth_step(t: float, start: float, end: float) -> tuple[float, float]:
-    """(value, derivative) of a 0 -> 1 step over [start, end], exactly 0/1 outside."""
-    if t <= start:
-        return 0.0, 0.0
-    if t >= end:
-        return 1.0, 0.0
-    sigma = (end - start) / (2.0 * _Z)
-    z = (t - 0.5 * (start + end)) / sigma
-    value = (0.5 * (1.0 + erf(z / sqrt(2.0))) - _CDF_LO) / _CDF_SPAN
-    rate = exp(-0.5 * z * z) / (sqrt(2.0 * pi) * sigma * _CDF_SPAN)
-    return value, rate
+    """(value, derivative) of a 0 -> 1 step over [start, end], exactly 0/1 outside: a
+    Gaussian CDF of sigma = window/8 cut at +-4 sigma and rescaled (the compiled law's,
+    agents/law_kernel.pyx)."""
+    return smooth_step_of(t, start, end)
 
 
 def scale_at(
@@ -118,24 +108,15 @@ def desired_formation(
     return pos / denom, vel / denom
 
 
-# --- hot path: the same maps on floats (tests/unit/test_hot_path.py checks them against
-# scale_at, offsets and desired_formation above) ------------------------------------
+# --- the compiled law's forms (agents/law_kernel.pyx; tests/unit/test_hot_path.py checks
+# them against scale_at, offsets and desired_formation above) -----------------------------
 
 
 def scale_at_vec(
     t: float, initial: Vec2, changes: Sequence[ScaleChange]
 ) -> tuple[Vec2, Vec2]:
     """:func:`scale_at` on floats: ((sx, sy), (sx_dot, sy_dot))."""
-    sx, sy = initial
-    dx = dy = 0.0
-    for ch in changes:
-        tx, ty = ch.to
-        frac, rate = smooth_step(t, ch.start_s, ch.end_s)
-        dx += (tx - sx) * rate
-        dy += (ty - sy) * rate
-        sx += (tx - sx) * frac
-        sy += (ty - sy) * frac
-    return (sx, sy), (dx, dy)
+    return scale_at_of(t, initial, changes)
 
 
 def offsets_vec(
@@ -146,22 +127,8 @@ def offsets_vec(
     scale: Vec2,
     scale_dot: Vec2,
 ) -> tuple[Vec3, Vec3]:
-    """:func:`offsets` on floats: zeta_i = [W r_i, Xi_i] and zeta_i_dot, eq. (13)/(48).
-
-    W = Rot(psi) S, W_dot = psi_dot Rot(psi + pi/2) S + Rot(psi) S_dot, with
-    Rot(psi + pi/2) = [[-sin, -cos], [cos, -sin]].
-    """
-    c, s = cos(psi), sin(psi)
-    rx, ry = r_i
-    ax, ay = scale[0] * rx, scale[1] * ry  # S r_i
-    bx, by = scale_dot[0] * rx, scale_dot[1] * ry  # S_dot r_i
-    zeta = (c * ax - s * ay, s * ax + c * ay, heading_offset)
-    zeta_dot = (
-        -psi_dot * s * ax - psi_dot * c * ay + (c * bx - s * by),
-        psi_dot * c * ax - psi_dot * s * ay + (s * bx + c * by),
-        0.0,
-    )
-    return zeta, zeta_dot
+    """:func:`offsets` on floats: zeta_i = [W r_i, Xi_i] and zeta_i_dot, eq. (13)/(48)."""
+    return offsets_of(r_i, heading_offset, psi, psi_dot, scale, scale_dot)
 
 
 def desired_formation_vec(
@@ -178,22 +145,6 @@ def desired_formation_vec(
     neighbour_zeta_dot: Sequence[Vec3],
 ) -> tuple[Vec3, Vec3]:
     """:func:`desired_formation` on float triples: q_fd,i of eq. (16) and its velocity."""
-    denom = kappa1 + kappa2 * float(sum(weights))
-    if denom <= 0.0:
-        raise ValueError("kappa1 + kappa2 * sum_j a_ij must be positive (eq. 16)")
-    zx, zy, zw = zeta
-    dx, dy, dw = zeta_dot
-    px, py, pw = kappa1 * (q0_hat[0] + zx), kappa1 * (q0_hat[1] + zy), kappa1 * (q0_hat[2] + zw)
-    vx, vy, vw = kappa1 * (v0_hat[0] + dx), kappa1 * (v0_hat[1] + dy), kappa1 * (v0_hat[2] + dw)
-    if kappa2 != 0.0:
-        for w, qj, vj, zj, zdj in zip(
-            weights, neighbour_q, neighbour_q_dot, neighbour_zeta, neighbour_zeta_dot, strict=False
-        ):
-            k = kappa2 * w
-            px += k * (qj[0] - zj[0] + zx)
-            py += k * (qj[1] - zj[1] + zy)
-            pw += k * (qj[2] - zj[2] + zw)
-            vx += k * (vj[0] - zdj[0] + dx)
-            vy += k * (vj[1] - zdj[1] + dy)
-            vw += k * (vj[2] - zdj[2] + dw)
-    return (px / denom, py / denom, pw / denom), (vx / denom, vy / denom, vw / denom)
+    return desired_formation_of(kappa1, kappa2, q0_hat, v0_hat, zeta, zeta_dot, weights,
+                                neighbour_q, neighbour_q_dot, neighbour_zeta,
+                                neighbour_zeta_dot)

@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from agents.behaviors import BehaviorOutput, Task, pinv_task_jacobian
+from agents.law_kernel import fuse_of, supervise_of
 from agents.signals import Vec3
 
 DEFAULT_PRIORITY = ("FOCB", "FRCB", "FDB")
@@ -87,53 +88,19 @@ def saturate_velocity(v: np.ndarray, max_speed: float, max_yaw_rate: float) -> n
     return out
 
 
-# --- hot path: the same fusion on reduced tasks (behaviors.Task); tests/unit/test_hot_path.py
-# checks it against supervise, fuse and saturate_velocity above --------------------------
-
-
-def project_null_space(task: Task, v: Vec3) -> Vec3:
-    """N v = v - J^+ (J v) with N = I - J^+ J of eq. (26); the heading row [0, 0, 1]
-    of J takes out the whole yaw component."""
-    k = task.inv_g2 * (task.gx * v[0] + task.gy * v[1])
-    return v[0] - task.gx * k, v[1] - task.gy * k, 0.0
+# --- the compiled law's fusion on reduced tasks (agents/law_kernel.pyx;
+# tests/unit/test_hot_path.py checks it against supervise and fuse above) ----------------
 
 
 def fuse_tasks(ordered: Sequence[Task]) -> Vec3:
     """:func:`fuse` for active tasks, highest priority first: eq. (26)."""
-    v = (0.0, 0.0, 0.0)
-    for task in reversed(ordered):
-        nx, ny, nw = project_null_space(task, v)
-        vx, vy, w = task.velocity
-        v = (vx + nx, vy + ny, w + nw)
-    return v
+    return fuse_of(list(ordered))
 
 
-def supervise_tasks(ordered: Sequence[Task], engage: str,
-                    limit: Callable[[Vec3], Vec3] | None = None) -> tuple[list[Task], Vec3]:
-    """:func:`supervise` for active tasks, and the velocity of the chain it returns.
-
-    ``limit``: what the agent does to the fused velocity before it becomes the command
-    (the explicit speed, slow-down and acceleration limits); the returned velocity has
-    been through it. "approaching" engages a task when the fused velocity OR the
-    commanded one (after the limits) closes on its body, J v < 0 (issue 17): judged on
-    the fused one alone, a robot whose acceleration limit still carried it toward an
-    obstacle at 0.75 m/s was told avoidance was not needed; judged on the commanded one
-    alone, the command's own inertia from the step before (moving away) switched
-    robot-robot avoidance off every other step on `lab`. Each avoidance task guards
-    one body (``Task.body``): every body in range is judged on its own."""
-    avoiding = [b for b in ordered if b.name in AVOIDANCE]
-    if engage == "inside" or (engage == "approaching" and not avoiding):
-        v = fuse_tasks(ordered)
-        return list(ordered), v if limit is None else limit(v)
-    if engage != "approaching":
-        raise ValueError(f"unknown avoidance engage mode {engage!r}")
-    engaged: set[tuple[str, int]] = set()
-    while True:  # `engaged` only grows, at most once per avoidance task
-        chain = [b for b in ordered if b.name not in AVOIDANCE or (b.name, b.body) in engaged]
-        fused = fuse_tasks(chain)
-        v = fused if limit is None else limit(fused)
-        now = engaged | {(b.name, b.body) for b in avoiding  # J_1 v < 0
-                         if b.gx * fused[0] + b.gy * fused[1] < 0.0 or b.gx * v[0] + b.gy * v[1] < 0.0}
-        if now == engaged:
-            return chain, v
-        engaged = now
+def supervise_tasks(ordered: Sequence[Task], engage: str) -> tuple[list[Task], Vec3]:
+    """:func:`supervise` for active tasks (no limits), and the velocity of the chain it
+    returns. "approaching" engages a task when the fused velocity closes on its body,
+    J v < 0; each avoidance task guards one body (``Task.body``)."""
+    tasks = list(ordered)
+    chain, v = supervise_of(tasks, engage)
+    return [tasks[i] for i in chain], v

@@ -24,43 +24,22 @@ The prediction: a fork of the agent (AgentCore.fork) steps H times on
   predicts them with the velocity they carry, degradation.py);
 - the perceived bodies moved on at the velocity they were seen with.
 The fork's outputs are discarded except for the torques; the agent itself is not
-touched. Cost: H extra agent steps per step.
+touched. Cost: H extra agent steps per step, in the compiled law
+(agents/law_kernel.pyx, ``Law.plan``; the RK4 of eq. 4 is the model plant's own,
+plant/fleet_kernel.pyx).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 
 import numpy as np
 
-from agents.controller import ModelTerms, acceleration_vec
-from agents.core import AgentCore, AgentOutput, Share
+from agents.core import AgentCore, AgentOutput, Bodies, Share
 from agents.degradation import InputAges
-from agents.signals import Vec3, Vec4
-from plant.bodies import Body
+from agents.signals import Vec4
 
 Torques = Vec4
-
-
-def rk4_step(m: ModelTerms, q: Vec3, q_dot: Vec3, u: Vec4, h: float) -> tuple[Vec3, Vec3]:
-    """One RK4 step of eq. (4) (no disturbance) under constant torques u."""
-    def f(x: Vec3, v: Vec3) -> Vec3:
-        return acceleration_vec(m, x, v, u)
-
-    def add(a: Vec3, b: Vec3, k: float) -> Vec3:
-        return a[0] + k * b[0], a[1] + k * b[1], a[2] + k * b[2]
-
-    k1q, k1v = q_dot, f(q, q_dot)
-    k2q = add(q_dot, k1v, h / 2)
-    k2v = f(add(q, k1q, h / 2), k2q)
-    k3q = add(q_dot, k2v, h / 2)
-    k3v = f(add(q, k2q, h / 2), k3q)
-    k4q = add(q_dot, k3v, h)
-    k4v = f(add(q, k3q, h), k4q)
-    w = h / 6
-    q_next = tuple(q[i] + w * (k1q[i] + 2 * k2q[i] + 2 * k3q[i] + k4q[i]) for i in range(3))
-    v_next = tuple(q_dot[i] + w * (k1v[i] + 2 * k2v[i] + 2 * k3v[i] + k4v[i]) for i in range(3))
-    return q_next, v_next  # type: ignore[return-value]
 
 
 class LookAhead:
@@ -70,7 +49,6 @@ class LookAhead:
         if horizon < 0:
             raise ValueError(f"horizon must be >= 0, got {horizon}")
         self.horizon = horizon
-        self._terms = ModelTerms.from_model(core.cfg.model)
 
     def plan(
         self,
@@ -81,8 +59,8 @@ class LookAhead:
         q_dot: np.ndarray,
         shares: Mapping[int, Share],
         leader: tuple[np.ndarray, np.ndarray] | None,
-        obstacles: Sequence[Body] = (),
-        robots: Sequence[Body] = (),
+        obstacles: Bodies = (),
+        robots: Bodies = (),
         ages: InputAges | None = None,
     ) -> list[Torques]:
         """The torques for steps k+1 .. k+H, after ``core`` made ``out`` at step k
@@ -91,30 +69,5 @@ class LookAhead:
         predicted step is not finite: nothing is sent past it."""
         if self.horizon == 0 or out.nonfinite:
             return []
-        h = core.cfg.dt
-        age = ages if ages is not None else InputAges()
-        sim = core.fork()
-        # the state the agent used: its sample carried to now (degradation.predict)
-        x: Vec3 = tuple((np.asarray(q, float) + age.state_s * np.asarray(q_dot, float)).tolist())
-        v: Vec3 = tuple(np.asarray(q_dot, float).tolist())
-        u: Vec4 = tuple(out.torques.tolist())
-        planned: list[Torques] = []
-        for m in range(1, self.horizon + 1):
-            x, v = rk4_step(self._terms, x, v, u, h)
-            ahead = m * h
-            nxt = sim.step(
-                t + ahead, np.array(x), np.array(v), shares, leader,
-                _moved(obstacles, ahead), _moved(robots, ahead), h,
-                InputAges(0.0, age.leader_s + ahead,
-                          {j: age.shares_s.get(j, 0.0) + ahead for j in shares}),
-            )
-            if nxt.nonfinite:
-                break
-            u = tuple(nxt.torques.tolist())
-            planned.append(u)
-        return planned
-
-
-def _moved(bodies: Sequence[Body], ahead_s: float) -> list[Body]:
-    return [Body(b.ident, b.position + ahead_s * b.velocity, b.velocity, b.radius)
-            for b in bodies]
+        return core.plan(out, t, q, q_dot, shares, leader, obstacles, robots, ages,
+                         self.horizon)

@@ -42,18 +42,23 @@ set is empty (the robot is already too fast for the gap it has), the command bra
 hard as the limit allows toward the point that satisfies the barriers alone, and the step
 is counted as infeasible.
 
-Pure math on floats, no I/O; the agent passes what it perceives (plant/perception.py).
+The arithmetic is the compiled law's (agents/law_kernel.pyx), where the agent's step runs
+it; the functions here give it to the rest of the code and the tests. No I/O.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from math import hypot, inf, isfinite, sqrt
+from math import inf
 
+from agents.law_kernel import (
+    closest_feasible_of,
+    closing_speed_limit_of,
+    safety_filter_of,
+    stopping_distance_of,
+)
 from agents.signals import Vec2
-
-_TOL = 1e-9  # m/s: a candidate this close to a boundary is on it
 
 
 @dataclass(frozen=True)
@@ -92,70 +97,26 @@ class SafetyResult:
 def closing_speed_limit(gap: float, brake: float, h: float, exit_time_s: float) -> float:
     """c_max(d) of (S1): the largest closing speed from which one more period and then
     braking at ``brake`` stop within ``gap``; negative (leave) inside the margin."""
-    if gap < 0.0:
-        return gap / exit_time_s
-    if not isfinite(brake):
-        return gap / h
-    ah = brake * h
-    return -ah + sqrt(ah * ah + 2.0 * brake * gap)
+    return closing_speed_limit_of(gap, brake, h, exit_time_s)
 
 
 def stopping_distance(closing: float, brake: float, h: float) -> float:
     """The gap used up by one more period at ``closing`` m/s and braking at ``brake``
     after it: the left side of (S1), whose inverse is :func:`closing_speed_limit`."""
-    if closing <= 0.0:
-        return 0.0
-    return closing * h + (closing * closing / (2.0 * brake) if isfinite(brake) else 0.0)
-
-
-def barriers(px: float, py: float, radius: float, bodies: Sequence[Guarded],
-             lim: SafetyLimits, h: float) -> list[tuple[float, float, float]]:
-    """Each body's (S1) as a half-plane (n_x, n_y, b): n . v >= b."""
-    out = []
-    for body in bodies:
-        dx, dy = px - body.x, py - body.y
-        dist = hypot(dx, dy)
-        nx, ny = (dx / dist, dy / dist) if dist > 1e-12 else (1.0, 0.0)
-        gap = dist - radius - body.radius - lim.margin_m
-        c_max = closing_speed_limit(gap, lim.brake_mps2, h, lim.exit_time_s)
-        b = nx * body.vx + ny * body.vy - c_max  # (S1)
-        if body.reciprocal:
-            b = max(b, -0.5 * c_max)  # (S2)
-        out.append((nx, ny, b))
-    return out
+    return stopping_distance_of(closing, brake, h)
 
 
 def safety_filter(v_nom: Vec2, v_prev: Vec2 | None, px: float, py: float, radius: float,
                   bodies: Sequence[Guarded], lim: SafetyLimits, h: float) -> SafetyResult:
-    """The command closest to ``v_nom`` that keeps every barrier (S1) (see the module)."""
-    lines = barriers(px, py, radius, bodies, lim, h)
-    binding = sum(1 for nx, ny, b in lines if nx * v_nom[0] + ny * v_nom[1] < b)
-    if binding == 0:
-        return SafetyResult(v_nom, False, 0, False, 0.0)
-    discs = []
-    if v_prev is not None and isfinite(lim.brake_mps2):
-        discs.append((v_prev[0], v_prev[1], lim.brake_mps2 * h))
-    if isfinite(lim.max_speed_mps):
-        discs.append((0.0, 0.0, lim.max_speed_mps))
-    v = closest_feasible(v_nom, lines, discs)
-    infeasible = v is None
-    if v is None:
-        # no command meets the barriers within the limits: brake as hard as allowed
-        # toward the barriers' own solution (or a standstill relative to the world)
-        target = closest_feasible(v_nom, lines, []) or (0.0, 0.0)
-        v = _toward(v_prev, target, lim.brake_mps2 * h) if discs and v_prev is not None \
-            else target
-    dv = hypot(v[0] - v_nom[0], v[1] - v_nom[1])
-    return SafetyResult(v, True, binding, infeasible, dv)
-
-
-def _toward(start: Vec2, target: Vec2, step: float) -> Vec2:
-    dx, dy = target[0] - start[0], target[1] - start[1]
-    dist = hypot(dx, dy)
-    if dist <= step:
-        return target
-    k = step / dist
-    return start[0] + k * dx, start[1] + k * dy
+    """The command closest to ``v_nom`` that keeps every barrier (see the module); the
+    bodies that run the filter too (``reciprocal``) by (S2)."""
+    ordered = [b for b in bodies if not b.reciprocal] + [b for b in bodies if b.reciprocal]
+    rows = [(0.0, b.x, b.y, b.vx, b.vy, b.radius) for b in ordered]
+    n_obstacles = sum(1 for b in bodies if not b.reciprocal)
+    v, active, binding, infeasible, dv = safety_filter_of(
+        v_nom, v_prev, px, py, radius, rows, n_obstacles, lim.margin_m, lim.brake_mps2,
+        lim.max_speed_mps, lim.exit_time_s, h)
+    return SafetyResult(v if active else v_nom, active, binding, infeasible, dv)
 
 
 def closest_feasible(v_nom: Vec2, lines: Sequence[tuple[float, float, float]],
@@ -163,58 +124,4 @@ def closest_feasible(v_nom: Vec2, lines: Sequence[tuple[float, float, float]],
     """argmin |v - v_nom| over {n . v >= b for every line, |v - c| <= R for every disc};
     None when the set is empty. Exact: the optimum of this convex 2-D problem is v_nom
     or lies on one boundary (the projection of v_nom on it) or on two (where they meet)."""
-    def feasible(v: Vec2) -> bool:
-        x, y = v
-        return all(nx * x + ny * y >= b - _TOL for nx, ny, b in lines) and all(
-            (x - cx) ** 2 + (y - cy) ** 2 <= (r + _TOL) ** 2 for cx, cy, r in discs)
-
-    if feasible(v_nom):
-        return v_nom
-    candidates: list[Vec2] = []
-    for nx, ny, b in lines:  # projection on a line (|n| = 1)
-        s = b - (nx * v_nom[0] + ny * v_nom[1])
-        candidates.append((v_nom[0] + s * nx, v_nom[1] + s * ny))
-    for cx, cy, r in discs:  # projection on a circle
-        dx, dy = v_nom[0] - cx, v_nom[1] - cy
-        dist = hypot(dx, dy)
-        candidates.append((cx + r * dx / dist, cy + r * dy / dist) if dist > 0 else (cx + r, cy))
-    for i, (ax, ay, ab) in enumerate(lines):  # line meets line
-        for bx, by, bb in lines[i + 1:]:
-            det = ax * by - ay * bx
-            if abs(det) > 1e-12:
-                candidates.append(((ab * by - bb * ay) / det, (ax * bb - bx * ab) / det))
-    for nx, ny, b in lines:  # line meets circle
-        for cx, cy, r in discs:
-            candidates.extend(_line_circle(nx, ny, b, cx, cy, r))
-    for i, (ax, ay, ar) in enumerate(discs):  # circle meets circle
-        for bx, by, br in discs[i + 1:]:
-            candidates.extend(_circle_circle(ax, ay, ar, bx, by, br))
-    best, best_cost = None, inf
-    for v in candidates:
-        cost = (v[0] - v_nom[0]) ** 2 + (v[1] - v_nom[1]) ** 2
-        if cost < best_cost and feasible(v):
-            best, best_cost = v, cost
-    return best
-
-
-def _line_circle(nx: float, ny: float, b: float, cx: float, cy: float, r: float) -> list[Vec2]:
-    """Where n . v = b meets |v - c| = r."""
-    s = b - (nx * cx + ny * cy)  # signed distance of the centre's foot along n
-    if abs(s) > r:
-        return []
-    fx, fy = cx + s * nx, cy + s * ny
-    half = sqrt(max(r * r - s * s, 0.0))
-    return [(fx - half * ny, fy + half * nx), (fx + half * ny, fy - half * nx)]
-
-
-def _circle_circle(ax: float, ay: float, ar: float, bx: float, by: float,
-                   br: float) -> list[Vec2]:
-    """Where |v - a| = ar meets |v - b| = br."""
-    dx, dy = bx - ax, by - ay
-    d = hypot(dx, dy)
-    if d < 1e-12 or d > ar + br or d < abs(ar - br):
-        return []
-    along = (ar * ar - br * br + d * d) / (2.0 * d)
-    half = sqrt(max(ar * ar - along * along, 0.0))
-    mx, my = ax + along * dx / d, ay + along * dy / d
-    return [(mx - half * dy / d, my + half * dx / d), (mx + half * dy / d, my - half * dx / d)]
+    return closest_feasible_of(v_nom, lines, discs)

@@ -1,13 +1,14 @@
 """Small nonlinear maps shared by the estimator, the ESO and the controller.
 
-The numpy forms take vectors of any size; the ``*_scalar`` forms act on one float
-and serve the per-step hot path (``AgentCore.step``), where the vectors have 2 or
-3 components and a numpy call costs more than the arithmetic it does.
+The numpy forms take vectors of any size (the reference forms of the equations); the
+``*_scalar`` forms act on one float, as the compiled law (agents/law_kernel.pyx) does.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from agents.law_kernel import sig_of
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -20,12 +21,9 @@ def sig(x: np.ndarray, power: float) -> np.ndarray:
 
 
 def sig_scalar(x: float, power: float) -> float:
-    """:func:`sig` of one float: |x|^r sign(x) with sign(0) = 0 (NaN stays NaN)."""
-    if x > 0.0:
-        return x**power
-    if x < 0.0:
-        return -((-x) ** power)
-    return x * 0.0
+    """:func:`sig` of one float: |x|^r sign(x) with sign(0) = 0 (NaN stays NaN); the
+    compiled law's own (agents/law_kernel.pyx)."""
+    return sig_of(x, power)
 
 
 def smooth_norm(x: np.ndarray, eps: float) -> float:

@@ -33,9 +33,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from math import atan2, hypot, sqrt
+from typing import Any
 
 import numpy as np
-from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
 SUBDIVISIONS = 64  # arc-length table pieces per spline segment
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
@@ -86,13 +86,16 @@ class WaypointPath:
     waypoints: tuple[tuple[float, float], ...]
     speed: float  # cruise speed, m/s
     accel: float  # ramp acceleration, m/s^2
-    _spline: CubicSpline = field(init=False, repr=False, compare=False)
-    _u_of_s: CubicHermiteSpline = field(init=False, repr=False, compare=False)
+    _spline: Any = field(init=False, repr=False, compare=False)  # scipy CubicSpline
+    _u_of_s: Any = field(init=False, repr=False, compare=False)  # scipy CubicHermiteSpline
     profile: SpeedProfile = field(init=False, compare=False)
 
     def __post_init__(self) -> None:
         pts = np.array(self.waypoints, dtype=float)
         u = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+        # scipy.interpolate costs ~0.5 s to import: only a waypoint path loads it
+        from scipy.interpolate import CubicHermiteSpline, CubicSpline
+
         spline = CubicSpline(u, pts, bc_type="natural")
         nodes = np.unique(np.concatenate([np.linspace(u[k], u[k + 1], SUBDIVISIONS + 1)
                                           for k in range(len(u) - 1)]))

@@ -1,32 +1,40 @@
-"""Wheel-torque disturbance h_d(t) of eq. (49); d_i = B h_d enters eq. (4)."""
+"""Wheel-torque disturbance h_d(t) of eq. (49); d_i = B h_d enters eq. (4).
+
+The formula itself lives once, in the plant's kernel (plant/fleet_kernel.pyx), which
+evaluates it inside the model plant's integration; :class:`Disturbance` names the
+scenario's choice and evaluates it for the other plants (pybullet, the drive emulators).
+"""
 
 from __future__ import annotations
 
-from math import cos, sin
+from dataclasses import dataclass
 
 import numpy as np
 
-
-def paper_disturbance(t: float) -> np.ndarray:
-    """h_d(t) of eq. (49), in N m (the 10^-2 factor applied)."""
-    return 1e-2 * np.array(
-        [
-            1.0 + 2.0 * cos(0.3 * t),
-            2.0 + 1.5 * sin(0.3 * t) + 3.0 * cos(0.3 * t),
-            3.0 + 2.0 * sin(0.2 * t),
-            2.5 + sin(0.1 * t),
-        ]
-    )
+from plant.fleet_kernel import DISTURBANCE_KINDS, disturbance_at
 
 
-def make_disturbance(kind: str, scale: float, constant: tuple[float, ...]):
-    """A function t -> h_d(t) (4 wheel torques) for the scenario's choice."""
-    if kind == "none":
-        zero = np.zeros(4)
-        return lambda t: zero
-    if kind == "constant":
-        c = scale * np.array(constant, dtype=float)
-        return lambda t: c
-    if kind == "paper":
-        return lambda t: scale * paper_disturbance(t)
-    raise ValueError(f"unknown disturbance kind {kind!r}")
+@dataclass(frozen=True)
+class Disturbance:
+    """h_d(t), 4 wheel torques in N m: ``none``, a ``constant`` (``constant`` N m), or
+    ``paper`` (eq. 49), times ``scale``."""
+
+    kind: str
+    scale: float = 1.0
+    constant: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if self.kind not in DISTURBANCE_KINDS:
+            raise ValueError(f"unknown disturbance kind {self.kind!r}; "
+                             f"choose one of {', '.join(DISTURBANCE_KINDS)}")
+        if len(self.constant) != 4:
+            raise ValueError(f"a constant disturbance has 4 wheel torques, got {self.constant}")
+
+    def __call__(self, t: float) -> np.ndarray:
+        return disturbance_at(self.kind, self.scale, self.constant, t)
+
+
+def make_disturbance(kind: str, scale: float, constant: tuple[float, ...]) -> Disturbance:
+    """The scenario's disturbance (its [disturbance] table)."""
+    padded = tuple(float(c) for c in constant) + (0.0,) * (4 - len(constant))
+    return Disturbance(kind, float(scale), padded[:4] if kind == "constant" else (0.0,) * 4)

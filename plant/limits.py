@@ -3,18 +3,13 @@
 
 from __future__ import annotations
 
-from math import hypot
+from plant.fleet_kernel import saturate_velocity_of
 
 Vec3 = tuple[float, float, float]
 
 
 def saturate_velocity_vec(v: Vec3, max_speed: float, max_yaw_rate: float) -> Vec3:
-    """(vx, vy) scaled into ``max_speed`` (direction kept), w clipped to ``max_yaw_rate``:
-    agents.fusion.saturate_velocity on floats."""
-    vx, vy, w = v
-    speed = hypot(vx, vy)
-    if speed > max_speed:
-        k = max_speed / speed
-        vx, vy = vx * k, vy * k
-    w = -max_yaw_rate if w < -max_yaw_rate else max_yaw_rate if w > max_yaw_rate else w
-    return vx, vy, w
+    """(vx, vy) scaled into ``max_speed`` (direction kept), w clipped to ``max_yaw_rate``
+    (plant/fleet_kernel.pyx, the agent's kernel uses the same): agents.fusion
+    saturate_velocity on floats."""
+    return saturate_velocity_of(v, max_speed, max_yaw_rate)

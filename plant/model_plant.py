@@ -12,18 +12,22 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from plant.disturbance import Disturbance
+from plant.fleet_kernel import FleetDynamics
 from plant.interface import DEFAULT_SUBSTEPS
 from plant.mecanum import MecanumModel
 
-Disturbance = Callable[[float], np.ndarray]
+DisturbanceFn = Callable[[float], np.ndarray]
 
 
 class ModelPlant:
     """Integrates q_ddot = -A0 q_dot - A1 + B (u + h_d(t)) with RK4 sub-steps.
 
-    Every robot is integrated at once (arrays over robots): the same eq. (4)
-    as :meth:`MecanumModel.acceleration`, written in the body frame so each
-    stage costs a handful of numpy calls whatever the fleet size.
+    Every robot is integrated in one call of the plant's kernel
+    (plant/fleet_kernel.pyx, ``FleetDynamics``): eq. (4) on C doubles, the disturbance
+    evaluated inside when it is the scenario's (:class:`Disturbance`); any other
+    function of t (the drive emulators' armed disturbance, tests) is evaluated here at
+    the stages' times and handed over.
     """
 
     kind = "model"
@@ -33,7 +37,7 @@ class ModelPlant:
         models: Sequence[MecanumModel],
         q: np.ndarray,
         q_dot: np.ndarray,
-        disturbance: Disturbance,
+        disturbance: DisturbanceFn,
         substeps: int = DEFAULT_SUBSTEPS,
     ) -> None:
         self.models = list(models)
@@ -41,57 +45,29 @@ class ModelPlant:
         self.q_dot = np.array(q_dot, dtype=float)
         self.disturbance = disturbance
         self.substeps = substeps
-        # eq. (4) constants, stacked over robots; one shared matrix when every robot
-        # has the same parameters (the usual case, and 2-D matmuls are faster)
-        same = all(m is self.models[0] or m.params == self.models[0].params for m in self.models)
-        pick = (lambda xs: xs[0]) if same else np.stack
-        self._P_T = pick([m.P.T / m.params.wheel_radius_m for m in self.models])
-        self._body_input_T = pick([m.body_input.T for m in self.models])
-        self._A0_T = pick([m.A0.T for m in self.models])
-        self._coulomb = np.array([[m.coulomb_torque_nm] for m in self.models])
-        self._smooth = np.array([[m.params.coulomb_smoothing_radps] for m in self.models])
-        self._body = np.empty_like(self.q)
-        self._acc = np.empty_like(self.q)
+        known = disturbance if isinstance(disturbance, Disturbance) else Disturbance("none")
+        self._dynamics = FleetDynamics(self.models, known.kind, known.scale, known.constant,
+                                       substeps)
+        self._other = None if isinstance(disturbance, Disturbance) else disturbance
 
-    @staticmethod
-    def _times(x: np.ndarray, m: np.ndarray) -> np.ndarray:
-        """Row i of x times matrix m (shared 2-D, or m[i] when stacked 3-D)."""
-        return x @ m if m.ndim == 2 else np.matmul(x[:, None, :], m)[:, 0, :]
-
-    def accelerations(self, t: float, q: np.ndarray, q_dot: np.ndarray,
-                      torques: np.ndarray) -> np.ndarray:
-        """Eq. (4) for every robot: (n,3) accelerations."""
-        c, s = np.cos(q[:, 2]), np.sin(q[:, 2])
-        vx, vy = q_dot[:, 0], q_dot[:, 1]
-        body = self._body  # T(phi)^T q_dot
-        body[:, 0] = c * vx + s * vy
-        body[:, 1] = c * vy - s * vx
-        body[:, 2] = q_dot[:, 2]
-        wheel = self._times(body, self._P_T)  # theta_dot = P T^T q_dot / R
-        u = torques + self.disturbance(t) - self._coulomb * np.tanh(wheel / self._smooth)
-        a = self._times(u, self._body_input_T)  # body frame: M_q^-1 P^T u / R
-        acc = self._acc
-        acc[:, 0] = c * a[:, 0] - s * a[:, 1]
-        acc[:, 1] = s * a[:, 0] + c * a[:, 1]
-        acc[:, 2] = a[:, 2]
-        return acc - self._times(q_dot, self._A0_T)
+    def _stage_disturbances(self, t: float, dt: float) -> np.ndarray:
+        """h_d at the RK4 stages' times t + k h + (0, h/2, h), one (n, 4) block each."""
+        n, h = len(self.models), dt / self.substeps
+        times = [t + k * h + half for k in range(self.substeps) for half in (0.0, 0.5 * h)]
+        times.append(t + self.substeps * h)
+        return np.ascontiguousarray(
+            [np.broadcast_to(self._other(ts), (n, 4)) for ts in times], dtype=float)
 
     def step(self, t: float, dt: float, torques: np.ndarray, v_cmd: np.ndarray) -> None:
-        h = dt / self.substeps
-        q, qd, u = self.q, self.q_dot, np.asarray(torques, dtype=float)
-        f = self.accelerations
-        for k in range(self.substeps):
-            ts = t + k * h
-            k1q, k1v = qd, f(ts, q, qd, u)
-            k2q, k2v = qd + h / 2 * k1v, f(ts + h / 2, q + h / 2 * k1q, qd + h / 2 * k1v, u)
-            k3q, k3v = qd + h / 2 * k2v, f(ts + h / 2, q + h / 2 * k2q, qd + h / 2 * k2v, u)
-            k4q, k4v = qd + h * k3v, f(ts + h, q + h * k3q, qd + h * k3v, u)
-            q = q + h / 6 * (k1q + 2 * k2q + 2 * k3q + k4q)
-            qd = qd + h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
+        # new arrays each step: whoever kept the last state keeps it unchanged
+        q, qd = self.q.copy(), self.q_dot.copy()
+        u = np.ascontiguousarray(torques, dtype=float).reshape(len(self.models), 4)
+        stages = None if self._other is None else self._stage_disturbances(t, dt)
+        self._dynamics.step(t, dt, q, qd, u, stages)
         self.q, self.q_dot = q, qd
 
     def close(self) -> None:
-        """Nothing to release (the Plant protocol's close)."""
+        """Nothing to release (the Plant interface)."""
 
 
 class KinematicPlant:

@@ -15,10 +15,59 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from plant.bodies import Body
+from plant.bodies import Body, bodies_of, body_rows
+from plant.fleet_kernel import sense_discs, sense_fleet
 from plant.shapes import Polygon
 
-Sensor = Callable[[int], tuple[list[Body], list[Body]]]
+# () -> per robot, (robots, obstacles) it perceives now, as rows (ident, x, y, vx, vy, radius)
+Sensor = Callable[[], list[tuple[np.ndarray, np.ndarray]]]
+
+
+class Perception:
+    """What every robot of a fleet senses, in one pass of the plant's kernel
+    (plant/fleet_kernel.pyx ``sense_discs``): the world's constants kept as arrays."""
+
+    def __init__(self, robot_radii: Sequence[float], robot_ids: Sequence[int],
+                 obstacles: Sequence[Body], detection_range_m: float,
+                 shapes: Sequence[Polygon] = ()) -> None:
+        self.radii = np.ascontiguousarray(robot_radii, dtype=float)
+        self.ids = np.ascontiguousarray(robot_ids, dtype=np.int64)
+        rows = body_rows(obstacles)
+        self.obstacle_ids = np.ascontiguousarray(rows[:, 0], dtype=np.int64)
+        self.obstacles = np.ascontiguousarray(rows[:, 1:])  # x, y, vx, vy, radius
+        self.detection_range_m = float(detection_range_m)
+        self.shapes = list(shapes)
+
+    def rows(self, i: int, positions: np.ndarray, velocities: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray]:
+        """(robots, obstacles) seen by the robot at row ``i`` of ``positions`` (n, 2+):
+        discs, then the nearest points of the walls and polygons in range."""
+        robots, seen = sense_discs(i, np.ascontiguousarray(positions[:, :2], dtype=float),
+                                   np.ascontiguousarray(velocities[:, :2], dtype=float),
+                                   self.radii, self.ids, self.obstacles, self.obstacle_ids,
+                                   self.detection_range_m)
+        if self.shapes:
+            walls = body_rows(shape_bodies(float(positions[i, 0]), float(positions[i, 1]),
+                                           self.shapes, self.detection_range_m))
+            seen = np.concatenate([seen, walls]) if len(walls) else seen
+        return robots, seen
+
+
+    def fleet_rows(self, positions: np.ndarray, velocities: np.ndarray
+                   ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """:meth:`rows` for every robot, in one call of the kernel."""
+        pos = np.ascontiguousarray(positions[:, :2], dtype=float)
+        out = sense_fleet(pos, np.ascontiguousarray(velocities[:, :2], dtype=float),
+                          self.radii, self.ids, self.obstacles, self.obstacle_ids,
+                          self.detection_range_m)
+        if not self.shapes:
+            return out
+        for i, (robots, seen) in enumerate(out):
+            walls = body_rows(shape_bodies(float(pos[i, 0]), float(pos[i, 1]), self.shapes,
+                                           self.detection_range_m))
+            if len(walls):
+                out[i] = (robots, np.concatenate([seen, walls]))
+        return out
 
 
 def sense(
@@ -31,20 +80,11 @@ def sense(
     detection_range_m: float,
     shapes: Sequence[Polygon] = (),
 ) -> tuple[list[Body], list[Body]]:
-    """(robots, obstacles) seen by the robot at row ``i`` of ``positions``: discs,
-    then the nearest points of the walls and polygons (``shapes``) in range."""
-    me = positions[i]
-    robots: list[Body] = []
-    for j in range(len(positions)):
-        if j == i:
-            continue
-        if float(np.hypot(*(positions[j] - me))) - robot_radii[j] <= detection_range_m:
-            robots.append(Body(robot_ids[j], positions[j].copy(), velocities[j].copy(), robot_radii[j]))
-    seen = [
-        o for o in obstacles
-        if float(np.hypot(*(o.position - me))) - o.radius <= detection_range_m
-    ]
-    return robots, seen + shape_bodies(float(me[0]), float(me[1]), shapes, detection_range_m)
+    """(robots, obstacles) seen by the robot at row ``i`` of ``positions``, as bodies:
+    :meth:`Perception.rows` for one call."""
+    robots, seen = Perception(robot_radii, robot_ids, obstacles, detection_range_m,
+                              shapes).rows(i, positions, velocities)
+    return bodies_of(robots), bodies_of(seen)
 
 
 def shape_bodies(x: float, y: float, shapes: Sequence[Polygon],

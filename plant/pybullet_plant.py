@@ -103,6 +103,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from plant.bodies import Body
+from plant.fleet_kernel import FleetDynamics
 from plant.interface import DEFAULT_SUBSTEPS
 from plant.mecanum import MecanumModel, generalised_inertia
 from plant.perception import shape_bodies
@@ -151,37 +152,26 @@ class ContactEvent:
     t_end: float | None = None  # None while it lasts
 
 
-@dataclass(frozen=True)
 class ForceLaw:
-    """The wheels' generalised force on the chassis, (P3)-(P5), rows = robots.
+    """The wheels' generalised force on the chassis, (P3)-(P5), rows = robots: the plant
+    kernel's (plant/fleet_kernel.pyx ``FleetDynamics.wheel_forces``), one pass over the
+    fleet. ``law(q, q_dot, wheel_torques)`` with (n,3), (n,3), (n,4) arrays
+    (``wheel_torques`` = u + h_d) gives the (n,3) world-frame forces [F_x, F_y, M_z]."""
 
-    Pure numpy: ``law(q, q_dot, wheel_torques)`` with (n,3), (n,3), (n,4) arrays
-    (``wheel_torques`` = u + h_d) gives the (n,3) world-frame forces [F_x, F_y, M_z].
-    """
-
-    p_over_r: np.ndarray  # (n,4,3): P / R
-    coulomb_nm: np.ndarray  # (n,1): C_f m g R / 4
-    smoothing_radps: np.ndarray  # (n,1): omega_s
-    viscous_nm_per_radps: np.ndarray  # (n,1): C_theta R^2
+    def __init__(self, models: Sequence[MecanumModel]) -> None:
+        self._fleet = FleetDynamics(list(models), "none", 0.0, (0.0,) * 4, 1)
+        self._out = np.empty((len(models), 3))
 
     @classmethod
     def from_models(cls, models: Sequence[MecanumModel]) -> ForceLaw:
-        return cls(
-            p_over_r=np.stack([m.P / m.params.wheel_radius_m for m in models]),
-            coulomb_nm=np.array([[m.coulomb_torque_nm] for m in models]),
-            smoothing_radps=np.array([[m.params.coulomb_smoothing_radps] for m in models]),
-            viscous_nm_per_radps=np.array([[m.viscous_torque_per_radps] for m in models]),
-        )
+        return cls(models)
 
     def __call__(self, q: np.ndarray, q_dot: np.ndarray, wheel_torques: np.ndarray) -> np.ndarray:
-        c, s = np.cos(q[:, 2]), np.sin(q[:, 2])
-        vx, vy = q_dot[:, 0], q_dot[:, 1]
-        body = np.stack([c * vx + s * vy, c * vy - s * vx, q_dot[:, 2]], axis=1)  # T^T q_dot
-        wheel = np.matmul(self.p_over_r, body[:, :, None])[:, :, 0]  # (P3)
-        tau = (wheel_torques - self.coulomb_nm * np.tanh(wheel / self.smoothing_radps)
-               - self.viscous_nm_per_radps * wheel)  # (P4)
-        f = np.matmul(tau[:, None, :], self.p_over_r)[:, 0, :]  # P^T tau / R, body frame
-        return np.stack([c * f[:, 0] - s * f[:, 1], s * f[:, 0] + c * f[:, 1], f[:, 2]], axis=1)  # (P5)
+        out = np.empty_like(self._out)
+        self._fleet.wheel_forces(np.ascontiguousarray(q, dtype=float),
+                                 np.ascontiguousarray(q_dot, dtype=float),
+                                 np.ascontiguousarray(wheel_torques, dtype=float), out)
+        return out
 
 
 def generalised_force(model: MecanumModel, q: np.ndarray, q_dot: np.ndarray,
@@ -377,10 +367,13 @@ class PybulletPlant:
 
     def _read_state(self) -> tuple[np.ndarray, np.ndarray]:
         cid = self._cid
-        states = [pb.getJointStates(body, _JOINTS, physicsClientId=cid) for body in self._robots]
-        q = np.array([[s[0] for s in st] for st in states])
-        qd = np.array([[s[1] for s in st] for st in states])
-        return q, qd
+        q, qd = [], []
+        for body in self._robots:
+            (x, vx, *_), (y, vy, *_), (phi, w, *_) = pb.getJointStates(body, _JOINTS,
+                                                                      physicsClientId=cid)
+            q.append((x, y, phi))
+            qd.append((vx, vy, w))
+        return np.array(q), np.array(qd)
 
     def _record_contacts(self, ts: float) -> None:
         """Update the contact events from the points Bullet found at sub-step time ``ts``."""

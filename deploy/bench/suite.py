@@ -29,7 +29,8 @@ from typing import Any
 from deploy.contract.options import EXIT_BAD_INPUT, add_option
 from deploy.contract.scaled_scenarios import scale_scenario
 
-BENCH_VERSION = 2  # 2: wire v2 codec figures, README command 1, realtime paper, largest N
+BENCH_VERSION = 3  # 3: compiled kernels: in-process wall, per robot-step CPU, lab and CAN at speed
+# 2: wire v2 codec figures, README command 1, realtime paper, largest N
 SCALE_SIZES = (3, 10, 20, 30)
 
 
@@ -113,11 +114,15 @@ class Bench:
 
     # -- fleet runs -------------------------------------------------------------------
     def run_fleet(self, scenario: str, *args: str, timeout_s: float = 900.0,
-                  record: bool = False) -> dict[str, Any]:
-        """One ``omnifleet run``; its metrics.json. Ended by pid whatever happens."""
+                  record: bool = False, figures: bool = False) -> dict[str, Any]:
+        """One ``omnifleet run``; its metrics.json, with ``command_wall_s``: the whole
+        command's wall time as a user waits for it (start-up, run, outputs). Ended by pid
+        whatever happens."""
         out = self.work / f"run-{len(list(self.work.iterdir()))}"
         cmd = [sys.executable, "-m", "deploy.cli", "run", scenario, "--out", str(out),
-               "--no-figures", *([] if record else ["--no-record"]), *args]
+               *([] if figures else ["--no-figures"]), *([] if record else ["--no-record"]),
+               *args]
+        started = time.perf_counter()
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         try:
             _, err = proc.communicate(timeout=timeout_s)
@@ -133,6 +138,7 @@ class Bench:
             raise FleetRunFailed(f"`omnifleet run {scenario} {' '.join(args)}` exited "
                                  f"{proc.returncode}: {err.strip()[-600:]}")
         metrics = json.loads((out / "metrics.json").read_text())
+        metrics["command_wall_s"] = time.perf_counter() - started
         if "--in-process" not in args:
             self.agent_rss_mb += [p["peak_rss_mb"] for p in metrics["processes"]
                                   if p["role"].startswith("agent-") and p["peak_rss_mb"]]
@@ -170,13 +176,86 @@ class Bench:
         self.measure("lockstep overhead (paper, model plant)", body, wall_in.name, wall_dist.name,
                      ratio.name)
 
+    def in_process(self) -> None:
+        """``omnifleet run paper --in-process`` as a user waits for it (start-up, the 24 s
+        simulated, metrics and series written; no recording or figures), and the CPU of one
+        robot-step: the loop's wall time (one thread) over steps x robots."""
+        targets = {"pybullet": 3.0, "model": 2.0}
+        dur = () if self.s.paper_run_s is None else ("--duration", str(self.s.paper_run_s))
+        for kind, bound in targets.items():
+            wall = self.figure(f"inprocess.paper_{kind}_wall_s", "s",
+                               f"`omnifleet run paper --in-process --plant {kind} --no-record "
+                               "--no-figures`, the command's wall time",
+                               ("<=", bound) if self.s.paper_run_s is None else None)
+            step = self.figure(f"inprocess.paper_{kind}_us_per_robot_step", "µs",
+                               f"the same: the loop's time per robot and step ({kind} plant, "
+                               "agents, perception, series)", ("<=", 30.0))
+
+            def body(kind: str = kind, wall: Figure = wall, step: Figure = step) -> None:
+                for _ in range(self.s.repeats):
+                    m = self.run_fleet("paper", "--in-process", "--plant", kind, *dur)
+                    wall.samples.append(m["command_wall_s"])
+                    step.samples.append(m["wall_time_s"] / (m["steps"] * m["robots"]) * 1e6)
+
+            self.measure(f"in process (paper, {kind})", body, wall.name, step.name)
+
+    def lockstep_paper(self) -> None:
+        """The paper scenario distributed in lockstep (pybullet, no outputs), and the same in
+        process, back to back: the real-time factor and the ratio."""
+        dur = () if self.s.paper_run_s is None else ("--duration", str(self.s.paper_run_s))
+        rtf = self.figure("lockstep.paper_real_time_factor", "x",
+                          "paper, pybullet, one process per node (lockstep, no recording): "
+                          "simulated / wall time of the run", (">=", 2.0))
+        ratio = self.figure("lockstep.paper_ratio_to_in_process", "x",
+                            "the same run's wall time / the in-process run's, back to back")
+
+        def body() -> None:
+            for _ in range(self.s.repeats):
+                d = self.run_fleet("paper", *dur)
+                i = self.run_fleet("paper", "--in-process", *dur)
+                rtf.samples.append(d["real_time_factor"])
+                ratio.samples.append(d["wall_time_s"] / i["wall_time_s"])
+
+        self.measure("lockstep paper (pybullet, distributed and in process)", body, rtf.name,
+                     ratio.name)
+
+    def realtime_fast(self) -> None:
+        """lab at 1 kHz on the realtime clock, and the CAN fleet (a bridge per robot, the
+        drive emulator, CAN buses over udp_multicast) at lab's 200 Hz."""
+        p99 = self.figure("realtime.lab_1khz_latency_p99_ms", "ms",
+                          "lab at 1 kHz, realtime, model plant: state-to-command latency p99",
+                          ("<=", 1.0))
+        touch = self.figure("realtime.lab_1khz_contacts", "count", "the same: contacts",
+                            ("<=", 0.0))
+        jit = self.figure("realtime.can_fleet_jitter_p99_ms", "ms",
+                          "lab --plant can-emulated (200 Hz): loop jitter p99, every node",
+                          ("<=", 1.0))
+        settle = self.figure("realtime.can_fleet_settling_max_s", "s",
+                             "the same: the slowest robot's settling time (one that never "
+                             "settled counts as the run's duration)", ("<=", 1.0))
+
+        def body() -> None:
+            for _ in range(self.s.repeats):
+                m = self.run_fleet("lab", "--clock", "realtime", "--control-rate", "1000",
+                                   "--plant", "model", "--duration", str(self.s.realtime_s / 2))
+                p99.add(m["latency_ms"]["p99"], "the plant reported no latency")
+                touch.samples.append(float(m["contacts"]))
+                m = self.run_fleet("lab", "--plant", "can-emulated",
+                                   "--duration", str(self.s.realtime_s / 2))
+                jit.add(m["jitter_ms"]["p99"], "no node reported its jitter")
+                settle.samples.append(max(m["sim_time_s"] if x is None else x
+                                          for x in m["settling_time_s"]))
+
+        self.measure("realtime lab at 1 kHz and the CAN fleet", body, p99.name, touch.name,
+                     jit.name, settle.name)
+
     def paper_run(self) -> None:
         """README command 1 as a user runs it (pybullet, lockstep, recording on), and
         the same without recording, back to back: what the recording costs."""
         what = "the scenario's 24 s" if self.s.paper_run_s is None else f"{self.s.paper_run_s:g} s"
         rec = self.figure("run.paper_wall_s", "s", f"`omnifleet run paper` (README command 1: "
-                          f"pybullet, lockstep, recording on), {what} simulated",
-                          ("<=", 15.0) if self.s.paper_run_s is None else None)
+                          f"pybullet, lockstep, recording and figures on), {what} simulated: "
+                          "the command's wall time", ("<=", 15.0) if self.s.paper_run_s is None else None)
         bare = self.figure("run.paper_no_record_wall_s", "s", "the same with --no-record")
         cost = self.figure("run.recording_cost_ratio", "x",
                            "with / without recording, measured back to back")
@@ -184,11 +263,11 @@ class Bench:
 
         def body() -> None:
             for _ in range(self.s.repeats):
-                a = self.run_fleet("paper", *dur, record=True)["wall_time_s"]
-                b = self.run_fleet("paper", *dur)["wall_time_s"]
-                rec.samples.append(a)
-                bare.samples.append(b)
-                cost.samples.append(a / b)
+                a = self.run_fleet("paper", *dur, record=True, figures=True)
+                b = self.run_fleet("paper", *dur)
+                rec.samples.append(a["command_wall_s"])
+                bare.samples.append(b["wall_time_s"])
+                cost.samples.append(a["wall_time_s"] / b["wall_time_s"])
 
         self.measure("README command 1 (paper, pybullet, recording on and off)", body,
                      rec.name, bare.name, cost.name)
@@ -263,9 +342,16 @@ class Bench:
             touch = self.figure(f"scale.n{n}.realtime_contacts", "count",
                                 f"{n} robots at 100 Hz, realtime: physical contacts",
                                 ("<=", 0.0) if n == 30 else None)
+            unsettled = self.figure(f"scale.n{n}.realtime_unsettled_robots", "count",
+                                    f"{n} robots at 100 Hz, realtime: robots not settled "
+                                    "before the bound", ("<=", 0.0) if n == 30 else None)
+            model_miss = self.figure(f"scale.n{n}.realtime_model_deadline_misses", "count",
+                                     f"{n} robots at 100 Hz, realtime, model plant: deadline "
+                                     "misses, every node", ("<=", 0.0) if n == 30 else None)
 
             def body(path: Path = path, rtf: Figure = rtf, miss: Figure = miss,
-                     touch: Figure = touch) -> None:
+                     touch: Figure = touch, unsettled: Figure = unsettled,
+                     model_miss: Figure = model_miss) -> None:
                 for _ in range(self.s.repeats):
                     m = self.run_fleet(str(path), "--duration", str(self.s.scale_lockstep_s),
                                        "--startup-timeout", "180")
@@ -274,9 +360,15 @@ class Bench:
                                        str(self.s.scale_realtime_s), "--startup-timeout", "180")
                     miss.samples.append(float(m["deadline_misses"]))
                     touch.samples.append(float(m["contacts"]))
+                    unsettled.samples.append(float(sum(
+                        x is None or x > m["settling_bound_s"] for x in m["settling_time_s"])))
+                    m = self.run_fleet(str(path), "--clock", "realtime", "--plant", "model",
+                                       "--duration", str(self.s.scale_realtime_s),
+                                       "--startup-timeout", "180")
+                    model_miss.samples.append(float(m["deadline_misses"]))
 
             self.measure(f"scale N={n} (lockstep, realtime)", body, rtf.name, miss.name,
-                         touch.name)
+                         touch.name, unsettled.name, model_miss.name)
         largest = self.figure("scale.largest_n_zero_misses", "robots",
                               "the largest N of " + ", ".join(map(str, self.scale_sizes))
                               + " whose realtime runs at 100 Hz all missed no deadline (0: none)")
@@ -288,7 +380,7 @@ class Bench:
     def memory(self) -> None:
         rss = self.figure("memory.agent_peak_rss_mb", "MB",
                           "peak RSS (VmHWM) of the largest agent process of every fleet run above",
-                          ("<=", 60.0))
+                          ("<=", 80.0))
         if self.agent_rss_mb:
             rss.samples.append(max(self.agent_rss_mb))
         else:
@@ -354,10 +446,11 @@ class Bench:
 
     def groups(self) -> dict[str, Callable[[], None]]:
         """The benchmarks by name, in the order a full run takes them."""
-        return {"costs": self.costs, "lockstep": self.lockstep_overhead,
+        return {"costs": self.costs, "in-process": self.in_process,
+                "lockstep": self.lockstep_overhead, "lockstep-paper": self.lockstep_paper,
                 "paper-run": self.paper_run, "rtf500": self.lockstep_rtf_500,
-                "realtime": self.realtime_loop, "realtime-paper": self.realtime_paper,
-                "scale": self.scale}
+                "realtime": self.realtime_loop, "realtime-fast": self.realtime_fast,
+                "realtime-paper": self.realtime_paper, "scale": self.scale}
 
     def run_all(self, only: list[str] | None = None) -> None:
         for name, run in self.groups().items():
@@ -477,8 +570,9 @@ def add_bench_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="runs/bench", help="output folder (default: runs/bench)")
     add_option(p, "--repeats")
     p.add_argument("--only", metavar="GROUP[,GROUP]",
-                   help="run only these groups: costs, lockstep, paper-run, rtf500, realtime, "
-                   "realtime-paper, scale (memory is always judged on the fleet runs made)")
+                   help="run only these groups: costs, in-process, lockstep, lockstep-paper, "
+                   "paper-run, rtf500, realtime, realtime-fast, realtime-paper, scale (memory is "
+                   "always judged on the fleet runs made)")
     p.add_argument("--scale-sizes", type=scale_sizes, default=SCALE_SIZES, metavar="N[,N]",
                    help="the fleet sizes of the scale group (default: "
                    f"{','.join(map(str, SCALE_SIZES))}; the n30 targets apply to N = 30)")

@@ -24,13 +24,11 @@ refused and counted apart (``Codec.wrong_version``), so mixed installs say so.
 
 from __future__ import annotations
 
-import math
-import operator
-import typing
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import msgspec
+import numpy as np
 
 from agents.degradation import MAX_COMMAND_HORIZON
 
@@ -47,9 +45,15 @@ MAX_REPORT_KEYS = 1024  # entries of a report's per-key and per-reason tables
 # and the tables (3 x 1024 entries of < 100 B) stay under it
 MAX_REPORT_BYTES = 5 * 1024 * 1024
 
-Vec2 = tuple[float, float]
-Vec3 = tuple[float, float, float]
-Vec4 = tuple[float, float, float, float]
+# Every float on the wire is finite and far from the float limit (no physical quantity here
+# comes near 1e300): msgspec checks the bound as it decodes, in C, and NaN fails it too. A
+# sender checks its own message the same way before it puts it (Node.publish): a NaN never
+# leaves, one schema says what is valid.
+FLOAT_LIMIT = 1e300
+Finite = Annotated[float, msgspec.Meta(ge=-FLOAT_LIMIT, le=FLOAT_LIMIT)]
+Vec2 = tuple[Finite, Finite]
+Vec3 = tuple[Finite, Finite, Finite]
+Vec4 = tuple[Finite, Finite, Finite, Finite]
 
 
 class Message(msgspec.Struct, array_like=True, frozen=True):
@@ -63,78 +67,8 @@ class Message(msgspec.Struct, array_like=True, frozen=True):
     ROBOT_FIELD: ClassVar[str | None] = None
 
     def __post_init__(self) -> None:
-        if not _finite(self):
-            raise ValueError(f"{type(self).__name__}: a value is not finite")
-
-
-def _finite(value: Any) -> bool:
-    """No NaN, no Inf, nothing near the float limit, at any depth: the sum of every
-    number in it is finite (NaN or Inf anywhere makes it non-finite; so do values
-    near 1e308, which no physical quantity here comes close to). One plan per
-    struct type (:func:`_plan`), so a message costs a few C calls, not one Python
-    call per number (a Sample: 17 -> ~2 µs)."""
-    try:
-        return math.isfinite(_total(value))
-    except OverflowError:  # an int beyond float range
-        return False
-
-
-def _total(value: Any) -> float:
-    t = type(value)
-    if t is float or t is int:
-        return value
-    if t is tuple or t is list:
-        if not value:
-            return 0.0
-        t0 = type(value[0])
-        if t0 is float or t0 is int:
-            return sum(value)
-        return sum(map(_total, value))
-    if value is None or t is bool or t is str:
-        return 0.0
-    if isinstance(value, msgspec.Struct):
-        numbers, optional, vectors, deep = _plan(t)
-        total = sum(numbers(value)) + sum(map(sum, vectors(value)))
-        if optional is not None:
-            total += sum(x for x in optional(value) if x is not None)
-        if deep is not None:
-            total += sum(map(_total, deep(value)))
-        return total
-    if t is dict:
-        return sum(map(_total, value.values()))
-    return 0.0
-
-
-_PLANS: dict[type, tuple[Any, Any, Any, Any]] = {}
-
-
-def _getter(names: list[str]) -> Any:
-    """A C-level getter of these fields, always as a tuple (None: no field)."""
-    if not names:
-        return None
-    get = operator.attrgetter(*names)
-    return (lambda v: (get(v),)) if len(names) == 1 else get
-
-
-def _plan(cls: type) -> tuple[Any, Any, Any, Any]:
-    """How to sum a struct type's numbers: plain numbers, optional numbers, fixed
-    vectors of floats, and everything else (through :func:`_total`)."""
-    plan = _PLANS.get(cls)
-    if plan is None:
-        numbers, optional, vectors, deep = [], [], [], []
-        for f in msgspec.structs.fields(cls):
-            args = typing.get_args(f.type)
-            if f.type in (int, float, bool):
-                numbers.append(f.name)
-            elif f.type == float | None:
-                optional.append(f.name)
-            elif typing.get_origin(f.type) is tuple and args and all(a is float for a in args):
-                vectors.append(f.name)
-            elif f.type is not str:
-                deep.append(f.name)
-        plan = _PLANS[cls] = (_getter(numbers) or (lambda v: ()), _getter(optional),
-                              _getter(vectors) or (lambda v: ()), _getter(deep))
-    return plan
+        """Structural checks of a subclass (sizes); the floats' finiteness is the
+        schema's (:data:`Finite`)."""
 
 
 class LeaderState(Message, frozen=True):
@@ -143,7 +77,7 @@ class LeaderState(Message, frozen=True):
     never waits a hop for the leader and hears one message per batch, not per step."""
 
     k: int  # step of the first entry (lockstep) or of the only one (realtime)
-    t: float  # scenario time of the first entry, s
+    t: Finite  # scenario time of the first entry, s
     q: list[Vec3]  # leader pose [x, y, psi] per step
     q_dot: list[Vec3]
 
@@ -157,11 +91,14 @@ class SensedBody(msgspec.Struct, array_like=True, frozen=True):
     ident: int  # robot id, or -(obstacle index + 1)
     position: Vec2
     velocity: Vec2
-    radius: float
+    radius: Finite
 
 
 def sensed_bodies(bodies) -> list[SensedBody]:
-    """Wire form of sensed bodies (anything with ident, position, velocity, radius)."""
+    """Wire form of sensed bodies: rows (ident, x, y, vx, vy, radius) as perception gives
+    them (plant/perception.py), or anything with ident, position, velocity, radius."""
+    if isinstance(bodies, np.ndarray):  # rows
+        return [SensedBody(int(r[0]), (r[1], r[2]), (r[3], r[4]), r[5]) for r in bodies.tolist()]
     return [SensedBody(b.ident, tuple(b.position.tolist()), tuple(b.velocity.tolist()),
                        float(b.radius)) for b in bodies]
 
@@ -174,7 +111,7 @@ class Sample(Message, frozen=True):
     ROBOT_FIELD: ClassVar[str | None] = "robot"
     robot: int
     k: int
-    t: float
+    t: Finite
     q: Vec3
     q_dot: Vec3
     robots: list[SensedBody]
@@ -196,7 +133,7 @@ class ShareData(msgspec.Struct, array_like=True, frozen=True):
     q_dot: Vec3
     zeta: Vec3
     zeta_dot: Vec3
-    info_age_s: float = 0.0  # how old the sender's leader information is (s)
+    info_age_s: Finite = 0.0  # how old the sender's leader information is (s)
 
 
 class Reply(Message, frozen=True):
@@ -208,7 +145,7 @@ class Reply(Message, frozen=True):
     ROBOT_FIELD: ClassVar[str | None] = "robot"
     robot: int
     k: int  # step answered (lockstep) or the sample's k (realtime); -1: initial share
-    t: float
+    t: Finite
     torques: Vec4  # N m, wheel order of plant/mecanum.py
     v_cmd: Vec3  # fused velocity command (a kinematic plant uses this)
     state_seq: int  # seq of the Sample this command answers
@@ -228,7 +165,7 @@ class TelemetryRow(msgspec.Struct, array_like=True, frozen=True):
     """One step of one agent, for people and the run's series (never the control path)."""
 
     k: int
-    t: float
+    t: Finite
     q_d: Vec3
     e: Vec3
     s: Vec3
@@ -236,14 +173,14 @@ class TelemetryRow(msgspec.Struct, array_like=True, frozen=True):
     torques: Vec4
     q0_hat: Vec3
     q_fd: Vec3
-    fdb_error: float | None  # None when FDB is not active
+    fdb_error: Finite | None  # None when FDB is not active
     order: str  # active behaviors, highest priority first, joined by '>'
     nonfinite: bool
     stale_inputs: int = 0  # inputs older than in a fault-free run (held or delayed)
-    input_age_s: float = 0.0  # age of the freshest leader information, or the state (s)
-    speed_factor: float = 1.0  # degradation: 1 full speed, 0 down to the degraded speed
+    input_age_s: Finite = 0.0  # age of the freshest leader information, or the state (s)
+    speed_factor: Finite = 1.0  # degradation: 1 full speed, 0 down to the degraded speed
     left_out: int = 0  # inputs too old for eq. (14) this step
-    safety_dv: float = 0.0  # how much the safety filter changed the command (m/s); 0: it did not
+    safety_dv: Finite = 0.0  # how much the safety filter changed the command (m/s); 0: it did not
     safety_infeasible: bool = False  # no command met every barrier within the limits
 
     def __post_init__(self) -> None:
@@ -269,7 +206,7 @@ class StateRow(msgspec.Struct, array_like=True, frozen=True):
     """The states of a source's robots at one step."""
 
     k: int
-    t: float
+    t: Finite
     q: list[Vec3]
     q_dot: list[Vec3]
     faulted: list[bool]
@@ -309,7 +246,7 @@ CONTROL_COMMANDS = ("start", "tick", "end", "stop", "estop")
 class Control(Message, frozen=True):
     command: str  # one of CONTROL_COMMANDS
     k: int = 0  # tick: the step the plant is publishing
-    t: float = 0.0
+    t: Finite = 0.0
     start_unix_ns: int = 0  # start (realtime): when t = 0 is, on the wall clock
     mac: str = ""  # HMAC of the above with the run's secret (deploy/contract/run_secret.py)
 
@@ -335,11 +272,11 @@ def control(command: str, seq: int, stamp_ns: int, secret: str | None, k: int = 
 class ContactRecord(msgspec.Struct, array_like=True, frozen=True):
     """One physical contact of two bodies (pybullet plant), for metrics.json."""
 
-    t_start: float
-    t_end: float | None  # None: still touching when the run ended
+    t_start: Finite
+    t_end: Finite | None  # None: still touching when the run ended
     body_a: int  # robot id
     body_b: int  # robot id, or -(obstacle index + 1)
-    max_depth_m: float
+    max_depth_m: Finite
 
 
 class NodeReport(Message, frozen=True):
@@ -362,7 +299,7 @@ class NodeReport(Message, frozen=True):
     faults: dict[str, dict[str, int]] = {}  # injected faults per edge this node received on
     # plant (realtime) or CAN bridge: robots whose torques were zeroed for want of a
     # fresh command, as (robot, age of its newest command then, s; run time, s)
-    command_stops: list[tuple[int, float, float]] = []
+    command_stops: list[tuple[int, Finite, Finite]] = []
     refused: dict[str, int] = {}  # messages refused on arrival, by reason (forged, implausible)
     law_resets: int = 0  # agent: its law restarted from the robot (a long gap, a non-finite state)
     nonfinite: int = 0  # values the node computed that were NaN or Inf (Node.note_nonfinite)
@@ -372,18 +309,20 @@ class NodeReport(Message, frozen=True):
     stale_samples: int = 0  # agent (realtime): samples too old on arrival, not answered
     # plant (realtime) or CAN bridge: each stretch a robot ran on zero torque for want of a
     # fresh command, as (robot, run time it began, s; how long it lasted, s)
-    zero_torque: list[tuple[int, float, float]] = []
+    zero_torque: list[tuple[int, Finite, Finite]] = []
     # plant or CAN bridge: per robot id (as text, as in metrics.json), the commands that asked
     # for more wheel torque than the bound (plant/command.py torque_bound): clipped to it
     torque_clipped: dict[str, int] = {}
     mac: str = ""  # HMAC of the report's encoding with the run's secret (deploy/contract/run_secret.py)
+    # agent (realtime): steps its loop ran slower than its period allows, robot slowed (agents/pace.py)
+    overloaded_steps: int = 0
 
     def __post_init__(self) -> None:
         if len(self.mac) > 64:
             raise ValueError("mac too long")
         if min(self.sent, self.dropped, self.late, self.invalid, self.steps, self.nonfinite,
                self.deadline_misses, self.law_resets, self.nonfinite_commands,
-               self.stale_samples, self.contacts_total) < 0:
+               self.stale_samples, self.contacts_total, self.overloaded_steps) < 0:
             raise ValueError("a negative count")  # a forged "invalid = -1000"
         if (len(self.latency_ns) > MAX_REPORT_SAMPLES or len(self.jitter_ns) > MAX_REPORT_SAMPLES
                 or len(self.received) > MAX_REPORT_KEYS or len(self.faults) > MAX_REPORT_KEYS
@@ -433,6 +372,14 @@ class Codec:
             self.versions_seen.add(head[0])
         elif head[0] != WIRE_VERSION:
             self.wrong_version += 1
+
+    def check(self, kind: type[Message], data: bytes) -> None:
+        """Raise ValueError unless ``data`` decodes as a valid ``kind``: what a sender asks
+        of its own message before it goes out (a NaN, a batch too long)."""
+        try:
+            self._decoders[kind].decode(data)
+        except msgspec.DecodeError as exc:
+            raise ValueError(f"{kind.__name__}: {exc}") from None
 
     def decode(self, kind: type[Message], data: bytes, robot: int | None = None) -> Any:
         """The message, or None when it is invalid (never raises). A report larger

@@ -26,6 +26,7 @@ import numpy as np
 from agents.core import AgentCore, AgentOutput, Share
 from agents.degradation import InputAges, predict
 from agents.look_ahead import LookAhead
+from agents.pace import LoopPace
 from deploy.contract.fault_plan import FaultPlan
 from deploy.contract.options import DEFAULT_STEP_DEADLINE_S
 from deploy.contract.scenario import Scenario
@@ -51,7 +52,7 @@ from deploy.runtime.lockstep_inputs import AgentLinks
 from deploy.runtime.node_runtime import ControlInbox, FaultGate, StopFlag, Timing, publish_report
 from deploy.runtime.step_guard import CLOCK_SKEW_S, JUMP_OK, OwnClock, StepGuard
 from deploy.runtime.transport import Node
-from plant.bodies import Body
+from plant.bodies import NO_BODIES
 
 KEEP_STEPS = 4  # lockstep inputs kept behind the current step
 FORGET_EVERY = 32  # lockstep: older inputs are dropped every this many steps (a scan)
@@ -90,8 +91,11 @@ def share_from_msg(m: Reply) -> Share:
                  s.info_age_s)
 
 
-def bodies_from_msg(bodies: list[SensedBody]) -> list[Body]:
-    return [Body(b.ident, np.array(b.position), np.array(b.velocity), b.radius) for b in bodies]
+def body_rows_of(bodies: list[SensedBody]) -> np.ndarray:
+    """Sensed bodies as the law takes them: rows (ident, x, y, vx, vy, radius)."""
+    if not bodies:
+        return NO_BODIES
+    return np.array([(b.ident, *b.position, *b.velocity, b.radius) for b in bodies], dtype=float)
 
 
 def realtime_ages(state: Sample, leader: LeaderPoint | None,
@@ -124,8 +128,8 @@ def _stale(ages: InputAges | None) -> int:
     return int(ages.state_s > 0) + int(ages.leader_s > 0) + sum(a > 0 for a in ages.shares_s.values())
 
 
-def _t3(x: np.ndarray) -> tuple[float, float, float]:
-    return tuple(x.tolist())  # type: ignore[return-value]
+def _t3(x: np.ndarray | tuple[float, float, float]) -> tuple[float, float, float]:
+    return x if type(x) is tuple else tuple(x.tolist())  # type: ignore[return-value]
 
 
 def _finite_row(r: TelemetryRow) -> TelemetryRow:
@@ -207,6 +211,7 @@ class AgentNode:
         self.law_resets = 0
         self.nonfinite_commands = 0  # steps whose law gave NaN/Inf: zero torques sent
         self.stale_samples = 0  # realtime: samples older than stale_after_s, not answered
+        self.overloaded_steps = 0  # realtime: steps of a loop slower than its period (pace.py)
         self.steps_done = 0
         self.telemetry_every = 1  # realtime decimates (see run_realtime)
         self.telemetry_batch = TELEMETRY_BATCH_MAX
@@ -378,16 +383,19 @@ class AgentNode:
                 WIRE_VERSION, rid, seq, stamp, robot=rid, rows=safe))
 
     def _compute(self, t: float, state: Sample, leader: LeaderPoint | None,
-                 dt: float | None = None, ages: InputAges | None = None
+                 dt: float | None = None, ages: InputAges | None = None,
+                 horizon: float | None = None, speed_cap: float = 1.0,
                  ) -> tuple[AgentOutput, list[Vec4]]:
-        """The step's output and its look-ahead torques (empty when off)."""
-        robots = bodies_from_msg(state.robots)
-        obstacles = bodies_from_msg(state.obstacles)
+        """The step's output and its look-ahead torques (empty when off); ``horizon``,
+        ``speed_cap``: the realtime loop's pace (agents/pace.py)."""
+        robots = body_rows_of(state.robots)
+        obstacles = body_rows_of(state.obstacles)
         lead = (leader.q, leader.q_dot) if leader is not None else None
         if self.hears_leader and lead is None:  # never heard it yet: use own estimate
             lead = (self.core.q0_hat.copy(), self.core.v0_hat.copy())
         q, q_dot = np.array(state.q), np.array(state.q_dot)
-        out = self.core.step(t, q, q_dot, self.last_shares, lead, obstacles, robots, dt, ages)
+        out = self.core.step(t, q, q_dot, self.last_shares, lead, obstacles, robots, dt, ages,
+                             horizon, speed_cap)
         plan = [] if self.look_ahead is None else self.look_ahead.plan(
             self.core, out, t, q, q_dot, self.last_shares, lead, obstacles, robots, ages)
         return out, plan
@@ -469,6 +477,7 @@ class AgentNode:
                                           round(TELEMETRY_BATCH_S * telemetry_hz)))
         last_k = -1
         last_step = None
+        pace = LoopPace(dt)
         stale_after = self.core.cfg.degradation.stale_after_s
         last_t: float | None = None
         share_msgs: dict[int, Reply] = {}
@@ -509,6 +518,7 @@ class AgentNode:
                 continue
             if last_step is not None:
                 self.timing.add_jitter(int(abs((now - last_step) - dt) * 1e9))
+                pace.note(now - last_step)
             last_step = now
             last_k = state.k
             # the observer and the reference advance by the plant's own step
@@ -535,7 +545,15 @@ class AgentNode:
             for j, msg in share_msgs.items():
                 self.last_shares[j] = share_from_msg(msg)
             t = now - t0_mono
-            out, plan = self._compute(t, state, leader, h, ages)
+            cap = pace.speed_cap()
+            if cap < 1.0:  # the loop cannot keep its period: slow the robot, say so
+                self.overloaded_steps += 1
+                if self.overloaded_steps == 1:
+                    print(f"{self.node.role}: the loop cannot keep its period ({dt * 1e3:.2f} ms;"
+                          f" {pace.longest_s * 1e3:.2f} ms between steps): the robot is slowed"
+                          f" to {cap:.0%} of its speed while it lasts (counted: overloaded_steps)",
+                          file=sys.stderr, flush=True)
+            out, plan = self._compute(t, state, leader, h, ages, pace.horizon(t - state.t), cap)
             self._publish_step(state.k, t, state, out, plan, _stale(ages))
             self.steps_done += 1
 
@@ -579,4 +597,4 @@ class AgentNode:
         publish_report(self.node, self.rid, self.steps_done, self.timing,
                        faults=self.faults.report(), law_resets=self.law_resets,
                        nonfinite_commands=self.nonfinite_commands,
-                       stale_samples=self.stale_samples)
+                       stale_samples=self.stale_samples, overloaded_steps=self.overloaded_steps)

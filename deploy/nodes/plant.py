@@ -182,11 +182,11 @@ class PlantNode:
     def _publish_world(self, k: int, t: float) -> None:
         node, keys = self.node, self.node.keys
         q, qd = self.plant.q.tolist(), self.plant.q_dot.tolist()
-        for i, rid in enumerate(self.ids):
-            robots, obstacles = self.sense(i)
+        for i, (rid, (robots, obstacles)) in enumerate(zip(self.ids, self.sense(), strict=True)):
             if self.unpowered:  # a robot nobody drives is an obstacle to the others
-                obstacles = [*obstacles, *(b for b in robots if b.ident in self.unpowered)]
-                robots = [b for b in robots if b.ident not in self.unpowered]
+                off = np.isin(robots[:, 0], list(self.unpowered))
+                obstacles = np.concatenate([obstacles, robots[off]])
+                robots = robots[~off]
             msg = node.publish(keys.sample(rid), lambda seq, stamp, i=i, rid=rid, r=robots,
                                o=obstacles: Sample(
                 WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t, q=tuple(q[i]),
@@ -259,8 +259,11 @@ class PlantNode:
                 else:  # its own command, its look-ahead for step k, or held past it
                     self.torques[i], self.v_cmd[i] = applied_command(planned, cmd.v_cmd,
                                                                      self.sc.spec.limits)
-            for key in [key for key in self.commands if key[1] <= k - self.keep_steps]:
-                del self.commands[key]
+            for rid in self.ids:
+                self.commands.pop((rid, k - self.keep_steps), None)
+            if k % 256 == 0:  # and any that came in late for a step already forgotten
+                for key in [key for key in self.commands if key[1] <= k - self.keep_steps]:
+                    del self.commands[key]
 
     # -- realtime -------------------------------------------------------------------
     def run_realtime(self, steps: int) -> None:

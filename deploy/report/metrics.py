@@ -45,6 +45,7 @@ TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "ji
                # what the nodes report of themselves (a distributed run only: in process
                # there is no command to time out, no sample to arrive stale)
                "command_timeout_s", "nonfinite_commands_reported", "stale_samples",
+               "overloaded_steps",
                "zero_torque_longest_s",
                # which output files the run wrote (a recording, figures): not a figure
                "files")

@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from deploy.contract.scenario import Scenario
-from deploy.report.figures import write_figures
 from deploy.report.metrics import compute_metrics, write_metrics
-from deploy.report.recorder import McapRecorder
 from deploy.report.timeseries import TimeSeries
 from deploy.report.verdict import divergence, judge
+
+if TYPE_CHECKING:
+    from deploy.report.recorder import McapRecorder
 
 
 def write_run(
@@ -51,6 +52,9 @@ def write_run(
     write_metrics(metrics, out_dir / "metrics.json")
     series.save(out_dir / "timeseries.npz")
     if figures:
+        # matplotlib costs ~0.4 s to import: only a run that draws loads it
+        from deploy.report.figures import write_figures
+
         write_figures(sc, series, out_dir)
     return metrics
 

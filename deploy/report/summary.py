@@ -56,6 +56,10 @@ def _law_lines(m: dict) -> list[str]:
         return ["  law restarts               n/a (the agents' reports were not collected)"]
     lines = [f"  law restarts               {_fmt_ints(resets)} (from the robot's state: a gap "
              f"or a non-finite state); non-finite commands {m.get('nonfinite_commands', 0)}"]
+    slowed = m.get("overloaded_steps")
+    if slowed and any(slowed):
+        lines.append(f"  overloaded steps           {_fmt_ints(slowed)} (the loop slower than its "
+                     "period: robot slowed, agents/pace.py)")
     longest = m.get("zero_torque_longest_s")
     if longest is not None:
         lines.append(f"  longest on zero torque     {_fmt_list(longest)} s (command timeout "

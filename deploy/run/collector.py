@@ -114,10 +114,8 @@ class Collector:
                 steps = self.steps if complete.all() else int(np.argmin(complete))
             ts = TimeSeries(**{c: getattr(self.ts, c)[:steps].copy() for c in COLUMNS})
             self._fill_forward(ts, steps)
-        targets = FormationTargets(sc)
-        for k in range(steps):
-            ts.t[k] = k * sc.dt
-            ts.target[k] = targets.at(ts.t[k], ts.leader_q[k], ts.leader_v[k])
+        ts.t[:] = np.arange(steps) * sc.dt
+        ts.target[:] = FormationTargets(sc).along(ts.t, ts.leader_q)
         return ts
 
     def _fill_forward(self, ts: TimeSeries, steps: int) -> None:

@@ -23,12 +23,14 @@ def agent_figures(agents: list[NodeReport | None]) -> dict[str, Any]:
     """What each robot's agent counted (metrics.json): how often its law restarted from
     the robot (a gap longer than its inputs stay fresh, a non-finite state), the
     commands it computed non-finite (zero torques sent), the realtime samples too old
-    on arrival to answer. Reports that never came count as None."""
+    on arrival to answer, the realtime steps of a loop slower than its period (the robot
+    slowed, agents/pace.py). Reports that never came count as None."""
     def each(name: str) -> list[int | None]:
         return [None if r is None else int(getattr(r, name)) for r in agents]
     return {"law_resets": each("law_resets"),
             "nonfinite_commands_reported": each("nonfinite_commands"),
-            "stale_samples": each("stale_samples")}
+            "stale_samples": each("stale_samples"),
+            "overloaded_steps": each("overloaded_steps")}
 
 
 def zero_torque_figures(reports: list[NodeReport], robot_ids: list[int]) -> dict[str, Any]:

@@ -107,11 +107,12 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     keep = model.max_lag_steps + 2
     worlds: dict[int, list[tuple]] = {}  # k -> per robot (q, q_dot, robots, obstacles)
     leaders: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    shares: dict[tuple[int, int], Share] = {
-        (rid, -1): a.initial_share for rid, a in zip(ids, agents, strict=True)}
-    commands: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    shares: dict[int, dict[int, Share]] = {  # k -> robot id -> its share of step k
+        -1: {rid: a.initial_share for rid, a in zip(ids, agents, strict=True)}}
+    commands: dict[int, dict[int, tuple]] = {}  # k -> robot id -> (torques, v_cmd, plan)
     links = [AgentLinks(model, rid, [j for j, _ in a.cfg.neighbours], b[i] != 0.0)
              for i, (rid, a) in enumerate(zip(ids, agents, strict=True))]
+    neighbours = [[j for j, _ in a.cfg.neighbours] for a in agents]
     zero_missed = sc.spec.plant.missed_command == "zero"
     command_links = [HeldInput(model, model.edge(agent_role(rid), PLANT_ROLE), exempt_first=False)
                      for rid in ids]
@@ -119,6 +120,9 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     horizon = sc.spec.degradation.command_horizon if model.plan is not None else 0
     look_ahead = [LookAhead(a, horizon) for a in agents] if horizon else None
     law_resets = [0] * sc.n
+    # without a fault plan every link delivers step k's sample (the neighbours' of k-1) at
+    # once: the links' bookkeeping is skipped, with the same inputs (AgentLinks.take)
+    fault_free = model.plan is None
 
     bound, clipped = torque_bound(sc.spec.limits), dict.fromkeys(ids, 0)
     start = time.perf_counter()
@@ -129,28 +133,39 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
             t = k * dt
             q0, v0 = leader.state()
             leaders[k] = (q0, v0)
-            worlds[k] = [(plant.q[i].copy(), plant.q_dot[i].copy(), *sense(i)) for i in range(sc.n)]
+            qs, qds = plant.q.tolist(), plant.q_dot.tolist()
+            worlds[k] = world_k = [(tuple(q), tuple(qd), *seen)
+                                   for q, qd, seen in zip(qs, qds, sense(), strict=True)]
+            shares_k, commands_k, shares_before = {}, {}, shares.get(k - 1, {})
+            shares[k], commands[k] = shares_k, commands_k
             for i, agent in enumerate(agents):
                 rid = ids[i]
-                world, lead, shs, ages = links[i].take(
-                    k, lambda idx, i=i: worlds[idx][i] if idx in worlds else None, leaders.get,
-                    lambda j, idx: shares.get((j, idx)), dt)
+                if fault_free:
+                    world, ages = world_k[i], None
+                    lead = (q0, v0) if b[i] != 0.0 else None
+                    shs = {j: shares_before.get(j) for j in neighbours[i]}
+                else:
+                    world, lead, shs, ages = links[i].take(
+                        k, lambda idx, i=i: worlds[idx][i] if idx in worlds else None,
+                        leaders.get, lambda j, idx: shares.get(idx, {}).get(j), dt)
                 q, q_dot, robots_seen, obstacles_seen = world
                 out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
                 plan = [] if look_ahead is None else look_ahead[i].plan(
                     agent, out, t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
-                if exceeds(out.torques, plan, bound):
+                tq = out.torques.tolist()
+                if exceeds(tq, plan, bound):
                     clipped[rid] += 1
-                commands[(rid, k)] = (*applied_command(out.torques, out.v_cmd, sc.spec.limits),
-                                      clamped_plan(plan, sc.spec.limits))
-                shares[(rid, k)] = out.share
+                commands_k[rid] = (*applied_command(tq, out.v_cmd.tolist(), sc.spec.limits),
+                                   clamped_plan(plan, sc.spec.limits))
+                shares_k[rid] = out.share
                 law_resets[i] += bool(out.reset)
                 series.record_agent(k, i, out, agent)
-            series.record_world(
-                k, t, q0, v0, plant.q, plant.q_dot, targets.at(t, q0, v0)
-            )
+            series.record_world(k, t, q0, v0, plant.q, plant.q_dot)
             for i, rid in enumerate(ids):
-                cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get((rid, idx)))
+                if fault_free:  # its own command of step k
+                    torques[i], v_cmd[i] = commands_k[rid][0], commands_k[rid][1]
+                    continue
+                cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get(idx, {}).get(rid))
                 if cmd is None:
                     continue
                 planned = torques_at(k - age, cmd[0], cmd[2], k, "zero" if zero_missed else "hold")
@@ -160,7 +175,8 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                     torques[i], v_cmd[i] = planned, cmd[1]
             plant.step(t, dt, torques, v_cmd)
             leader.advance()
-            _forget(k - keep, worlds, leaders, shares, commands)
+            for by_step in (worlds, leaders, shares, commands):
+                by_step.pop(k - keep, None)
             if progress is not None:
                 progress(k + 1, steps)
             done = k + 1
@@ -169,17 +185,10 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
         series = TimeSeries(**{c: getattr(series, c)[:done].copy() for c in COLUMNS})
         step_unix_ns = step_unix_ns[:done]
     wall = time.perf_counter() - start
+    series.target[:] = targets.along(series.t, series.leader_q)  # reported only: after the run
     return RunResult(sc, plant_kind, series, wall, contact_log(plant), model.report()
                      if model.plan is not None else None, step_unix_ns, law_resets, interrupted,
                      clipped)
-
-
-def _forget(before: int, by_step: dict, leaders: dict, *by_robot_step: dict) -> None:
-    for d in (by_step, leaders):
-        d.pop(before, None)
-    for d in by_robot_step:
-        for key in [key for key in d if key[1] == before]:
-            del d[key]
 
 
 def terminal_progress(total_label: str) -> Callable[[int, int], None] | None:

@@ -13,9 +13,9 @@ from dataclasses import asdict, dataclass
 
 from deploy.contract.scenario import PLANT_KINDS, Scenario
 from plant.disturbance import make_disturbance
-from plant.interface import Perceiving, Plant, Touching
+from plant.interface import Plant, Touching
 from plant.model_plant import KinematicPlant, ModelPlant
-from plant.perception import Sensor, sense
+from plant.perception import Perception, Sensor
 
 __all__ = ["CAN_EMULATED", "PLANTS", "PLANT_KINDS", "contact_log", "make_plant", "sensor_for"]
 
@@ -88,12 +88,13 @@ def contact_log(plant: Plant) -> list[dict] | None:
 
 
 def sensor_for(plant: Plant, sc: Scenario) -> Sensor:
-    """i -> (robots, obstacles) robot i senses now: the plant's own world query when
-    it has one (pybullet), else :func:`sense` on the plant's positions."""
+    """() -> per robot, (robots, obstacles) it senses now, as rows (ident, x, y, vx, vy, radius):
+    the perception kernel on the plant's positions (plant/perception.py), for every plant.
+    Robots and obstacles are discs, so the rule is exact geometry; the pybullet plant's own
+    closest-point queries (``PybulletPlant.perceive``) give the same bodies
+    (tests/integration/test_pybullet_plant.py) at ~10x the cost (21 queries a step on
+    ``paper``)."""
     det = sc.spec.behaviors.detection_range_m
-    if isinstance(plant, Perceiving):
-        return lambda i: plant.perceive(i, det)
-    radii = [sc.spec.robot.body_radius_m] * sc.n
-    ids, obstacles, shapes = sc.robot_ids, sc.obstacle_bodies(), sc.obstacle_shapes()
-    return lambda i: sense(i, plant.q[:, :2], plant.q_dot[:, :2], radii, ids, obstacles, det,
-                           shapes)
+    world = Perception([sc.spec.robot.body_radius_m] * sc.n, sc.robot_ids, sc.obstacle_bodies(),
+                       det, sc.obstacle_shapes())
+    return lambda: world.fleet_rows(plant.q, plant.q_dot)

@@ -276,8 +276,10 @@ class Node:
         seq = self._seq[key]
         self._seq[key] = seq + 1
         try:
-            msg = msg_factory(seq, time.monotonic_ns())  # validates: NaN never leaves
-            pub.put(encode(msg))
+            msg = msg_factory(seq, time.monotonic_ns())
+            data = encode(msg)
+            self.codec.check(type(msg), data)  # the receivers' schema: NaN never leaves
+            pub.put(data)
             self.counters.sent += 1
         except Exception as exc:
             self.counters.dropped += 1

@@ -41,12 +41,24 @@ EXPECTED = {
                                      "StateLog")),
     *(f"scale.n{n}.lockstep_real_time_factor" for n in SMOKE_SIZES),
     *(f"scale.n{n}.realtime_deadline_misses" for n in SMOKE_SIZES),
+    *(f"scale.n{n}.realtime_unsettled_robots" for n in SMOKE_SIZES),
+    *(f"scale.n{n}.realtime_model_deadline_misses" for n in SMOKE_SIZES),
+    *(f"inprocess.paper_{k}_{f}" for k in ("pybullet", "model")
+      for f in ("wall_s", "us_per_robot_step")),
+    "lockstep.paper_real_time_factor", "lockstep.paper_ratio_to_in_process",
+    "realtime.lab_1khz_latency_p99_ms", "realtime.lab_1khz_contacts",
+    "realtime.can_fleet_jitter_p99_ms", "realtime.can_fleet_settling_max_s",
 }
 TARGETS = {"lockstep.overhead_ratio": "<= 1.5", "lockstep.real_time_factor_500hz": ">= 10",
            "realtime.latency_p99_ms": "<= 1", "realtime.jitter_p99_ms": "<= 0.5",
            "realtime.paper_1khz_latency_p99_ms": "<= 1", "realtime.paper_1khz_contacts": "<= 0",
            "realtime.paper_1khz_unsettled_robots": "<= 0",
-           "memory.agent_peak_rss_mb": "<= 60"}
+           "memory.agent_peak_rss_mb": "<= 80",
+           "inprocess.paper_pybullet_us_per_robot_step": "<= 30",
+           "inprocess.paper_model_us_per_robot_step": "<= 30",
+           "lockstep.paper_real_time_factor": ">= 2", "realtime.lab_1khz_latency_p99_ms": "<= 1",
+           "realtime.lab_1khz_contacts": "<= 0", "realtime.can_fleet_jitter_p99_ms": "<= 1",
+           "realtime.can_fleet_settling_max_s": "<= 1"}
 
 
 @pytest.mark.parametrize("n", [1, 3, 10, 30])

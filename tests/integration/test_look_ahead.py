@@ -52,8 +52,9 @@ def test_first_predicted_torque_is_the_next_step_exactly_on_a_perfect_model() ->
     for k in range(500):
         t, torques, new_shares = k * sc.dt, np.zeros((sc.n, 4)), {}
         lead = leader.state()
+        seen = sense()
         for i, a in enumerate(agents):
-            robots, obstacles = sense(i)
+            robots, obstacles = seen[i]
             shs = {j: shares[j] for j, _ in a.cfg.neighbours}
             q, qd = plant.q[i].copy(), plant.q_dot[i].copy()
             ld = lead if sc.leader_weights[i] else None

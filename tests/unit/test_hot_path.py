@@ -1,10 +1,13 @@
-"""The float forms of the hot path (``AgentCore.step``) against the numpy reference forms.
+"""The compiled law (agents/law_kernel.pyx, plant/fleet_kernel.pyx) against the numpy
+reference forms.
 
-Every ``*_vec`` / reduced-task function in agents/ restates, on 2- to 4-component
-float tuples, a numpy function that the other test modules check against the
-paper's equations. Oracle here: those numpy functions, and for the whole step
-their composition (``ReferenceCore``: AgentCore.step as written with them),
-compared output by output on a closed loop that engages every behavior.
+The kernels hold each equation once, on C doubles; the ``*_vec`` / reduced-task functions of
+agents/ hand their arithmetic out. The numpy forms in agents/ stay as the oracle: they are
+the paper's matrix form, written independently, and the other test modules check them
+against the paper's equations and physical facts. Here each kernel equation is checked
+against its numpy form, and the whole step against their composition (``ReferenceCore``:
+AgentCore.step written with them), output by output on a closed loop that engages every
+behavior.
 """
 
 from __future__ import annotations
@@ -14,8 +17,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from agents.law_kernel import allocate_of, coulomb_term_of, saturate_torques_of
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
+from plant.fleet_kernel import acceleration_of
 
 from agents.behaviors import (
     avoidance_behavior,
@@ -26,23 +31,15 @@ from agents.behaviors import (
 from agents.controller import (
     ControlConstants,
     ControllerGains,
-    ModelTerms,
-    acceleration_vec,
     allocate,
-    allocate_vec,
     control_term,
     control_term_vec,
-    coulomb_term,
-    matvec3,
     saturate_torques,
-    saturate_torques_vec,
 )
 from agents.core import AgentConfig, AgentCore, AgentOutput, Share
 from agents.eso import EsoGains, eso_step, eso_step_vec
 from agents.estimator import (
     EstimatorGains,
-    consensus_errors,
-    consensus_errors_vec,
     estimator_step,
     estimator_step_vec,
     implicit_sign,
@@ -59,9 +56,8 @@ from agents.formation import (
 )
 from agents.fusion import (
     fuse,
-    null_space_projector,
+    fuse_tasks,
     order_by_priority,
-    project_null_space,
     saturate_velocity,
     supervise,
     supervise_tasks,
@@ -114,8 +110,6 @@ def test_implicit_sign_scalar_equals_implicit_sign(reach):
 def test_estimator_step_vec_equals_estimator_step(q, v, nq, b, lq, lv, leader, dt):
     nb_q, nb_v, w = [x[0] for x in nq], [x[1] for x in nq], [x[2] for x in nq]
     a = np.array
-    close(consensus_errors_vec(q, nb_q, w, b, lq if leader else None),
-          consensus_errors(a(q), [a(x) for x in nb_q], w, b, a(lq) if leader else None))
     got = estimator_step_vec(q, v, nb_q, nb_v, w, b, lq if leader else None, lv if leader else None,
                              EstimatorGains(), dt)
     want = estimator_step(a(q), a(v), [a(x) for x in nb_q], [a(x) for x in nb_v], w, b,
@@ -224,8 +218,7 @@ def test_fusion_vec_equals_fusion(q, target, v_fd, obstacle, robot, v):
     robot = (q[0] + robot[0], q[1] + robot[1])
     tasks = _tasks(q, target, v_fd, obstacle, robot)
     outputs = [t.to_output() for t in tasks]
-    for task, out in zip(tasks, outputs, strict=True):
-        close(project_null_space(task, v), null_space_projector(out.jacobian) @ np.array(v))
+    close(fuse_tasks(tasks), fuse(outputs), rtol=1e-10)
     for priority in (("FOCB", "FRCB", "FDB"), ("FDB", "FRCB", "FOCB")):
         ranked_tasks = sorted(tasks, key=lambda t: priority.index(t.name))
         ranked = order_by_priority(outputs, priority)
@@ -273,29 +266,25 @@ MODELS = [MecanumModel.from_params(RobotParams()),
 @SETTINGS
 @given(phi=st.floats(-10.0, 10.0), q_dot=vec3, generalised=vec3)
 def test_model_terms_equal_the_model(model, phi, q_dot, generalised):
-    m = ModelTerms.from_model(model)
-    c, s = math.cos(phi), math.sin(phi)
-    close(matvec3(m.A0, q_dot), model.A0 @ np.array(q_dot))
-    close(coulomb_term(m, c, s, q_dot), model.A1(phi, np.array(q_dot)))
-    u = allocate_vec(m, c, s, generalised)
+    close(coulomb_term_of(model, phi, q_dot), model.A1(phi, np.array(q_dot)))
+    u = allocate_of(model, phi, generalised)
     close(u, allocate(model.augmented_input(phi), np.array(generalised)), rtol=1e-11)
 
 
 @pytest.mark.parametrize("model", MODELS, ids=["paper", "other"])
 @SETTINGS
 @given(phi=st.floats(-10.0, 10.0), q_dot=vec3, u=st.tuples(comp, comp, comp, comp))
-def test_acceleration_vec_equals_the_model(model, phi, q_dot, u):
-    """The look-ahead's eq. (4) (agents/look_ahead.py) is the model's, disturbance-free."""
-    m = ModelTerms.from_model(model)
-    close(acceleration_vec(m, (1.0, -2.0, phi), q_dot, u),
+def test_acceleration_equals_the_model(model, phi, q_dot, u):
+    """The plant kernel's eq. (4), which the model plant and the look-ahead integrate."""
+    close(acceleration_of(model, (1.0, -2.0, phi), q_dot, u),
           model.acceleration(np.array([1.0, -2.0, phi]), np.array(q_dot), np.array(u),
                              np.zeros(4)), rtol=1e-11)
 
 
 @SETTINGS
 @given(u=st.tuples(comp, comp, comp, comp), limit=st.sampled_from([0.5, 3.0, math.inf]))
-def test_saturate_torques_vec_equals_saturate_torques(u, limit):
-    np.testing.assert_array_equal(saturate_torques_vec(u, limit), saturate_torques(np.array(u), limit))
+def test_saturate_torques_equals_saturate_torques(u, limit):
+    np.testing.assert_array_equal(saturate_torques_of(u, limit), saturate_torques(np.array(u), limit))
 
 
 # --- the whole step -----------------------------------------------------------------------------
@@ -375,7 +364,7 @@ class ReferenceCore:
         zeta, zeta_dot = self.offsets(t)
         q_fd, v_fd = desired_formation(
             cfg.kappa1, cfg.kappa2, self.q0_hat, self.v0_hat, zeta, zeta_dot, self.weights,
-            [s.q for s in nbr], [s.q_dot for s in nbr], [s.zeta for s in nbr], [s.zeta_dot for s in nbr],
+            *[[np.asarray(getattr(s, f), float) for s in nbr] for f in ("q", "q_dot", "zeta", "zeta_dot")],
         )
         chain = supervise(order_by_priority(self.behaviors(q, q_dot, q_fd, v_fd, obstacles, robots, h),
                                             cfg.priority), cfg.avoidance_engage,
@@ -405,7 +394,8 @@ class ReferenceCore:
         self.v_d_prev = v_d
         lq, lv = leader if leader is not None else (None, None)
         self.q0_hat, self.v0_hat = estimator_step(
-            self.q0_hat, self.v0_hat, [s.q0_hat for s in nbr], [s.v0_hat for s in nbr],
+            self.q0_hat, self.v0_hat, [np.asarray(s.q0_hat, float) for s in nbr],
+            [np.asarray(s.v0_hat, float) for s in nbr],
             self.weights, cfg.leader_weight, lq, lv, cfg.estimator, h,
         )
         share = Share(self.q0_hat.copy(), self.v0_hat.copy(), q.copy(), q_dot.copy(), zeta, zeta_dot)

@@ -1,0 +1,295 @@
+"""The plant's per-step arithmetic on C doubles: eq. (4) integrated for the whole fleet
+(RK4 sub-steps, the disturbance h_d(t) of eq. 49 inside), and what each robot perceives of
+the discs around it. One pass over the fleet per step, no Python object per robot.
+
+Why compiled: as numpy over 3-vectors a robot-step of RK4 cost ~100 µs, almost all of it
+the per-call overhead of ~400 numpy calls on arrays of 3-12 elements; the same loops on C
+doubles cost about 1 µs (docs/bench.md, "The compiled kernels").
+"""
+
+DEF _SOURCE = PLANT_FLEET_KERNEL_SHA256  # given by setup.py at build time
+BUILT_FROM = _SOURCE  # the sha256 of the .pyx this module was built from (plant/kernels.py)
+
+
+from libc.math cimport cos, sin, tanh, hypot
+
+import numpy as np
+
+# disturbance kinds, as make_disturbance names them (plant/disturbance.py)
+DISTURBANCE_KINDS = ("none", "constant", "paper")
+
+
+cdef void model_from(Model* m, object model):
+    """Fill ``m`` from a plant.mecanum.MecanumModel."""
+    cdef int i, j
+    P, B0, A0 = model.P.tolist(), model.body_input.tolist(), model.A0.tolist()
+    for i in range(4):
+        for j in range(3):
+            m.P[i][j] = P[i][j]
+    for i in range(3):
+        for j in range(4):
+            m.B0[i][j] = B0[i][j]
+        for j in range(3):
+            m.A0[i][j] = A0[i][j]
+    m.inv_R = 1.0 / model.params.wheel_radius_m
+    m.coulomb = model.coulomb_torque_nm
+    m.inv_smooth = 1.0 / model.params.coulomb_smoothing_radps
+    m.viscous = model.viscous_torque_per_radps
+
+
+cdef void acceleration(const Model* m, double phi, const double* qd, const double* u,
+                       double* acc) noexcept nogil:
+    """q_ddot of eq. (4), -A0 q_dot - A1 + B(phi) (u + h_d), with u the wheel torques
+    including h_d. In the body frame: b = T(phi)^T q_dot, theta_dot = P b / R, the
+    Coulomb torques tau_c = C tanh(theta_dot / omega_s) (A1 = B tau_c), then
+    q_ddot = T(phi) B0 (u - tau_c) - A0 q_dot."""
+    cdef double c = cos(phi), s = sin(phi)
+    cdef double bx = c * qd[0] + s * qd[1], by = c * qd[1] - s * qd[0], bw = qd[2]
+    cdef double net[4]
+    cdef int j
+    for j in range(4):
+        net[j] = u[j] - m.coulomb * tanh(
+            (m.P[j][0] * bx + m.P[j][1] * by + m.P[j][2] * bw) * m.inv_R * m.inv_smooth)
+    cdef double ax = m.B0[0][0] * net[0] + m.B0[0][1] * net[1] + m.B0[0][2] * net[2] + m.B0[0][3] * net[3]
+    cdef double ay = m.B0[1][0] * net[0] + m.B0[1][1] * net[1] + m.B0[1][2] * net[2] + m.B0[1][3] * net[3]
+    cdef double aw = m.B0[2][0] * net[0] + m.B0[2][1] * net[1] + m.B0[2][2] * net[2] + m.B0[2][3] * net[3]
+    acc[0] = c * ax - s * ay - (m.A0[0][0] * qd[0] + m.A0[0][1] * qd[1] + m.A0[0][2] * qd[2])
+    acc[1] = s * ax + c * ay - (m.A0[1][0] * qd[0] + m.A0[1][1] * qd[1] + m.A0[1][2] * qd[2])
+    acc[2] = aw - (m.A0[2][0] * qd[0] + m.A0[2][1] * qd[1] + m.A0[2][2] * qd[2])
+
+
+cdef inline void _disturbance(int kind, double scale, const double* constant, double t,
+                              double* out) noexcept nogil:
+    """h_d(t): none, a constant, or eq. (49) (in N m, the 10^-2 factor applied), scaled."""
+    if kind == 2:
+        out[0] = scale * 1e-2 * (1.0 + 2.0 * cos(0.3 * t))
+        out[1] = scale * 1e-2 * (2.0 + 1.5 * sin(0.3 * t) + 3.0 * cos(0.3 * t))
+        out[2] = scale * 1e-2 * (3.0 + 2.0 * sin(0.2 * t))
+        out[3] = scale * 1e-2 * (2.5 + sin(0.1 * t))
+    elif kind == 1:
+        out[0], out[1], out[2], out[3] = (scale * constant[0], scale * constant[1],
+                                          scale * constant[2], scale * constant[3])
+    else:
+        out[0] = out[1] = out[2] = out[3] = 0.0
+
+
+cdef void _rk4_disturbed(const Model* m, double* q, double* qd, const double* u,
+                         const double* d0, const double* dh, const double* d1,
+                         double h) noexcept nogil:
+    """One classical RK4 step of eq. (4) over [t, t + h], torques u held (zero-order hold),
+    h_d at the stages' times t, t + h/2, t + h given as d0, dh, d1 (NULL: none)."""
+    cdef double k1q[3]
+    cdef double k2q[3]
+    cdef double k3q[3]
+    cdef double k4q[3]
+    cdef double k1v[3]
+    cdef double k2v[3]
+    cdef double k3v[3]
+    cdef double k4v[3]
+    cdef double x[3]
+    cdef double ud[4]
+    cdef int j
+    cdef double half = 0.5 * h
+    for j in range(4):  # stage 1 at t
+        ud[j] = u[j] + d0[j] if d0 != NULL else u[j]
+    for j in range(3):
+        k1q[j] = qd[j]
+    acceleration(m, q[2], qd, ud, k1v)
+    for j in range(4):  # stages 2 and 3 at t + h/2
+        ud[j] = u[j] + dh[j] if dh != NULL else u[j]
+    for j in range(3):
+        k2q[j] = qd[j] + half * k1v[j]
+        x[j] = q[j] + half * k1q[j]
+    acceleration(m, x[2], k2q, ud, k2v)
+    for j in range(3):
+        k3q[j] = qd[j] + half * k2v[j]
+        x[j] = q[j] + half * k2q[j]
+    acceleration(m, x[2], k3q, ud, k3v)
+    for j in range(4):  # stage 4 at t + h
+        ud[j] = u[j] + d1[j] if d1 != NULL else u[j]
+    for j in range(3):
+        k4q[j] = qd[j] + h * k3v[j]
+        x[j] = q[j] + h * k3q[j]
+    acceleration(m, x[2], k4q, ud, k4v)
+    cdef double w = h / 6.0
+    for j in range(3):
+        q[j] = q[j] + w * (k1q[j] + 2.0 * k2q[j] + 2.0 * k3q[j] + k4q[j])
+        qd[j] = qd[j] + w * (k1v[j] + 2.0 * k2v[j] + 2.0 * k3v[j] + k4v[j])
+
+
+cdef void rk4(const Model* m, double* q, double* qd, const double* u, double h) noexcept nogil:
+    """One RK4 step of eq. (4) without disturbance (the agent's look-ahead: h_d is unknown
+    to it)."""
+    _rk4_disturbed(m, q, qd, u, NULL, NULL, NULL, h)
+
+
+cdef void saturate_velocity(double* v, double max_speed, double max_yaw) noexcept nogil:
+    """(vx, vy) scaled into max_speed (direction kept), w clipped to max_yaw: the one rule
+    for a velocity limit, the agent's on its command and a plant's on what it applies."""
+    cdef double speed = hypot(v[0], v[1]), k
+    if speed > max_speed:
+        k = max_speed / speed
+        v[0] = v[0] * k
+        v[1] = v[1] * k
+    v[2] = -max_yaw if v[2] < -max_yaw else (max_yaw if v[2] > max_yaw else v[2])
+
+
+def saturate_velocity_of(v, double max_speed, double max_yaw_rate):
+    """:c:func:`saturate_velocity` on a 3-vector: a tuple of floats."""
+    cdef double w[3]
+    w[0], w[1], w[2] = v[0], v[1], v[2]
+    saturate_velocity(w, max_speed, max_yaw_rate)
+    return (w[0], w[1], w[2])
+
+
+def acceleration_of(model, q, q_dot, torques):
+    """q_ddot of eq. (4) for one robot (torques including h_d), as the plant integrates it."""
+    cdef Model m
+    cdef double qd[3]
+    cdef double u[4]
+    cdef double acc[3]
+    cdef int j
+    model_from(&m, model)
+    for j in range(3):
+        qd[j] = q_dot[j]
+    for j in range(4):
+        u[j] = torques[j]
+    acceleration(&m, q[2], qd, u, acc)
+    return (acc[0], acc[1], acc[2])
+
+
+def disturbance_at(str kind, double scale, constant, double t):
+    """h_d(t) (4 wheel torques, N m) as the model plant applies it (plant/disturbance.py)."""
+    cdef double c[4]
+    cdef double out[4]
+    cdef int j
+    for j in range(4):
+        c[j] = constant[j] if kind == "constant" else 0.0
+    _disturbance(DISTURBANCE_KINDS.index(kind), scale, c, t, out)
+    return np.array([out[0], out[1], out[2], out[3]])
+
+
+cdef class FleetDynamics:
+    """Eq. (4) for every robot of a fleet, integrated with RK4 sub-steps."""
+
+    cdef Model* _models
+    cdef int n
+    cdef int substeps
+    cdef int kind
+    cdef double scale
+    cdef double constant[4]
+    cdef object _keep
+
+    def __cinit__(self, models, str disturbance_kind, double disturbance_scale,
+                  disturbance_constant, int substeps):
+        cdef int i
+        self.n = len(models)
+        if substeps < 1:
+            raise ValueError(f"substeps must be >= 1, got {substeps}")
+        self.substeps = substeps
+        self.kind = DISTURBANCE_KINDS.index(disturbance_kind)
+        self.scale = disturbance_scale
+        for i in range(4):
+            self.constant[i] = disturbance_constant[i] if self.kind == 1 else 0.0
+        self._keep = bytearray(sizeof(Model) * max(self.n, 1))
+        self._models = <Model*> <char*> self._keep
+        for i in range(self.n):
+            model_from(&self._models[i], models[i])
+
+    def wheel_forces(self, const double[:, ::1] q, const double[:, ::1] qd,
+                     const double[:, ::1] wheel_torques, double[:, ::1] out):
+        """The wheels' generalised force on each chassis (plant/pybullet_plant.py, (P3)-(P5)):
+        theta_dot = P T(phi)^T q_dot / R; tau_w = u + h_d - tau_c(theta_dot) - C_theta R^2
+        theta_dot; F = T(phi) P^T tau_w / R, world frame [F_x, F_y, M_z], into ``out``."""
+        cdef int i, j
+        cdef double c, s, bx, by, bw, w, fx, fy, fw
+        cdef double tau[4]
+        cdef Model* m
+        for i in range(self.n):
+            m = &self._models[i]
+            c, s = cos(q[i, 2]), sin(q[i, 2])
+            bx, by, bw = c * qd[i, 0] + s * qd[i, 1], c * qd[i, 1] - s * qd[i, 0], qd[i, 2]
+            for j in range(4):
+                w = (m.P[j][0] * bx + m.P[j][1] * by + m.P[j][2] * bw) * m.inv_R  # (P3)
+                tau[j] = wheel_torques[i, j] - m.coulomb * tanh(w * m.inv_smooth) - m.viscous * w  # (P4)
+            fx = (m.P[0][0] * tau[0] + m.P[1][0] * tau[1] + m.P[2][0] * tau[2] + m.P[3][0] * tau[3]) * m.inv_R
+            fy = (m.P[0][1] * tau[0] + m.P[1][1] * tau[1] + m.P[2][1] * tau[2] + m.P[3][1] * tau[3]) * m.inv_R
+            fw = (m.P[0][2] * tau[0] + m.P[1][2] * tau[1] + m.P[2][2] * tau[2] + m.P[3][2] * tau[3]) * m.inv_R
+            out[i, 0], out[i, 1], out[i, 2] = c * fx - s * fy, s * fx + c * fy, fw  # (P5)
+
+    def step(self, double t, double dt, double[:, ::1] q, double[:, ::1] qd,
+             const double[:, ::1] torques, const double[:, :, ::1] stage_disturbance=None):
+        """Advance every robot by ``dt`` (in place), torques held over the period, in
+        ``substeps`` RK4 steps of h = dt / substeps. The disturbance: the kind given at
+        construction, or, when ``stage_disturbance`` is given, h_d of each robot at the
+        stages' times t + j h / 2, j = 0 .. 2 substeps (shape (2 substeps + 1, n, 4))."""
+        cdef int i, k, n = self.n
+        cdef double h = dt / self.substeps
+        cdef double ts
+        cdef double d[3][4]
+        if q.shape[0] != n or qd.shape[0] != n or torques.shape[0] != n \
+                or q.shape[1] != 3 or qd.shape[1] != 3 or torques.shape[1] != 4:
+            raise ValueError("q, q_dot, torques must be (n, 3), (n, 3), (n, 4)")
+        if stage_disturbance is not None and (
+                stage_disturbance.shape[0] != 2 * self.substeps + 1
+                or stage_disturbance.shape[1] != n or stage_disturbance.shape[2] != 4):
+            raise ValueError("stage_disturbance must be (2 substeps + 1, n, 4)")
+        with nogil:
+            for k in range(self.substeps):
+                ts = t + k * h
+                if stage_disturbance is None:
+                    _disturbance(self.kind, self.scale, self.constant, ts, d[0])
+                    _disturbance(self.kind, self.scale, self.constant, ts + 0.5 * h, d[1])
+                    _disturbance(self.kind, self.scale, self.constant, ts + h, d[2])
+                for i in range(n):
+                    if stage_disturbance is None:
+                        _rk4_disturbed(&self._models[i], &q[i, 0], &qd[i, 0], &torques[i, 0],
+                                       d[0], d[1], d[2], h)
+                    else:
+                        _rk4_disturbed(&self._models[i], &q[i, 0], &qd[i, 0], &torques[i, 0],
+                                       &stage_disturbance[2 * k, i, 0],
+                                       &stage_disturbance[2 * k + 1, i, 0],
+                                       &stage_disturbance[2 * k + 2, i, 0], h)
+
+
+def sense_discs(int i, const double[:, ::1] positions, const double[:, ::1] velocities,
+                const double[::1] radii, const long[::1] ids, const double[:, ::1] obstacles,
+                const long[::1] obstacle_ids, double detection_range_m):
+    """The discs robot ``i`` perceives (plant/perception.py): the other robots and the
+    obstacles whose surface is within r_det of its centre, each as (ident, x, y, vx, vy,
+    radius); ``obstacles`` rows are (x, y, vx, vy, radius). Returns (robots, obstacles),
+    two (k, 6) arrays in the order of their inputs."""
+    cdef int n = positions.shape[0], m = obstacles.shape[0], j, cnt
+    cdef double mx = positions[i, 0], my = positions[i, 1]
+    robots = np.empty((max(n - 1, 0), 6))
+    cdef double[:, ::1] r = robots
+    cnt = 0
+    for j in range(n):
+        if j == i:
+            continue
+        if hypot(positions[j, 0] - mx, positions[j, 1] - my) - radii[j] <= detection_range_m:
+            r[cnt, 0] = ids[j]
+            r[cnt, 1], r[cnt, 2] = positions[j, 0], positions[j, 1]
+            r[cnt, 3], r[cnt, 4] = velocities[j, 0], velocities[j, 1]
+            r[cnt, 5] = radii[j]
+            cnt += 1
+    robots_seen = robots[:cnt]
+    seen = np.empty((m, 6))
+    cdef double[:, ::1] o = seen
+    cnt = 0
+    for j in range(m):
+        if hypot(obstacles[j, 0] - mx, obstacles[j, 1] - my) - obstacles[j, 4] <= detection_range_m:
+            o[cnt, 0] = obstacle_ids[j]
+            o[cnt, 1], o[cnt, 2] = obstacles[j, 0], obstacles[j, 1]
+            o[cnt, 3], o[cnt, 4] = obstacles[j, 2], obstacles[j, 3]
+            o[cnt, 5] = obstacles[j, 4]
+            cnt += 1
+    return robots_seen, seen[:cnt]
+
+
+def sense_fleet(const double[:, ::1] positions, const double[:, ::1] velocities,
+                const double[::1] radii, const long[::1] ids, const double[:, ::1] obstacles,
+                const long[::1] obstacle_ids, double detection_range_m):
+    """:func:`sense_discs` for every robot in one pass: a list of (robots, obstacles)."""
+    return [sense_discs(i, positions, velocities, radii, ids, obstacles, obstacle_ids,
+                        detection_range_m) for i in range(positions.shape[0])]

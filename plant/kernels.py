@@ -1,0 +1,28 @@
+"""A compiled kernel is used only if it was built from the source beside it.
+
+``pip install`` builds plant/fleet_kernel.pyx and agents/law_kernel.pyx (setup.py) and
+copies the modules next to their sources. A clone whose .pyx was edited afterwards would
+otherwise run the old arithmetic without a word: each kernel carries the sha256 of the
+source it was built from (``BUILT_FROM``), and :func:`checked` compares it with the .pyx
+that sits beside it, when there is one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from types import ModuleType
+
+
+class StaleKernel(ImportError):
+    """A compiled kernel built from another version of its source."""
+
+
+def checked(module: ModuleType) -> ModuleType:
+    """``module`` itself, or StaleKernel when the .pyx beside it is not what it was built from."""
+    built = Path(module.__file__ or "")
+    source = built.with_name(built.name.split(".", 1)[0] + ".pyx")
+    if source.exists() and hashlib.sha256(source.read_bytes()).hexdigest() != module.BUILT_FROM:
+        raise StaleKernel(f"{built.name} was built from another version of {source}: rebuild it "
+                          "(pip install -e . , or python setup.py build_ext --inplace)")
+    return module
