@@ -237,9 +237,14 @@ class _Drive:
             self._apply_rpdo(lay, data)
 
     def _apply_rpdo(self, lay: PdoLayout, data: bytes) -> None:
-        od = self.node.object_dictionary
-        for index, value in lay.unpack(data).items():
-            self.node.set_data(index, 0, od[index].encode_raw(value))
+        """The mapped objects written as canopen's ``LocalNode.set_data`` writes them (the
+        write callbacks, then the store), without its per-call lookups: the layout
+        already holds each object's place and size (an RPDO per drive per period)."""
+        store = self.node.data_store
+        for index, offset, packing in lay.fields:
+            raw = data[offset:offset + packing.size]
+            self._write(index, 0, None, raw)
+            store.setdefault(index, {})[0] = raw
 
     def on_heartbeat(self, producer: int, now: float) -> None:
         self.heartbeats[producer] = now
