@@ -220,7 +220,7 @@ class BridgeNode:
                 continue
             if a.node in self.monitor.given_up:
                 continue
-            since = self.not_enabled_since.setdefault(a.node, self.armed_at)
+            since = self.not_enabled_since.setdefault(a.node, now)  # (again) not enabled
             attempts = self.arm_attempts.get(a.node, 0)
             if now - since > ENABLE_TIMEOUT_S and attempts >= MIN_ARMING_ATTEMPTS:
                 self.monitor.give_up(a.node, f"not enabled {now - since:.2f} s after arming, "

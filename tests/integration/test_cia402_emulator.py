@@ -516,21 +516,48 @@ def test_the_bridge_drives_no_wheel_until_every_drive_is_enabled_and_gives_up_on
         assert torques_sent() == [0, 0, 0, 0]  # refused: one drive is not enabled
         b._rearm_idle_axes(t0 + 0.02)  # drive 3 asked again (its status came after arming)
         assert b.rearms == 1 and not b.monitor.faulted(t0 + 0.02)
-        late = t0 + ENABLE_TIMEOUT_S + 0.5
-        b._rearm_idle_axes(late)  # long, but it answered only once: not given up
-        assert not b.monitor.given_up
-        for k in range(1, MIN_ARMING_ATTEMPTS):  # it answers each arming: still not enabled
-            b.monitor.feed(WheelReport(3, state=DriveState.STARTING, fault=0), late + 0.01 * k)
-            b._rearm_idle_axes(late + 0.01 * k)
-        assert b.arm_attempts[3] == MIN_ARMING_ATTEMPTS and not b.monitor.given_up
+        for k in range(2, 8):  # many answered attempts within 2 s of being seen not enabled:
+            b.monitor.feed(WheelReport(3, state=DriveState.STARTING, fault=0), t0 + 0.02 * k)
+            b._rearm_idle_axes(t0 + 0.02 * k)  # (a recoverable fault's reset and re-arm)
+        assert b.arm_attempts[3] == 7 and not b.monitor.given_up
+        late = t0 + ENABLE_TIMEOUT_S + 0.5  # 2 s on, still not enabled, 7 attempts answered
+        assert b.arm_attempts[3] >= MIN_ARMING_ATTEMPTS
+        b.monitor.feed(WheelReport(3, state=DriveState.STARTING, fault=0), late + 0.05)
         b._rearm_idle_axes(late + 0.1)
         assert b.monitor.faulted(late + 0.1)  # given up: faulted for good
         assert "node 3: not enabled" in b.monitor.fault_reasons(late + 0.1)[0]
+        assert not [n for n in (1, 2, 4) if n in b.monitor.given_up]
         b.monitor.feed(WheelReport(3, state=DriveState.ENABLED, fault=0), t0 + 3.0)
         bus.sent.clear()
         b._apply(Decision((0.5,) * 4, True, "command"))
         assert torques_sent() == [250] * 4  # every drive enabled: torques go out
         assert b.monitor.faulted(t0 + 3.0)  # and the robot stays faulted: the gate zeroes it
+    finally:
+        b.close()
+        bus.shutdown()
+
+
+def test_the_bridge_does_not_give_up_on_drives_that_do_not_answer(lab):
+    """No status at all (a starved emulator, a cable): the robot is faulted for the
+    missing status, until the drives answer; nothing is latched."""
+    from fuzz_fakes import FakeNode, RecordingBus
+
+    from deploy.nodes.bridge import ENABLE_TIMEOUT_S, BridgeNode
+    from deploy.runtime.node_runtime import StopFlag
+
+    bus = RecordingBus()
+    b = BridgeNode(lab, 1, FakeNode(lab.robot_ids, "bridge-1"), StopFlag(), bus,
+                   Cia402Driver(DriverSettings(NODES)), list(NODES), heartbeat_timeout_s=0.35)
+    try:
+        b.arm()
+        for k in range(1, 11):
+            b._rearm_idle_axes(b.armed_at + k * ENABLE_TIMEOUT_S / 2)
+        later = b.armed_at + 5 * ENABLE_TIMEOUT_S
+        assert not b.monitor.given_up and b.rearms == 0
+        assert b.monitor.faulted(later) and "no status" in b.monitor.fault_reasons(later)[0]
+        for n in NODES:
+            b.monitor.feed(WheelReport(n, state=DriveState.ENABLED, fault=0), later)
+        assert not b.monitor.faulted(later + 0.01)
     finally:
         b.close()
         bus.shutdown()
