@@ -49,7 +49,7 @@ from bridges.odrive import (
     SetInputTorque,
     arbitration_id,
 )
-from bridges.odrive_emulator import OdriveEmulator as DriverEmulator
+from bridges.odrive_emulator import OdriveEmulator
 from deploy.contract.scenario import load_scenario
 from deploy.nodes.bridge import BridgeNode
 from deploy.runtime.node_runtime import StopFlag
@@ -180,15 +180,15 @@ HARD = [OdriveCanSimple(NODE_IDS).encode(SetInputTorque(n, 1000.0 * (-1) ** n)) 
 
 
 @pytest.fixture(scope="module", params=SCENARIOS)
-def emulator(request: pytest.FixtureRequest) -> Iterator[tuple[DriverEmulator, RecordingBus]]:
+def emulator(request: pytest.FixtureRequest) -> Iterator[tuple[OdriveEmulator, RecordingBus]]:
     bus = RecordingBus()
-    yield DriverEmulator(load_scenario(request.param), 1, bus, watchdog_timeout_s=0.0), bus
+    yield OdriveEmulator(load_scenario(request.param), 1, bus, watchdog_timeout_s=0.0), bus
     bus.shutdown()
 
 
 @fuzz_settings(150)
 @given(batch=st.lists(frames, min_size=1, max_size=12), armed=st.booleans(), hard=st.booleans())
-def test_emulator_frame_handling(emulator: tuple[DriverEmulator, RecordingBus],
+def test_emulator_frame_handling(emulator: tuple[OdriveEmulator, RecordingBus],
                                  batch: list[can.Message], armed: bool, hard: bool) -> None:
     """Armed or not, wheels driven at the protocol's torque bound or not, then any frames."""
     emu, bus = emulator
@@ -225,7 +225,7 @@ def test_emulator_survives_a_bus_current_it_cannot_encode() -> None:
     ``step``; the frame is now dropped and counted (the encoder frames of a wheel beyond
     1e4 rev/s would have done the same from the physics tick)."""
     bus = RecordingBus()
-    emu = DriverEmulator(load_scenario("paper"), 1, bus, watchdog_timeout_s=0.0)
+    emu = OdriveEmulator(load_scenario("paper"), 1, bus, watchdog_timeout_s=0.0)
     bus.feed(ARM + HARD)
     emu.step(0.5)
     assert np.all(np.abs(emu.wheel_speeds_radps()) > 1000.0)  # spinning hard

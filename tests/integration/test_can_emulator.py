@@ -43,7 +43,7 @@ from bridges.odrive import (
     Request,
     SetAxisState,
 )
-from bridges.odrive_emulator import OdriveEmulator as DriverEmulator
+from bridges.odrive_emulator import OdriveEmulator
 from deploy.contract.scenario import load_scenario
 from deploy.nodes.emulator_cli import main as emulate_main
 from plant.disturbance import make_disturbance
@@ -79,7 +79,7 @@ class Rig:
         channel = f"test-{uuid.uuid4()}"
         self.host_bus = can.Bus(interface="virtual", channel=channel)
         self.emu_bus = can.Bus(interface="virtual", channel=channel)
-        self.emu = DriverEmulator(sc, ROBOT, self.emu_bus, **kw)
+        self.emu = OdriveEmulator(sc, ROBOT, self.emu_bus, **kw)
         self.host = OdriveCanSimple(self.emu.node_ids)
         self.now = 0.0
         self.log: list[tuple[float, object]] = []  # (time of the step that delivered it, frame)
@@ -352,7 +352,7 @@ def test_constructor_rejects_bad_arguments(lab):
         for kw in ({"node_ids": (0, 1, 2)}, {"encoder_rate_hz": 0.0}, {"encoder_rate_hz": 5e3},
                    {"watchdog_timeout_s": -1.0}, {"faults": EmulatorFaults(silent_node=7)}):
             with pytest.raises(ValueError):
-                DriverEmulator(lab, ROBOT, bus, **kw)
+                OdriveEmulator(lab, ROBOT, bus, **kw)
         with pytest.raises(ValueError):
             EmulatorFaults(drop_rate=1.5)
     finally:
@@ -379,7 +379,7 @@ def test_fleet_emulator_equals_one_emulator_per_robot_each_on_its_bus(lab, calm,
         s_hosts, s_emus = _fleet_rigs(sc, robots)
         fleet = FleetEmulator(sc, list(zip(robots, emus, strict=True)),
                               physics_rate_hz=physics_rate_hz)
-        singles = [DriverEmulator(sc, r, b, physics_rate_hz=physics_rate_hz)
+        singles = [OdriveEmulator(sc, r, b, physics_rate_hz=physics_rate_hz)
                    for r, b in zip(robots, s_emus, strict=True)]
         codec = OdriveCanSimple(NODES)
         try:
