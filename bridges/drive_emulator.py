@@ -236,6 +236,14 @@ class RobotEmulator:
     def wheel_of(self, node: int) -> int:
         return self._wheel_of[node]
 
+    def sample_lead_s(self) -> float:
+        """Realtime: how far the wall clock is past the physics' newest tick (at most a
+        tick), for a drive that samples on a frame (a CiA 402 SYNC) between ticks; 0 on a
+        virtual clock."""
+        if not math.isfinite(self.monotonic_origin_s):
+            return 0.0
+        return min(max(time.monotonic() - self.monotonic_origin_s - self.t, 0.0), self._h)
+
     def armed_now(self) -> None:
         """A drive of this robot was armed (enabled) now: the disturbance starts."""
         self.disturbance.armed(self._row, self.t)
