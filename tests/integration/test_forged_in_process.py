@@ -16,7 +16,8 @@ pytest.importorskip("zenoh")
 def _bridge(monkeypatch, secret: str | None):
     from fuzz_fakes import FakeNode, RecordingBus
 
-    from bridges.protocol import OdriveCanSimple
+    from bridges.driver import DriverSettings
+    from bridges.odrive import OdriveDriver
     from deploy.contract.scenario import load_scenario
     from deploy.nodes.bridge import BridgeNode
     from deploy.runtime.node_runtime import StopFlag
@@ -27,7 +28,8 @@ def _bridge(monkeypatch, secret: str | None):
     bus = RecordingBus()
     ids = [0, 1, 2, 3]
     b = BridgeNode(sc, 2, FakeNode(sc.robot_ids, "bridge-2"), StopFlag(), bus,
-                   OdriveCanSimple(ids), ids, command_timeout_s=1e9, heartbeat_timeout_s=1e9)
+                   OdriveDriver(DriverSettings(tuple(ids))), ids, command_timeout_s=1e9,
+                   heartbeat_timeout_s=1e9)
     return b, bus
 
 
