@@ -9,7 +9,7 @@ python-can and the drive protocols' libraries (cantools, canopen) only.
   canopen library: EDS, NMT, SDO, PDOs, SYNC), cia402_pdo.py (PDO payload packing),
   cia402_drive.eds (the emulated drive's object dictionary);
 - monitor.py, odometry.py, safety.py: the bridge's pure parts, in neutral terms (the
-  bridge process itself is deploy/nodes/bridge.py);
+  bridge process itself lives in deploy/nodes/);
 - drive_emulator.py (a robot's dynamics and bus faults), odrive_emulator.py and
   cia402_emulator.py (four drives of each protocol on it), fleet_emulator.py (several
   robots in one process): ``omnifleet emulate`` and ``omnifleet run --plant can-emulated``.

@@ -1,4 +1,4 @@
-"""What a bridge needs from any motor drive, in neutral terms (DESIGN §8).
+"""What a bridge needs from any motor drive, in neutral terms (docs/hardware.md).
 
 A robot's four wheel drives speak one CAN protocol; a :class:`WheelDriver` is that
 protocol seen from the host: the frames that arm, disarm, stop, clear and command a
