@@ -1,17 +1,16 @@
-"""Hardware bridges: the same agents on real motor drivers (docs/hardware.md). Imports
-plant/ and python-can only; the processes that run these (``omnifleet bridge``,
-``omnifleet emulate``, ``omnifleet can-check``) live in deploy/nodes/.
+"""Hardware bridges: the same agents on real motor drives (docs/hardware.md). Imports plant,
+python-can and the drive protocols' libraries (cantools, canopen) only.
 
-- protocol.py + odrive_cansimple.dbc: the :class:`~bridges.protocol.DriverProtocol`
-  interface and ODrive CANSimple frames, encoded and decoded with cantools (a CiA 402
-  driver can follow behind the same interface); drivers.py names the protocols a bridge
-  speaks (``omnifleet bridge --driver``);
-- odometry.py (wheel speeds -> body twist, eq. 1 -> pose), monitor.py (heartbeats and
-  driver errors -> robot health), safety.py (which torque may go on the bus: stale
-  command or e-stop -> zero): the bridge's pure parts;
-- drive_emulator.py: four drives and one robot's dynamics on a CAN bus, with frame loss,
-  corruption and silent drivers; fleet_emulator.py: several robots' in one process.
-
-``omnifleet run --plant can-emulated`` starts an agent and a bridge per robot and one
-driver emulator for the fleet (docs/hardware.md).
+- driver.py: what a bridge needs from any drive, in neutral terms (``WheelDriver``,
+  ``WheelReport``, ``DriveState``); drivers.py names the plug-ins (``--driver``):
+- odrive.py + odrive_cansimple.dbc: ODrive CANSimple, frames encoded and decoded with
+  the DBC's layouts, and its host plug-in;
+- cia402.py (the CiA 402 state machine), cia402_driver.py (its host plug-in on the
+  canopen library: EDS, NMT, SDO, PDOs, SYNC), cia402_pdo.py (PDO payload packing),
+  cia402_drive.eds (the emulated drive's object dictionary);
+- monitor.py, odometry.py, safety.py: the bridge's pure parts, in neutral terms (the
+  bridge process itself lives in deploy/nodes/);
+- drive_emulator.py (a robot's dynamics and bus faults), odrive_emulator.py and
+  cia402_emulator.py (four drives of each protocol on it), fleet_emulator.py (several
+  robots in one process): ``omnifleet emulate`` and ``omnifleet run --plant can-emulated``.
 """

@@ -1,45 +1,22 @@
-"""Drive emulator: four ODrive CANSimple axes and one robot's dynamics on a CAN bus
+"""Drive emulators: one robot's four wheel drives and its dynamics on a CAN bus
 (several robots in one process: :mod:`bridges.fleet_emulator`).
 
-It lets the whole chain (bridge, agents) run without hardware: a host on the same
+They let the whole chain (bridge, agents) run without hardware: a host on the same
 python-can bus (``virtual`` in one process, ``udp_multicast`` across processes,
-socketcan/pcan/... unchanged) sees four drives that arm, take torque setpoints,
-report encoder estimates and heartbeats, trip their watchdog and obey Estop.
-
-Axes
-----
-``node_ids[w]`` drives wheel ``w`` in the wheel order of ``plant.mecanum.wheel_matrix``.
-Each axis powers up IDLE in ODrive's default controller mode (position control,
-passthrough input). Only torque control is emulated, so:
-
-* ``Set_Controller_Mode`` stores the modes.
-* ``Set_Axis_State(CLOSED_LOOP_CONTROL)`` enters closed loop only with no latched
-  error and modes TORQUE_CONTROL + PASSTHROUGH; otherwise the request is refused:
-  ``AXIS_ERROR_INVALID_STATE`` is latched and the axis stays IDLE. Entering closed
-  loop zeroes the torque setpoint and feeds the watchdog.
-* ``Set_Axis_State(IDLE)`` disarms. Any other requested state is refused as above
-  (the emulated drives are calibrated already).
-* ``Set_Input_Torque`` stores the setpoint and feeds the watchdog (in any state, as
-  ODrive does). The wheel gets it only in closed loop, clamped to the scenario's
-  ``limits.max_wheel_torque_nm``; in IDLE the wheel gets 0.
-* Watchdog (``watchdog_timeout_s`` > 0): in closed loop with no Set_Input_Torque for
-  longer than the timeout, ``AXIS_ERROR_WATCHDOG_TIMER_EXPIRED`` is latched, the axis
-  goes IDLE and its torque is 0.
-* ``Estop`` latches ``AXIS_ERROR_ESTOP_REQUESTED`` and disarms the addressed axis.
-* ``Clear_Errors`` clears the latched errors (the state stays IDLE; re-arm explicitly).
-  Every error disarms the axis; ``Disarm_Reason`` keeps the bits of the last disarm.
-
-Frames sent: a Heartbeat per axis at ``heartbeat_rate_hz``, Get_Encoder_Estimates
-per axis at ``encoder_rate_hz`` (wheel angle in turns, integrated from power-up; wheel
-speed theta_dot / 2 pi with theta_dot = P T(phi)^T q_dot / R). Get_Error and
-Get_Bus_Voltage_Current are answered on request (a remote frame), as ODrive does by
-default; the bus is a constant 24 V and the bus current the ideal electrical power
-tau * theta_dot / 24 V of the axis.
+socketcan/pcan/... unchanged) sees four drives of a protocol. This module holds
+what every protocol's emulator shares, :class:`RobotEmulator`: the robot's dynamics,
+the wheels' angles, time, ground truth and the injected faults on the bus. A
+protocol's emulator (:mod:`bridges.odrive_emulator`, :mod:`bridges.cia402_emulator`)
+adds its drives: the frames they take and send, their states, the torque each
+applies (:meth:`RobotEmulator.wheel_torques`).
 
 Dynamics: eq. (4) for this one robot via :class:`plant.model_plant.ModelPlant`
 (RK4, one sub-step per physics tick: the robot's time constants are >= 0.1 s, a
 tick is 1 ms), from the scenario's initial state, with the scenario's disturbance
 from the moment the robot's drives are first armed (:class:`ArmedDisturbance`).
+Wheel ``w`` is driven by ``node_ids[w]``, in the wheel order of
+``plant.mecanum.wheel_matrix``; its angle (turns, integrated from power-up) follows
+its speed theta_dot = P T(phi)^T q_dot / R.
 
 Faults (:class:`EmulatorFaults`) are drawn from a seeded numpy Generator, so a run
 of the same frames at the same times is reproducible.
@@ -57,33 +34,7 @@ from typing import Any, Protocol
 import can
 import numpy as np
 
-from bridges.protocol import (
-    AXIS_ERROR_ESTOP_REQUESTED,
-    AXIS_ERROR_INVALID_STATE,
-    AXIS_ERROR_WATCHDOG_TIMER_EXPIRED,
-    AXIS_STATE_CLOSED_LOOP_CONTROL,
-    AXIS_STATE_IDLE,
-    CMD_GET_BUS_VOLTAGE_CURRENT,
-    CMD_GET_ENCODER_ESTIMATES,
-    CMD_GET_ERROR,
-    CMD_HEARTBEAT,
-    CONTROL_MODE_POSITION_CONTROL,
-    CONTROL_MODE_TORQUE_CONTROL,
-    INPUT_MODE_PASSTHROUGH,
-    BusVoltageCurrent,
-    ClearErrors,
-    DriverErrors,
-    EncoderEstimate,
-    Estop,
-    Frame,
-    FrameCounters,
-    Heartbeat,
-    OdriveCanSimple,
-    Request,
-    SetAxisState,
-    SetControllerMode,
-    SetInputTorque,
-)
+from bridges.driver import FrameCounters
 from plant.disturbance import make_disturbance
 from plant.mecanum import MecanumModel
 from plant.model_plant import ModelPlant
@@ -100,8 +51,12 @@ class Fleet(Protocol):
     def initial_state(self) -> tuple[np.ndarray, np.ndarray]: ...
 
 
-BUS_VOLTAGE_V = 24.0
-MAX_FRAMES_PER_STEP = 10_000  # a flooded bus cannot stall the physics forever
+# frames read per step at most: a busy bus cannot stall the physics. Frames keep coming
+# while a step reads (a host sends ~6 per control period, and every frame the drives
+# send comes back on udp_multicast); reading until the bus was empty once kept a CiA 402
+# fleet emulator, whose drives answer every SYNC, reading for 150 ms at a time while its
+# physics fell seconds behind. What is left waits for the next step (a tick, or a batch).
+MAX_FRAMES_PER_STEP = 256
 
 
 @dataclass(frozen=True)
@@ -113,6 +68,7 @@ class EmulatorFaults:
     silent_node: int | None = None  # this node id stops answering (no frames, ignores commands) ...
     silent_after_s: float = 0.0  # ... from this time on
     seed: int = 0
+    refuse_enable_node: int | None = None  # this drive never enables (safe torque off active)
 
     def __post_init__(self) -> None:
         for name in ("drop_rate", "corrupt_rate"):
@@ -149,26 +105,6 @@ class EmulatorCounters:
         return asdict(self)
 
 
-@dataclass
-class AxisState:
-    """One emulated drive axis (mutable)."""
-
-    node: int
-    state: int = AXIS_STATE_IDLE
-    control_mode: int = CONTROL_MODE_POSITION_CONTROL  # ODrive's power-up default
-    input_mode: int = INPUT_MODE_PASSTHROUGH
-    axis_error: int = 0
-    disarm_reason: int = 0
-    procedure_result: int = 0
-    torque_setpoint_nm: float = 0.0
-    last_torque_s: float = 0.0
-    position_rev: float = 0.0
-
-    @property
-    def armed(self) -> bool:
-        return self.state == AXIS_STATE_CLOSED_LOOP_CONTROL
-
-
 class ArmedDisturbance:
     """The scenario's disturbance d(t) as emulated robots feel it: none before a
     robot's drives are first armed, then d evaluated on that robot's run clock
@@ -196,40 +132,41 @@ class ArmedDisturbance:
         return np.array([self._zero[0] if s is None else self._d(t - s) for s in self._since])
 
 
-class DriverEmulator:
-    """Four CANSimple drives plus robot ``robot_id``'s dynamics on ``bus``.
+class RobotEmulator:
+    """Robot ``robot_id``'s dynamics and four drives of some protocol on ``bus``.
 
     Time is the emulator's own, from 0 at construction: :meth:`step` advances it to
     ``now_s`` (tests drive it with a virtual clock), :meth:`run` on ``time.monotonic``.
+    A protocol's emulator implements :meth:`wheel_torques`, :meth:`_handle` (one
+    received frame) and, where its drives act on the clock, :meth:`_drives_tick`
+    (watchdogs, ramps), :meth:`_encoders_due` and :meth:`_clock_due`.
     """
 
     def __init__(self, sc: Fleet, robot_id: int, bus: can.BusABC,
-                 node_ids: Sequence[int] = (0, 1, 2, 3), encoder_rate_hz: float = 200.0,
-                 heartbeat_rate_hz: float = 10.0, watchdog_timeout_s: float = 0.2,
-                 physics_rate_hz: float = 1000.0,
+                 node_ids: Sequence[int], encoder_rate_hz: float = 200.0,
+                 watchdog_timeout_s: float = 0.2, physics_rate_hz: float = 1000.0,
                  faults: EmulatorFaults = EmulatorFaults()) -> None:  # noqa: B008 - frozen
         ids = [int(n) for n in node_ids]
-        if len(ids) != 4:
-            raise ValueError(f"a mecanum robot has 4 wheels: give 4 node ids, got {ids}")
-        for name, hz in (("physics_rate_hz", physics_rate_hz), ("encoder_rate_hz", encoder_rate_hz),
-                         ("heartbeat_rate_hz", heartbeat_rate_hz)):
+        if len(ids) != 4 or len(set(ids)) != 4:
+            raise ValueError(f"a mecanum robot has 4 wheels: give 4 distinct node ids, got {ids}")
+        for name, hz in (("physics_rate_hz", physics_rate_hz), ("encoder_rate_hz", encoder_rate_hz)):
             if not (math.isfinite(hz) and hz > 0):
                 raise ValueError(f"{name} must be positive, got {hz}")
-        if encoder_rate_hz > physics_rate_hz or heartbeat_rate_hz > physics_rate_hz:
-            raise ValueError("encoder and heartbeat rates cannot exceed physics_rate_hz")
+        if encoder_rate_hz > physics_rate_hz:
+            raise ValueError("the encoder rate cannot exceed physics_rate_hz")
         if not (math.isfinite(watchdog_timeout_s) and watchdog_timeout_s >= 0):
             raise ValueError(f"watchdog_timeout_s must be >= 0 (0: off), got {watchdog_timeout_s}")
-        if faults.silent_node is not None and faults.silent_node not in ids:
-            raise ValueError(f"silent node {faults.silent_node} is not one of the node ids {ids}")
+        for what, node in (("silent node", faults.silent_node),
+                           ("refuse-enable node", faults.refuse_enable_node)):
+            if node is not None and node not in ids:
+                raise ValueError(f"{what} {node} is not one of the node ids {ids}")
         index = sc.index_of(robot_id)
         self.sc, self.robot_id, self.bus = sc, robot_id, bus
         self.node_ids = tuple(ids)
         self.faults = faults
         self.watchdog_timeout_s = float(watchdog_timeout_s)
-        self.protocol = OdriveCanSimple(ids, role="drive")
-        self.counters = EmulatorCounters(protocol=self.protocol.counters)
-        self.axes = [AxisState(n) for n in ids]
-        self._axis_of = {n: w for w, n in enumerate(ids)}
+        self.counters = EmulatorCounters()
+        self._wheel_of = {n: w for w, n in enumerate(ids)}
         self.model = sc.model()
         q, qd = sc.initial_state()
         d = sc.spec.disturbance
@@ -243,14 +180,37 @@ class DriverEmulator:
         self._ticks = 0
         self._rng = np.random.default_rng(faults.seed)
         self._encoder_period = 1.0 / encoder_rate_hz
-        self._heartbeat_period = 1.0 / heartbeat_rate_hz
         self._next_encoder = 0.0
-        self._next_heartbeat = 0.0
         self._row = 0  # this robot's row in self.plant (shared by a FleetEmulator)
         self._wheel_speed = self.model.wheel_speeds(float(self.q[2]), self.q_dot)
+        self.wheel_rev = np.zeros(4)  # each wheel's angle (turns) since power-up
         self.truth: list[tuple[float, np.ndarray, np.ndarray]] = []
         self.lag: list[tuple[float, float]] = []  # realtime: (t, how far behind the wall clock)
+        self.monotonic_origin_s = math.nan  # realtime: time.monotonic() at t = 0
         self._started = False
+
+    # --- what a protocol's emulator adds ------------------------------------------------
+    def wheel_torques(self) -> np.ndarray:
+        """Torques the drives apply to the wheels now (N m), within the scenario's limit."""
+        raise NotImplementedError
+
+    def _handle(self, frame: can.Message) -> None:
+        """One frame read from the bus (at the current time), after the injected loss."""
+        raise NotImplementedError
+
+    def _drives_tick(self, now: float) -> None:
+        """After the physics advanced to ``now``: watchdogs, ramps."""
+
+    def _encoders_due(self, send: bool) -> None:
+        """The encoder-rate instant has come (``send`` False: the emulator is behind and
+        sheds them)."""
+
+    def _clock_due(self, now: float) -> None:
+        """Frames the drives send on their own clock (heartbeats)."""
+
+    def describe_drives(self) -> str:
+        """Each drive's state and fault, for a summary line."""
+        raise NotImplementedError
 
     # --- state ------------------------------------------------------------------------
     @property
@@ -266,23 +226,41 @@ class DriverEmulator:
     def q_dot(self) -> np.ndarray:
         return self.plant.q_dot[self._row]
 
-    def wheel_torques(self) -> np.ndarray:
-        """Torques applied to the wheels now (N m): setpoint in closed loop, clamped; else 0."""
-        lim = self.max_torque_nm
-        return np.array([min(max(a.torque_setpoint_nm, -lim), lim) if a.armed else 0.0
-                         for a in self.axes])
-
     def wheel_speeds_radps(self) -> np.ndarray:
         return self._wheel_speed.copy()
+
+    def wheel_speed(self, wheel: int) -> float:
+        """Wheel ``wheel``'s speed now (rad/s)."""
+        return float(self._wheel_speed[wheel])
+
+    def wheel_of(self, node: int) -> int:
+        return self._wheel_of[node]
+
+    def sample_lead_s(self) -> float:
+        """Realtime: how far the wall clock is past the physics' newest tick (at most a
+        tick), for a drive that samples on a frame (a CiA 402 SYNC) between ticks; 0 on a
+        virtual clock."""
+        if not math.isfinite(self.monotonic_origin_s):
+            return 0.0
+        return min(max(time.monotonic() - self.monotonic_origin_s - self.t, 0.0), self._h)
+
+    def armed_now(self) -> None:
+        """A drive of this robot was armed (enabled) now: the disturbance starts."""
+        self.disturbance.armed(self._row, self.t)
 
     def _silent(self, node: int) -> bool:
         f = self.faults
         return f.silent_node == node and self.t >= f.silent_after_s
 
+    def clamp(self, torque_nm: float) -> float:
+        """A torque within the scenario's wheel torque limit."""
+        lim = self.max_torque_nm
+        return min(max(torque_nm, -lim), lim)
+
     # --- time -------------------------------------------------------------------------
     def step(self, now_s: float) -> None:
         """Advance to ``now_s``: apply the frames received so far (at the current time),
-        then integrate tick by tick, checking watchdogs and sending due cyclic frames."""
+        then integrate tick by tick, checking the drives and sending due cyclic frames."""
         if not self._started:  # the frames due at t = 0
             self._started = True
             self._send_due()
@@ -311,59 +289,32 @@ class DriverEmulator:
         self._after_physics()
 
     def _after_physics(self, send_encoders: bool = True, ticks: int = 1) -> None:
-        """Bookkeeping once the physics has advanced ``ticks`` ticks: encoder angles,
-        watchdogs, the cyclic frames due (encoder estimates only if ``send_encoders``:
-        a realtime emulator catching up skips the stale ones)."""
+        """Bookkeeping once the physics has advanced ``ticks`` ticks: wheel angles, the
+        drives, the cyclic frames due (encoder frames only if ``send_encoders``: a
+        realtime emulator catching up skips the stale ones)."""
         h = self._h * ticks
         self._ticks += ticks
         w_old, w_new = self._wheel_speed, self.model.wheel_speeds(float(self.q[2]), self.q_dot)
         self._wheel_speed = w_new
-        for a, wo, wn in zip(self.axes, w_old, w_new, strict=True):
-            a.position_rev += 0.5 * (wo + wn) * h / (2.0 * math.pi)
-        now = self.t
-        if self.watchdog_timeout_s > 0:
-            for a in self.axes:
-                if a.armed and now - a.last_torque_s > self.watchdog_timeout_s + 1e-12:
-                    self._disarm(a, AXIS_ERROR_WATCHDOG_TIMER_EXPIRED)
+        self.wheel_rev += 0.5 * (w_old + w_new) * h / (2.0 * math.pi)
+        self._drives_tick(self.t)
         self._send_due(send_encoders)
 
     def _send_due(self, send_encoders: bool = True) -> None:
-        """The cyclic frames due at the current time (and a truth sample with the encoders)."""
+        """The cyclic frames due at the current time (and a truth sample at the encoder
+        rate)."""
         now = self.t
         if now >= self._next_encoder - 1e-9:
             self._next_encoder = max(self._next_encoder + self._encoder_period, now)
             self.truth.append((now, self.q.copy(), self.q_dot.copy()))
-            if send_encoders:
-                for a in self.axes:
-                    self._send(self._encoder_frame(a))
-            else:
-                self.counters.shed += len(self.axes)
-        if now >= self._next_heartbeat - 1e-9:
-            self._next_heartbeat = max(self._next_heartbeat + self._heartbeat_period, now)
-            for a in self.axes:
-                self._send(self._heartbeat(a))
+            self._encoders_due(send_encoders)
+        self._clock_due(now)
 
-    # --- frames out -------------------------------------------------------------------
-    def _heartbeat(self, a: AxisState) -> Heartbeat:
-        return Heartbeat(a.node, a.axis_error, a.state, a.procedure_result, True)
-
-    def _encoder_frame(self, a: AxisState) -> EncoderEstimate:
-        w = self._wheel_speed[self._axis_of[a.node]]
-        return EncoderEstimate(a.node, a.position_rev, float(w) / (2.0 * math.pi))
-
-    def _bus_frame(self, a: AxisState) -> BusVoltageCurrent:
-        w = self._axis_of[a.node]
-        power_w = float(self.wheel_torques()[w] * self._wheel_speed[w])
-        return BusVoltageCurrent(a.node, BUS_VOLTAGE_V, power_w / BUS_VOLTAGE_V)
-
-    def _send(self, msg: Frame) -> None:
-        if self._silent(msg.node):
+    # --- the bus, with the injected faults -----------------------------------------------
+    def _send_frame(self, frame: can.Message, node: int) -> None:
+        """Put one of drive ``node``'s frames on the bus (or lose or corrupt it)."""
+        if self._silent(node):
             self.counters.silenced += 1
-            return
-        try:
-            frame = self.protocol.encode(msg)
-        except ValueError:  # e.g. the bus current of wheels driven hard with no torque limit
-            self.counters.unencodable += 1
             return
         frame.timestamp = self.t
         rng = self._rng
@@ -380,7 +331,6 @@ class DriverEmulator:
             return
         self.counters.sent += 1
 
-    # --- frames in --------------------------------------------------------------------
     def _receive(self) -> None:
         for _ in range(MAX_FRAMES_PER_STEP):
             frame = self.bus.recv(timeout=0)
@@ -390,60 +340,7 @@ class DriverEmulator:
             if self.faults.drop_rate > 0 and self._rng.random() < self.faults.drop_rate:
                 self.counters.dropped_by_fault += 1
                 continue
-            msg = self.protocol.decode(frame)
-            if msg is None:
-                continue
-            if self._silent(msg.node):
-                self.counters.silenced += 1
-                continue
-            self._apply(self.axes[self._axis_of[msg.node]], msg)
-
-    def _apply(self, a: AxisState, msg: Frame) -> None:
-        now = self.t
-        match msg:
-            case SetInputTorque():
-                a.torque_setpoint_nm = msg.torque_nm
-                a.last_torque_s = now
-            case SetControllerMode():
-                a.control_mode, a.input_mode = msg.control_mode, msg.input_mode
-                if a.armed and not self._torque_mode(a):
-                    self._disarm(a, AXIS_ERROR_INVALID_STATE)
-            case SetAxisState() if msg.state == AXIS_STATE_IDLE:
-                a.state, a.torque_setpoint_nm = AXIS_STATE_IDLE, 0.0
-            case SetAxisState() if msg.state == AXIS_STATE_CLOSED_LOOP_CONTROL:
-                if a.armed:
-                    return
-                if a.axis_error or not self._torque_mode(a):
-                    self._disarm(a, AXIS_ERROR_INVALID_STATE)
-                    return
-                a.state, a.torque_setpoint_nm, a.last_torque_s = AXIS_STATE_CLOSED_LOOP_CONTROL, 0.0, now
-                self.disturbance.armed(self._row, now)
-                a.procedure_result = 0
-            case SetAxisState():
-                self._disarm(a, AXIS_ERROR_INVALID_STATE)
-            case Estop():
-                self._disarm(a, AXIS_ERROR_ESTOP_REQUESTED)
-            case ClearErrors():
-                a.axis_error = 0
-                a.procedure_result = 0
-            case Request() if msg.cmd == CMD_HEARTBEAT:
-                self._send(self._heartbeat(a))
-            case Request() if msg.cmd == CMD_GET_ERROR:
-                self._send(DriverErrors(a.node, a.axis_error, a.disarm_reason))
-            case Request() if msg.cmd == CMD_GET_ENCODER_ESTIMATES:
-                self._send(self._encoder_frame(a))
-            case Request() if msg.cmd == CMD_GET_BUS_VOLTAGE_CURRENT:
-                self._send(self._bus_frame(a))
-
-    @staticmethod
-    def _torque_mode(a: AxisState) -> bool:
-        return a.control_mode == CONTROL_MODE_TORQUE_CONTROL and a.input_mode == INPUT_MODE_PASSTHROUGH
-
-    @staticmethod
-    def _disarm(a: AxisState, error_bits: int) -> None:
-        a.axis_error |= error_bits
-        a.disarm_reason = error_bits
-        a.state, a.torque_setpoint_nm = AXIS_STATE_IDLE, 0.0
+            self._handle(frame)
 
     # --- ground truth -----------------------------------------------------------------
     def save_truth(self, path: str | Path) -> None:
@@ -457,7 +354,7 @@ class DriverEmulator:
         lag = np.array(self.lag, float).reshape(-1, 2)
         np.savez(path, t=t, q=q, q_dot=qd, robot_id=self.robot_id,
                  node_ids=np.array(self.node_ids),
-                 monotonic_origin_s=getattr(self, "monotonic_origin_s", np.nan),
+                 monotonic_origin_s=self.monotonic_origin_s,
                  lag_t=lag[:, 0], lag_s=lag[:, 1],
                  dropped_by_fault=self.counters.dropped_by_fault,
                  corrupted_by_fault=self.counters.corrupted_by_fault)

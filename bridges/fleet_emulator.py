@@ -1,5 +1,6 @@
 """Several robots' drive emulators in one process (:mod:`bridges.drive_emulator` is one
-robot's four drives): one physics integration for the fleet, every bus waited on at once."""
+robot's four drives, of any protocol): one physics integration for the fleet, every bus
+waited on at once."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ from pathlib import Path
 import can
 import numpy as np
 
-from bridges.drive_emulator import ArmedDisturbance, DriverEmulator, EmulatorFaults, Fleet
+from bridges.drive_emulator import ArmedDisturbance, EmulatorFaults, Fleet, RobotEmulator
+from bridges.odrive_emulator import OdriveEmulator
 from plant.disturbance import make_disturbance
 from plant.model_plant import ModelPlant
 
@@ -32,7 +34,8 @@ class FleetEmulator:
                  node_ids: Sequence[int] = (0, 1, 2, 3), encoder_rate_hz: float = 200.0,
                  heartbeat_rate_hz: float = 10.0, watchdog_timeout_s: float = 0.2,
                  physics_rate_hz: float = 1000.0,
-                 faults: Sequence[EmulatorFaults] | EmulatorFaults = EmulatorFaults()) -> None:  # noqa: B008
+                 faults: Sequence[EmulatorFaults] | EmulatorFaults = EmulatorFaults(),  # noqa: B008
+                 emulator: Callable[..., RobotEmulator] = OdriveEmulator) -> None:
         if not robots:
             raise ValueError("a fleet emulator needs at least one robot")
         ids = [rid for rid, _ in robots]
@@ -43,9 +46,10 @@ class FleetEmulator:
         if len(faults) != len(robots):
             raise ValueError("give one EmulatorFaults per robot")
         self.sc = sc
-        self.emulators = [
-            DriverEmulator(sc, rid, bus, node_ids, encoder_rate_hz, heartbeat_rate_hz,
-                           watchdog_timeout_s, physics_rate_hz, f)
+        # each robot's drives, of the protocol ``emulator`` plays (bridges/drivers.py)
+        self.emulators: list[RobotEmulator] = [
+            emulator(sc, rid, bus, node_ids, encoder_rate_hz, heartbeat_rate_hz,
+                     watchdog_timeout_s, physics_rate_hz, f)
             for (rid, bus), f in zip(robots, faults, strict=True)]
         q, qd = sc.initial_state()
         rows = [sc.index_of(rid) for rid in ids]
@@ -68,7 +72,7 @@ class FleetEmulator:
 
     def step(self, now_s: float, behind_s: float | None = None,
              ready: Sequence[int] | None = None) -> None:
-        """Every robot as :meth:`DriverEmulator.step`: frames received so far, then
+        """Every robot as :meth:`RobotEmulator.step`: frames received so far, then
         the physics tick by tick.
 
         ``behind_s`` (realtime): catching up more than this, the physics advances
@@ -153,7 +157,7 @@ class FleetEmulator:
                 "max": float(lag.max())}
 
     def save_truth(self, paths: Sequence[str | Path]) -> None:
-        """Each robot's ground truth (:meth:`DriverEmulator.save_truth`), with the
+        """Each robot's ground truth (:meth:`RobotEmulator.save_truth`), with the
         fleet's lag log in every file."""
         for e, path in zip(self.emulators, paths, strict=True):
             e.lag = self.emulators[0].lag

@@ -1,13 +1,16 @@
-"""The four drivers as the bridge last heard them: wheel speeds from encoder
-estimates, axis states and errors from heartbeats. Pure bookkeeping fed with
-decoded frames and the bridge's clock; no I/O.
+"""The four drives as the bridge last heard them, in neutral terms
+(:class:`bridges.driver.WheelReport`): wheel angles and speeds, torque estimates,
+states and faults. Pure bookkeeping fed with decoded reports and the bridge's
+clock; no I/O, no protocol.
 
-A robot is **faulted** when any axis reports an error other than its watchdog, or
-when an axis that was
-heard has been silent (no heartbeat) for longer than ``heartbeat_timeout_s``, or
-when an axis was never heard ``heartbeat_timeout_s`` after the bridge started.
-A watchdog expiry only says the drive stopped because the bridge fell silent (a
-host that was off the CPU): the bridge clears it when it arms the axis again.
+A robot is **faulted** when any drive reports a fault that is not recoverable, or
+when a drive that was heard has sent no status (an ODrive heartbeat, a CiA 402
+statusword) for longer than ``heartbeat_timeout_s``, or was never heard
+``heartbeat_timeout_s`` after the bridge started, or when the bridge gave up on a
+drive (:meth:`DriverMonitor.give_up`: one that never became enabled). A recoverable
+fault (a watchdog, a lost heartbeat or SYNC) only says the drive stopped because the
+bridge fell silent (a host that was off the CPU): the bridge clears it when it arms
+the drive again.
 """
 
 from __future__ import annotations
@@ -17,26 +20,26 @@ from math import pi
 
 import numpy as np
 
-from bridges.protocol import (
-    AXIS_ERROR_WATCHDOG_TIMER_EXPIRED,
-    DriverErrors,
-    EncoderEstimate,
-    Heartbeat,
-)
-
-RECOVERABLE_ERRORS = AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+from bridges.driver import DriveState, WheelReport
 
 
 @dataclass
 class AxisView:
+    """One wheel's drive as last heard: the neutral wheel state."""
+
     node: int
-    heartbeat_at: float | None = None
-    axis_state: int = 0
-    axis_error: int = 0
-    active_errors: int = 0
+    status_at: float | None = None  # the newest status (state) report
+    state: DriveState | None = None  # None: no status heard yet
+    fault: int = 0  # the drive's fault code, 0: none
+    recoverable: bool = False  # ... only the host's silence (see the module doc)
     encoder_at: float | None = None
     velocity_rev_s: float = 0.0
     position_rev: float = 0.0
+    torque_nm: float | None = None  # the drive's estimate, if it reports one
+
+    @property
+    def fatal(self) -> bool:
+        return bool(self.fault) and not self.recoverable
 
 
 class DriverMonitor:
@@ -46,6 +49,7 @@ class DriverMonitor:
         self._by_node = {a.node: a for a in self.axes}
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.started_at = started_at
+        self.given_up: dict[int, str] = {}  # node -> why the bridge gave up on it
         # encoder estimates as complete sets: every axis heard once more since the last set.
         # The four drives' frames of one burst arrive one after another; angles taken
         # between them mix two instants, which odometry reads as a turn that the next
@@ -56,21 +60,26 @@ class DriverMonitor:
         self._set_at: float | None = None  # ... and when, on average, they arrived
         self._first_set: np.ndarray | None = None  # the first complete set's angles
 
-    def feed(self, msg: object, now_s: float) -> None:
-        axis = self._by_node.get(getattr(msg, "node", -1))
+    def feed(self, report: WheelReport, now_s: float) -> None:
+        axis = self._by_node.get(report.node)
         if axis is None:
             return
-        if isinstance(msg, Heartbeat):
-            axis.heartbeat_at = now_s
-            axis.axis_state, axis.axis_error = msg.axis_state, msg.axis_error
-        elif isinstance(msg, EncoderEstimate):
+        if report.state is not None:
+            axis.status_at, axis.state = now_s, report.state
+        if report.fault is not None:
+            axis.fault, axis.recoverable = report.fault, report.recoverable
+        if report.torque_nm is not None:
+            axis.torque_nm = report.torque_nm
+        if report.position_rev is not None and report.velocity_rev_s is not None:
             axis.encoder_at = now_s
-            axis.velocity_rev_s, axis.position_rev = msg.velocity_rev_s, msg.position_rev
+            axis.velocity_rev_s, axis.position_rev = report.velocity_rev_s, report.position_rev
             self._waiting.discard(axis.node)
             if not self._waiting:
                 self._complete_set()
-        elif isinstance(msg, DriverErrors):
-            axis.active_errors = msg.active_errors
+
+    def give_up(self, node: int, why: str) -> None:
+        """The bridge will not drive this robot again: ``node`` is faulted for good."""
+        self.given_up.setdefault(node, why)
 
     def _complete_set(self) -> None:
         self._set_rev = np.array([a.position_rev for a in self.axes])
@@ -103,12 +112,13 @@ class DriverMonitor:
     def fault_reasons(self, now_s: float) -> list[str]:
         out = []
         for a in self.axes:
-            fatal = a.axis_error & ~RECOVERABLE_ERRORS
-            if fatal or a.active_errors:
-                out.append(f"node {a.node}: error 0x{fatal | a.active_errors:x}")
-            last = a.heartbeat_at if a.heartbeat_at is not None else self.started_at
+            if a.fatal:
+                out.append(f"node {a.node}: fault 0x{a.fault:x}")
+            last = a.status_at if a.status_at is not None else self.started_at
             if now_s - last > self.heartbeat_timeout_s:
-                out.append(f"node {a.node}: no heartbeat for {now_s - last:.2f} s")
+                out.append(f"node {a.node}: no status for {now_s - last:.2f} s")
+            if a.node in self.given_up:
+                out.append(f"node {a.node}: {self.given_up[a.node]}")
         return out
 
     def faulted(self, now_s: float) -> bool:

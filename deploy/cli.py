@@ -11,13 +11,15 @@ from __future__ import annotations
 import argparse
 import sys
 
+from bridges.drivers import DEFAULT_DRIVER, DRIVERS
 from deploy.contract.fault_plan import FaultPlanError
 from deploy.contract.options import EXIT_BAD_INPUT, OptionError, add_option
 from deploy.contract.output_paths import OutputPathError
-from deploy.contract.scenario import PLANT_KINDS, ScenarioError, bundled_names
+from deploy.contract.scenario import ScenarioError, bundled_names
 from deploy.contract.wire import FleetNameError
 from deploy.nodes.cli import CLOCKS, add_node_commands
 from deploy.run.run_cli import cmd_run
+from deploy.runtime.plants import CAN_EMULATED, PLANTS
 from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
 from deploy.runtime.transport import TransportError
 
@@ -53,10 +55,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--in-process", action="store_true",
                      help="run leader, plant and all agents in this process (the reference "
                      "loop) instead of one process per node")
-    run.add_argument("--plant", choices=[*PLANT_KINDS, "can-emulated"], default=None,
-                     help="pybullet (rigid bodies, real contacts), model (eq. 4, RK4), "
-                     "kinematic, or can-emulated (every robot through a CAN bridge and a driver "
-                     "emulator; realtime) (default: the scenario's plant.kind)")
+    run.add_argument("--plant", choices=list(PLANTS), default=None,
+                     help="; ".join(f"{name}: {e.about}" for name, e in PLANTS.items())
+                     + " (default: the scenario's plant.kind)")
+    run.add_argument("--driver", choices=sorted(DRIVERS), default=None,
+                     help=f"--plant {CAN_EMULATED}: the drives' CAN protocol, for the bridges and "
+                     f"the emulator (default {DEFAULT_DRIVER}; bridges/drivers.py)")
     run.add_argument("--gui", action="store_true",
                      help="pybullet: open the simulator's window (needs a display)")
     run.add_argument("--clock", choices=CLOCKS, default=None,

@@ -1,7 +1,8 @@
 """What every plant is, and what some can do besides (typed, not probed with hasattr).
 
-A plant integrates every robot's dynamics: ``q``, ``q_dot`` (n x 3: x, y, phi) and
-``step(t, dt, torques, v_cmd)``. A plant that simulates bodies also answers what each
+A plant integrates every robot's dynamics: ``q``, ``q_dot`` (n x 3: x, y, phi),
+``step(t, dt, torques, v_cmd)`` and ``close()`` (release what it holds: a physics
+client; nothing for the plants that integrate in numpy). A plant that simulates bodies also answers what each
 robot perceives (:class:`Perceiving`) and logs its contacts (:class:`Touching`); for the
 others, perception and contacts come from the scenario's geometry.
 """
@@ -25,6 +26,8 @@ class Plant(Protocol):
     q_dot: np.ndarray
 
     def step(self, t: float, dt: float, torques: np.ndarray, v_cmd: np.ndarray) -> None: ...
+
+    def close(self) -> None: ...
 
 
 @runtime_checkable

@@ -82,3 +82,6 @@ class KinematicPlant:
     def step(self, t: float, dt: float, torques: np.ndarray, v_cmd: np.ndarray) -> None:
         self.q_dot = np.array(v_cmd, dtype=float)
         self.q = self.q + dt * self.q_dot
+
+    def close(self) -> None:
+        """Nothing to release (the Plant protocol's close)."""

@@ -22,7 +22,7 @@ MAX_RATE_HZ = 100_000.0  # a control, encoder or physics rate: 10 us per step at
 MAX_WAIT_S = 1e6  # ~11.6 days: longer waits overflow the OS's timeouts, and mean a typo
 MAX_PRIORITY = 20  # nice -20 is the most Linux gives
 MAX_SPIN_TORQUE_NM = 0.5  # can-check --spin: bring-up is not the place for more
-MAX_CAN_NODE_ID = 63  # CANSimple: node_id << 5 | cmd_id in an 11-bit id
+MAX_CAN_NODE_ID = 127  # CANopen's largest; each protocol checks its own range (bridges/drivers.py)
 MAX_ROBOTS = 256  # a perception message carries at most 256 bodies (wire.MAX_BODIES)
 
 DEFAULT_STEP_DEADLINE_S = 2.0
@@ -130,6 +130,9 @@ OPTIONS: dict[str, Option] = {o.flag: o for o in (
            "the robot's id in the scenario (ids start at 1; 0 is the leader)"),
     Option("--silent-node", Bound(0, MAX_CAN_NODE_ID, integer=True), "N",
            "fault: this node id stops sending and ignores commands ..."),
+    Option("--refuse-enable", Bound(0, MAX_CAN_NODE_ID, integer=True), "N",
+           "fault: this node id never becomes enabled (as a drive whose safe torque off is "
+           "active)"),
     Option("--command-timeout", WAIT, "S",
            "realtime: zero a robot's torques when its newest command is older than this",
            DEFAULT_COMMAND_TIMEOUT_S),
@@ -138,12 +141,14 @@ OPTIONS: dict[str, Option] = {o.flag: o for o in (
            "raise this process's CPU priority by N (nice -N, and its session's autogroup "
            "where Linux groups processes by session); needs CAP_SYS_NICE or RLIMIT_NICE, "
            "without it the process says so and runs at normal priority; 0 leaves it", 0),
-    Option("--encoder-rate", RATE, "HZ", "Get_Encoder_Estimates rate per axis", 200.0),
-    Option("--heartbeat-rate", RATE, "HZ", "Heartbeat rate per axis", 10.0),
+    Option("--encoder-rate", RATE, "HZ", "ODrive: Get_Encoder_Estimates rate per axis (CiA 402: "
+           "the TPDOs follow the host's SYNC); the rate of the ground truth", 200.0),
+    Option("--heartbeat-rate", RATE, "HZ", "heartbeat rate per axis (CiA 402: at power-up; the "
+           "bridge sets its own)", 10.0),
     Option("--physics-rate", RATE, "HZ", "RK4 physics ticks per second", 1000.0),
     Option("--watchdog-timeout", WAIT_OR_ZERO, "S",
-           "an armed axis without Set_Input_Torque for this long disarms with "
-           "WATCHDOG_TIMER_EXPIRED; 0 turns the watchdog off", 0.2),
+           "an armed axis without Set_Input_Torque (ODrive) or SYNC (CiA 402) for this long "
+           "stops with a watchdog fault; 0 turns the watchdog off", 0.2),
     Option("--drop-rate", PROBABILITY, "P",
            "fault: probability that a frame (either direction) is lost", 0.0),
     Option("--corrupt-rate", PROBABILITY, "P",
@@ -151,6 +156,8 @@ OPTIONS: dict[str, Option] = {o.flag: o for o in (
     Option("--silent-after", WAIT_OR_ZERO, "S",
            "... from S seconds after start (default: 0; needs --silent-node)"),
     Option("--listen", WAIT, "S", "how long to listen for heartbeats and encoders", 1.0),
+    Option("--bring-up-timeout", WAIT, "S", "how long the drives may take to answer their "
+           "configuration (CiA 402: heartbeat, SDO, NMT)", 5.0),
     Option("--spin-torque", Bound(-MAX_SPIN_TORQUE_NM, MAX_SPIN_TORQUE_NM), "NM",
            f"torque for --spin, not 0, at most {MAX_SPIN_TORQUE_NM} N m either way", 0.05),
     Option("--spin-time", WAIT, "S", "how long each wheel is driven", 0.5),

@@ -1,18 +1,22 @@
 """One robot's CAN bridge as a process: a zenoh peer in place of the simulated
 plant for that robot (docs/hardware.md). Realtime only: hardware has no lockstep.
 
+The drives are a :class:`bridges.driver.WheelDriver` (``--driver``): the bridge sends
+its frames and reads its neutral reports, whatever the protocol.
+
 - ``robot/i/cmd`` -> torque frames, sent as the command arrives (the gate of
-  :mod:`bridges.safety` clamps them to the scenario's limit, or to the protocol's
+  :mod:`bridges.safety` clamps them to the scenario's limit, or to the driver's
   torque bound when that is lower); a period in which no command came plays the
   look-ahead torques the newest one predicted for the overdue step
-  (agents/look_ahead.py), then holds the last of them;
-- every period: frames from the drivers -> :class:`DriverMonitor`; wheel speeds
-  -> odometry (eq. 1) -> ``robot/i/sample`` (``faulted`` set on a driver error or
-  a missing heartbeat), with the perception from the scenario's obstacles (the
-  map) and the other robots' published samples; the states also go to observers
-  in batches (``log/bridge-i``);
+  (agents/look_ahead.py), then holds the last of them; then the driver's frames of
+  the period (CiA 402: SYNC and the bridge's heartbeat);
+- every period: reports from the drives -> :class:`DriverMonitor`; wheel angles
+  -> odometry (eq. 1) -> ``robot/i/sample`` (``faulted`` set on a drive fault, a
+  missing status, or a drive that never became enabled), with the perception from
+  the scenario's obstacles (the map) and the other robots' published samples; the
+  states also go to observers in batches (``log/bridge-i``);
 - a command older than the timeout, an e-stop or a fault -> zero torque frames
-  and idle axes; leaving (end, Ctrl-C, a lost peer) always zeroes and idles.
+  and disarmed drives; leaving (end, Ctrl-C, a lost peer) always zeroes and disarms.
 """
 
 from __future__ import annotations
@@ -25,12 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from bridges.monitor import RECOVERABLE_ERRORS, DriverMonitor
+from bridges.driver import DriveState, WheelDriver
+from bridges.monitor import DriverMonitor
 from bridges.odometry import Odometry
-from bridges.protocol import (
-    AXIS_STATE_CLOSED_LOOP_CONTROL,
-)
-from bridges.safety import CommandGate, Decision
+from bridges.safety import ZERO, CommandGate, Decision
 from deploy.contract.options import DEFAULT_COMMAND_TIMEOUT_S
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import (
@@ -51,12 +53,19 @@ from plant.perception import sense
 
 MAX_POSE_LEAD_S = 0.02  # longest the published pose is carried past the newest encoder data
 LOG_ROWS = 20  # states per batch to observers (0.1 s at the lab's 200 Hz; ~1.3 kB)
-REARM_AFTER_S = 0.25  # an axis still idle this long after arming (heartbeats at 10 Hz) is asked again
+# a drive not enabled for this long, having answered at least MIN_ARMING_ATTEMPTS arming
+# frames with a status that says so, is given up (the robot faulted, driven no more): it
+# refuses, or its state machine is stuck. A drive that does not answer at all is not
+# given up: its missing status faults the robot until it answers (a host or an emulator
+# off the CPU for seconds is not a drive that refuses)
+ENABLE_TIMEOUT_S = 2.0
+MIN_ARMING_ATTEMPTS = 5
 
 
 class BridgeNode:
     def __init__(self, sc: Scenario, robot_id: int, node: Node, stop: StopFlag, bus: Any,
-                 protocol: Any, node_ids: list[int], command_timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S,
+                 protocol: WheelDriver, node_ids: list[int],
+                 command_timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S,
                  heartbeat_timeout_s: float = 0.35) -> None:
         self.sc, self.rid, self.node, self.stop = sc, robot_id, node, stop
         self.index = sc.index_of(robot_id)
@@ -81,7 +90,10 @@ class BridgeNode:
         self.torque_sent_at = -1.0
         self.zeroed_at = -1.0
         self.armed_at = -1.0
-        self.rearms = 0  # arming frames sent again to an axis that stayed idle
+        self.arm_sent_at: dict[int, float] = {}  # each drive's newest arming frames
+        self.not_enabled_since: dict[int, float] = {}  # armed, each drive not enabled since
+        self.arm_attempts: dict[int, int] = {}  # arming frames answered "not enabled" since
+        self.rearms = 0  # arming frames sent again to a drive not enabled yet
         # zero torque for want of a fresh command (a dead or silent agent), as
         # (robot, age of the newest command once the zero frames were sent, s; run time, s)
         self.command_stops: list[tuple[int, float, float]] = []
@@ -179,30 +191,52 @@ class BridgeNode:
             self._send(frames_of(n))
 
     def arm(self) -> None:
-        self._send_all(self.protocol.clear_errors_frames)
-        for n in self.node_ids:
-            self._arm_axis(n)
-        self.armed = True
+        self._send_all(self.protocol.clear_faults_frames)
         self.armed_at = time.monotonic()
+        self.not_enabled_since.clear()
+        self.arm_attempts.clear()
+        for n in self.node_ids:
+            self._arm_axis(n, self.armed_at)
+        self.armed = True
 
-    def _arm_axis(self, n: int) -> None:
+    def _arm_axis(self, n: int, now: float) -> None:
         self._send(self.protocol.arm_frames(n))
+        self.arm_sent_at[n] = now
 
     def _rearm_idle_axes(self, now: float) -> None:
-        """An axis whose heartbeat still says idle well after arming missed its arming
-        frames (a lost frame, a driver that rebooted) or was stopped by its watchdog
-        while this host was off the CPU: clear that and ask again. Other errors are
-        not cleared here: they fault the robot instead."""
-        since = self.armed_at + REARM_AFTER_S
+        """A drive whose status, heard ``rearm_after_s`` or more after its arming
+        frames, still says it is not enabled: it missed them (a lost frame, a drive
+        that rebooted), was stopped by its watchdog while this host was off the CPU
+        (a recoverable fault: cleared first), or is one transition further on a state
+        machine the driver walks one status at a time (CiA 402). Ask again. Other
+        faults are not cleared here: they fault the robot. A drive not enabled for
+        ENABLE_TIMEOUT_S that answered MIN_ARMING_ATTEMPTS of them so is given up: the
+        bridge reports it and drives the robot no more."""
+        wait = self.protocol.rearm_after_s
         for a in self.monitor.axes:
-            if (a.heartbeat_at is not None and a.heartbeat_at > since and now > since
-                    and a.axis_state != AXIS_STATE_CLOSED_LOOP_CONTROL
-                    and not a.axis_error & ~RECOVERABLE_ERRORS):
-                if a.axis_error:
-                    self._send(self.protocol.clear_errors_frames(a.node))
-                self._arm_axis(a.node)
+            if a.state is DriveState.ENABLED:
+                self.not_enabled_since.pop(a.node, None)
+                self.arm_attempts[a.node] = 0
+                continue
+            if a.node in self.monitor.given_up:
+                continue
+            since = self.not_enabled_since.setdefault(a.node, now)  # (again) not enabled
+            attempts = self.arm_attempts.get(a.node, 0)
+            if now - since > ENABLE_TIMEOUT_S and attempts >= MIN_ARMING_ATTEMPTS:
+                self.monitor.give_up(a.node, f"not enabled {now - since:.2f} s after arming, "
+                                     f"{attempts} arming frames answered (state "
+                                     f"{a.state.value if a.state else 'unknown'}, "
+                                     f"fault {self.protocol.describe_fault(a.fault)})")
+                print(f"{self.node.role}: {self.monitor.given_up[a.node]}: node {a.node} given "
+                      "up, the robot is not driven", file=sys.stderr, flush=True)
+                continue
+            sent = self.arm_sent_at.get(a.node, self.armed_at)
+            if a.status_at is not None and a.status_at >= sent + wait and not a.fatal:
+                if a.fault:
+                    self._send(self.protocol.clear_faults_frames(a.node))
+                self._arm_axis(a.node, now)
+                self.arm_attempts[a.node] = attempts + 1
                 self.rearms += 1
-                self.armed_at = now
 
     def disarm(self) -> None:
         self._send_all(lambda n: [self.protocol.torque_frame(n, 0.0)])
@@ -211,10 +245,22 @@ class BridgeNode:
         self.armed = False
 
     def _apply(self, d: Decision) -> None:
-        for n, tau in zip(self.node_ids, d.torques, strict=True):
+        # no wheel is driven until every drive says it is enabled: a drive that is not
+        # (still arming, stopped by its watchdog, refusing) would leave the robot pushed
+        # by three wheels; one that never becomes enabled is given up (_rearm_idle_axes)
+        torques = d.torques if self._all_enabled() else ZERO
+        for n, tau in zip(self.node_ids, torques, strict=True):
             self._send_frame(self.protocol.torque_frame(n, tau))
         self.torque_sent_at = time.monotonic()
         self.last_reason = d.reason
+
+    def _all_enabled(self) -> bool:
+        return all(a.state is DriveState.ENABLED for a in self.monitor.axes)
+
+    def _cycle(self, now: float) -> None:
+        """The driver's frames of this period, after its torques (CiA 402: SYNC)."""
+        with self.node.mailbox.lock:
+            self._send(self.protocol.cycle_frames(now))
 
     # -- the loop ---------------------------------------------------------------------
     def _sample(self, now: float, dt: float) -> None:
@@ -224,9 +270,9 @@ class BridgeNode:
                 at, frame = self._frames.get_nowait()
             except queue.Empty:
                 break
-            msg = self.protocol.decode(frame)
-            if msg is not None:
-                self.monitor.feed(msg, at)
+            report = self.protocol.decode(frame)
+            if report is not None:
+                self.monitor.feed(report, at)
         # the wheels' rotation from the drives' angle estimates: a lost or late encoder
         # frame adds no drift (the next carries the whole rotation); see Odometry.follow
         self.odometry.follow(self.monitor.wheel_positions_rev(), self.monitor.first_positions_rev(),
@@ -243,6 +289,7 @@ class BridgeNode:
                 break
             now = time.monotonic()
             self._sample(now, now - last)
+            self._cycle(now)
             last = now
         self._pre_run_last = last
         return None if self.control.start is None else self.control.wait_for_start(0.0)
@@ -280,6 +327,7 @@ class BridgeNode:
                         self._apply(self.gate.decide(now, faulted, due_step=k - 1))
                     elif not d.armed and self.last_reason != d.reason:
                         self._apply(d)  # zeros, once per reason
+                self._cycle(now)
                 self._publish(k, k * dt, faulted, now)
                 self.steps_done += 1
         finally:
@@ -340,8 +388,8 @@ class BridgeNode:
                        zero_torque=self.zero_torque.close(self.steps_done * self.sc.dt),
                        torque_clipped={str(self.rid): self.clipped} if self.clipped else {})
         c = self.protocol.counters
-        print(f"{self.node.role}: CAN frames sent {self.frames_sent}, axes re-armed "
-              f"{self.rearms}; received decoded {c.decoded}, rejected {c.rejected}",
+        print(f"{self.node.role}: CAN frames sent {self.frames_sent}, arming frames sent "
+              f"again {self.rearms}; received decoded {c.decoded}, rejected {c.rejected}",
               file=sys.stderr)
         agent = agent_role(self.rid)
         self.node.mailbox.wait_until(lambda: agent not in self.node.peers_alive, linger_s)

@@ -1,11 +1,20 @@
-"""``omnifleet can-check``: what someone does first with a new robot.
+"""``omnifleet can-check``: what someone does first with a new robot, for any driver.
 
-Listens to a bus for ``--listen`` seconds and lists every driver that answers
-(node id, axis state, errors, bus voltage when reported) with its encoder
-reading. Only with ``--spin`` does it move anything: each answering axis in turn
-is armed in torque control, driven at ``--spin-torque`` for ``--spin-time``
-seconds, zeroed and idled, and its direction and peak speed are reported. Every
-axis it touched is zeroed and idled before it exits, also after Ctrl-C.
+1. Listens ``--listen`` seconds and names every drive that answers (of ``--node-ids``;
+   without it, of every node id the protocol can address).
+2. Brings the answering drives up as the bridge does, each step printed (ODrive: nothing
+   to configure; CiA 402: heartbeat, NMT, SDO reads and writes, the PDO mapping, NMT
+   operational), then, sending the driver's frames of a control period (CiA 402: SYNC),
+   lists each drive's state, fault, wheel angle, speed and torque.
+3. Only with ``--spin`` does it move anything: each drive in turn is armed (walked to
+   ENABLED, every state on the way printed), driven at ``--spin-torque`` for
+   ``--spin-time`` seconds, zeroed and disarmed; its direction and peak speed are
+   reported. A drive that does not become enabled within a second is reported and not
+   driven.
+
+Every drive it touched is zeroed and disarmed before it exits, also after Ctrl-C. The
+drives' max torque is set to the spin limit where the protocol carries one (CiA 402).
+Neutral reports only (bridges/driver.py): nothing here knows a protocol.
 """
 
 from __future__ import annotations
@@ -13,121 +22,158 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
-from bridges.protocol import (
-    AXIS_STATE_CLOSED_LOOP_CONTROL,
-    AXIS_STATE_IDLE,
-    CONTROL_MODE_TORQUE_CONTROL,
-    INPUT_MODE_PASSTHROUGH,
-    BusVoltageCurrent,
-    ClearErrors,
-    DriverErrors,
-    EncoderEstimate,
-    Heartbeat,
-    OdriveCanSimple,
-    SetAxisState,
-    SetControllerMode,
-    SetInputTorque,
-)
+from bridges.driver import DriveError, DriveState, WheelDriver
+from bridges.drivers import entry
+from bridges.monitor import DriverMonitor
 from deploy.contract.options import EXIT_BAD_INPUT
-from deploy.nodes.can_options import MAX_SPIN_TORQUE_NM
+from deploy.nodes.can_options import MAX_SPIN_TORQUE_NM, DriverOptionError
+
+CYCLE_S = 0.01  # can-check's control period: torque and the driver's periodic frames
+ENABLE_WITHIN_S = 1.0
+STATUS_TIMEOUT_S = 10.0  # the monitor's: can-check reports silence itself
 
 
 @dataclass
-class DriverSeen:
-    node: int
-    axis_state: int | None = None
-    axis_error: int = 0
-    active_errors: int = 0
-    bus_voltage_v: float | None = None
-    position_rev: float | None = None
-    velocity_rev_s: float | None = None
-    speeds: list[float] = field(default_factory=list)
+class Check:
+    """The bus, the driver and what was heard."""
+
+    bus: object
+    driver: WheelDriver
+    monitor: DriverMonitor
+    heard: set[int] = field(default_factory=set)
+    speeds: dict[int, list[float]] = field(default_factory=dict)
+    next_cycle: float = 0.0
+
+    def send(self, frames: list) -> None:
+        for f in frames:
+            self.bus.send(f)  # type: ignore[attr-defined]
+
+    def listen(self, seconds: float, cycle: bool = False) -> None:
+        """Decode what comes for ``seconds``; with ``cycle``, the driver's periodic frames
+        every CYCLE_S (the drives' SYNC, the host's heartbeat)."""
+        deadline = time.monotonic() + seconds
+        while (left := deadline - time.monotonic()) > 0:
+            now = time.monotonic()
+            if cycle and now >= self.next_cycle:
+                self.next_cycle = now + CYCLE_S
+                self.send(self.driver.cycle_frames(now))
+            frame = self.bus.recv(timeout=min(left, CYCLE_S if cycle else 0.05))  # type: ignore[attr-defined]
+            report = None if frame is None else self.driver.decode(frame)
+            if report is None:
+                continue
+            self.heard.add(report.node)
+            self.monitor.feed(report, time.monotonic())
+            if report.velocity_rev_s is not None:
+                self.speeds.setdefault(report.node, []).append(report.velocity_rev_s)
+
+    def table(self) -> str:
+        rows = ["node  state      fault                         position_rev  velocity_rev/s  "
+                "torque_Nm  (the drive's own words)"]
+        for n in sorted(self.heard):
+            a = self.monitor.axes[self.driver.node_ids.index(n)]
+            state = a.state.value if a.state is not None else "?"
+            seen = a.encoder_at is not None
+            rows.append(
+                f"{n:4d}  {state:9s}  {self.driver.describe_fault(a.fault):28s}  "
+                f"{f'{a.position_rev:12.3f}' if seen else '-':>12}  "
+                f"{f'{a.velocity_rev_s:14.3f}' if seen else '-':>14}  "
+                f"{'-' if a.torque_nm is None else f'{a.torque_nm:9.3f}':>9}  "
+                f"({self.driver.describe(n)})")
+        return "\n".join(rows)
 
 
-def listen(bus, protocol: OdriveCanSimple, seconds: float, seen: dict[int, DriverSeen]) -> None:
-    deadline = time.monotonic() + seconds
-    while (left := deadline - time.monotonic()) > 0:
-        frame = bus.recv(timeout=min(left, 0.05))
-        msg = None if frame is None else protocol.decode(frame)
-        if msg is None:
-            continue
-        d = seen.setdefault(msg.node, DriverSeen(msg.node))
-        if isinstance(msg, Heartbeat):
-            d.axis_state, d.axis_error = msg.axis_state, msg.axis_error
-        elif isinstance(msg, EncoderEstimate):
-            d.position_rev, d.velocity_rev_s = msg.position_rev, msg.velocity_rev_s
-            d.speeds.append(msg.velocity_rev_s)
-        elif isinstance(msg, DriverErrors):
-            d.active_errors = msg.active_errors
-        elif isinstance(msg, BusVoltageCurrent):
-            d.bus_voltage_v = msg.voltage_v
-
-
-def spin(bus, protocol: OdriveCanSimple, d: DriverSeen, torque_nm: float, seconds: float,
-         seen: dict[int, DriverSeen]) -> str:
-    send = lambda m: bus.send(protocol.encode(m))  # noqa: E731
-    d.speeds.clear()
+def spin(c: Check, n: int, torque_nm: float, seconds: float) -> str:
+    """Arm drive ``n`` step by step, drive it, zero and disarm it: what it did."""
+    d, axis = c.driver, c.monitor.axes[c.driver.node_ids.index(n)]
+    c.speeds[n] = []
     try:
-        send(ClearErrors(d.node))
-        send(SetControllerMode(d.node, CONTROL_MODE_TORQUE_CONTROL, INPUT_MODE_PASSTHROUGH))
-        send(SetAxisState(d.node, AXIS_STATE_CLOSED_LOOP_CONTROL))
+        c.send(d.clear_faults_frames(n))
+        start, sent_at, last = time.monotonic(), -1.0, None
+        while axis.state is not DriveState.ENABLED:
+            if time.monotonic() - start > ENABLE_WITHIN_S:
+                return (f"node {n}: NOT enabled within {ENABLE_WITHIN_S:g} s ({d.describe(n)}, "
+                        f"fault {d.describe_fault(axis.fault)}): not driven; check its enable "
+                        "input (safe torque off), its errors, its mode")
+            if axis.status_at is not None and axis.status_at > sent_at + d.rearm_after_s:
+                if d.describe(n) != last:
+                    last = d.describe(n)
+                    print(f"node {n}: {last}")
+                c.send(d.arm_frames(n))
+                sent_at = time.monotonic()
+            c.send([d.torque_frame(n, 0.0)])
+            c.listen(CYCLE_S, cycle=True)
+        print(f"node {n}: {d.describe(n)}")
+        c.speeds[n] = []
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            send(SetInputTorque(d.node, torque_nm))  # also feeds the driver's watchdog
-            listen(bus, protocol, 0.02, seen)
+            c.send([d.torque_frame(n, torque_nm)])  # also feeds an ODrive's watchdog
+            c.listen(CYCLE_S, cycle=True)
     finally:
-        send(SetInputTorque(d.node, 0.0))
-        send(SetAxisState(d.node, AXIS_STATE_IDLE))
-    if not d.speeds:
-        return f"node {d.node}: no encoder estimates while spinning"
-    peak = max(d.speeds, key=abs)
+        c.send([d.torque_frame(n, 0.0), *d.disarm_frames(n)])
+        c.listen(3 * CYCLE_S, cycle=True)
+    speeds = c.speeds.get(n, [])
+    if not speeds:
+        return f"node {n}: no encoder readings while spinning"
+    peak = max(speeds, key=abs)
     direction = "positive" if peak > 0 else "negative" if peak < 0 else "did not move"
     agrees = (peak > 0) == (torque_nm > 0)
-    return (f"node {d.node}: {direction}, peak {abs(peak):.3f} rev/s at {torque_nm:+.3f} N m"
+    return (f"node {n}: {direction}, peak {abs(peak):.3f} rev/s at {torque_nm:+.3f} N m"
             + ("" if agrees or peak == 0 else "  <- turns against the torque: check wiring/sign"))
 
 
 def _cmd_can_check(args: argparse.Namespace) -> int:
-    from deploy.nodes.can_options import CanBusError, open_bus
+    from deploy.nodes.can_options import CanBusError, driver_settings, open_bus
 
     if args.spin and not 0 < abs(args.spin_torque) <= MAX_SPIN_TORQUE_NM:
         print(f"omnifleet can-check: --spin-torque must be within (0, {MAX_SPIN_TORQUE_NM}] N m",
               file=sys.stderr)
         return EXIT_BAD_INPUT
-    protocol = OdriveCanSimple(list(range(64)))
+    e = entry(args.driver)
+    lo, hi = e.node_id_range
     try:
+        settings = driver_settings(args, CYCLE_S, MAX_SPIN_TORQUE_NM)
+        # without --node-ids: every node the protocol can address
+        scan = settings.node_ids if args.node_ids is not None else tuple(range(lo, hi + 1))
+        make = e.make
+        scanner = make(replace(settings, node_ids=scan))
         bus = open_bus(args)
-    except CanBusError as exc:
+    except (CanBusError, DriverOptionError, ValueError) as exc:
         print(f"omnifleet can-check: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    seen: dict[int, DriverSeen] = {}
+    touched: list[int] = []
+    c = Check(bus, scanner, DriverMonitor(list(scan), STATUS_TIMEOUT_S, time.monotonic()))
     try:
-        listen(bus, protocol, args.listen, seen)
-        if not seen:
+        c.listen(args.listen)
+        if not c.heard:
             print(f"no driver answered on {args.can_interface}:{args.can_channel} "
                   f"in {args.listen:g} s")
             return 1
-        print("node  state  axis_error  active_errors  bus_V  position_rev  velocity_rev/s")
-        for n in sorted(seen):
-            d = seen[n]
-            print(f"{n:4d}  {d.axis_state if d.axis_state is not None else '?':>5}  "
-                  f"0x{d.axis_error:08x}  0x{d.active_errors:08x}     "
-                  f"{'-' if d.bus_voltage_v is None else f'{d.bus_voltage_v:5.1f}':>5}  "
-                  f"{'-' if d.position_rev is None else f'{d.position_rev:12.3f}':>12}  "
-                  f"{'-' if d.velocity_rev_s is None else f'{d.velocity_rev_s:14.3f}':>14}")
+        found = sorted(c.heard)
+        print(f"{args.driver}: node(s) {', '.join(map(str, found))} answered in {args.listen:g} s")
+        c = Check(bus, make(replace(settings, node_ids=tuple(found))),
+                  DriverMonitor(found, STATUS_TIMEOUT_S, time.monotonic()), set(found))
+        try:
+            c.driver.bring_up(bus, args.bring_up_timeout, print)
+        except DriveError as exc:
+            print(f"bring-up failed: {exc}")
+            return 1
+        c.listen(0.3, cycle=True)
+        print(c.table())
         if args.spin:
-            for n in sorted(seen):
-                print(spin(bus, protocol, seen[n], args.spin_torque, args.spin_time, seen))
-        c = protocol.counters
-        print(f"frames: decoded {c.decoded}, unknown id {c.unknown_id}, bad length "
-              f"{c.bad_length}, invalid {c.invalid}")
+            for n in found:
+                touched.append(n)
+                print(spin(c, n, args.spin_torque, args.spin_time))
+        k = [scanner.counters, c.driver.counters]
+        print(f"frames: decoded {sum(x.decoded for x in k)}, unknown id "
+              f"{sum(x.unknown_id for x in k)}, bad length {sum(x.bad_length for x in k)}, "
+              f"invalid {sum(x.invalid for x in k)}")
         return 0
     except KeyboardInterrupt:
-        for n in seen:  # whatever was touched stops
-            bus.send(protocol.encode(SetInputTorque(n, 0.0)))
-            bus.send(protocol.encode(SetAxisState(n, AXIS_STATE_IDLE)))
+        for n in touched:  # whatever was touched stops
+            c.send([c.driver.torque_frame(n, 0.0), *c.driver.disarm_frames(n)])
         return 130
     finally:
-        bus.shutdown()
+        bus.shutdown()  # type: ignore[attr-defined]
+

@@ -18,12 +18,17 @@ def _run(args: argparse.Namespace) -> int:
 
 def add_can_check_command(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "can-check", help="bring-up: list the motor drivers that answer on a CAN bus",
-        description="Lists the drivers that answer (node id, axis state, errors, bus voltage, "
-        "encoder). With --spin, turns each wheel briefly at a small torque and reports its "
-        "direction and speed. Exit 1 when nobody answers.")
+        "can-check", help="bring-up: list the motor drives that answer on a CAN bus",
+        description="Lists the drives that answer (of --node-ids; without it, of every node id "
+        "the --driver's protocol addresses), brings them up as the bridge does, step by step "
+        "(CiA 402: heartbeat, NMT, SDO configuration, PDO mapping, NMT operational), and lists "
+        "their state, fault, wheel angle, speed and torque. With --spin, arms each drive step by "
+        "step, turns its wheel briefly at a small torque and reports its direction and speed. "
+        "Exit 1 when nobody answers or a drive does not come up, 2 for bad input (a node id, "
+        "an EDS).")
     add_can_options(p)
     add_option(p, "--listen")
+    add_option(p, "--bring-up-timeout")
     p.add_argument("--spin", action="store_true",
                    help="turn each answering wheel briefly (the robot must be on blocks)")
     add_option(p, "--spin-torque")

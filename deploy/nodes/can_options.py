@@ -1,11 +1,17 @@
-"""The CAN bus options every CAN command shares (bridge, emulate, can-check), and
-opening the bus they name with a clear error."""
+"""The CAN bus and driver options every CAN command shares (bridge, emulate,
+can-check), opening the bus they name and making the driver they name, each with a
+clear error."""
 
 from __future__ import annotations
 
 import argparse
+import math
+from pathlib import Path
 from typing import Any
 
+from bridges import drivers
+from bridges.driver import DriverSettings, WheelDriver
+from bridges.drivers import DEFAULT_DRIVER, DRIVERS, node_ids_for
 from deploy.contract.options import (  # noqa: F401 (can_check reads MAX_SPIN_TORQUE_NM here)
     MAX_CAN_NODE_ID,
     MAX_SPIN_TORQUE_NM,
@@ -18,6 +24,8 @@ class CanBusError(RuntimeError):
 
 
 def parse_node_ids(text: str) -> tuple[int, ...]:
+    """4 distinct node ids; the protocol's own range is checked by the driver
+    (:func:`bridges.drivers.node_ids_for`)."""
     try:
         ids = tuple(int(x) for x in text.split(","))
     except ValueError:
@@ -66,9 +74,46 @@ def add_can_options(p: argparse.ArgumentParser, per_robot: bool = False) -> None
                    "udp_multicast: every group on one port is heard by every bus on that port)"
                    + ("; a key given once applies to every robot's bus, given once per --robot "
                       "each robot gets its own value, in order" if per_robot else ""))
-    p.add_argument("--node-ids", type=parse_node_ids, default=(0, 1, 2, 3), metavar="A,B,C,D",
+    p.add_argument("--node-ids", type=parse_node_ids, default=None, metavar="A,B,C,D",
                    help="CAN node ids of the wheels' drives, in the wheel order of the model "
-                   "(default: 0,1,2,3)")
+                   "(default: the driver's: " + "; ".join(
+                       f"{name} {','.join(map(str, e.default_node_ids))}"
+                       for name, e in DRIVERS.items()) + ")")
+    p.add_argument("--driver", choices=sorted(DRIVERS), default=DEFAULT_DRIVER,
+                   help="the drives' CAN protocol: " + "; ".join(
+                       f"{name}: {e.about}" for name, e in DRIVERS.items())
+                   + f" (default {DEFAULT_DRIVER}; bridges/drivers.py)")
+    p.add_argument("--eds", metavar="FILE",
+                   help="cia402: the drives' EDS file (default: the emulated drive's, shipped "
+                   "with omnifleet: bridges/cia402_drive.eds)")
+
+
+class DriverOptionError(ValueError):
+    """The driver the options name cannot be made (a bad EDS or node id): exit code 2."""
+
+
+def driver_settings(args: argparse.Namespace, period_s: float = 0.005,
+                    max_wheel_torque_nm: float = math.inf) -> DriverSettings:
+    """What the driver options say (DriverOptionError naming a node id the protocol
+    cannot address or an EDS that does not exist)."""
+    try:
+        ids = node_ids_for(args.driver, args.node_ids)
+    except ValueError as exc:
+        raise DriverOptionError(str(exc)) from None
+    if args.eds is not None and not Path(args.eds).is_file():
+        raise DriverOptionError(f"--eds {args.eds}: no such file")
+    return DriverSettings(ids, period_s, max_wheel_torque_nm, args.eds)
+
+
+def make_driver(args: argparse.Namespace, period_s: float = 0.005,
+                max_wheel_torque_nm: float = math.inf) -> WheelDriver:
+    """The host side of the driver the options name (DriverOptionError naming what
+    is wrong: a node id, the EDS file, its contents)."""
+    settings = driver_settings(args, period_s, max_wheel_torque_nm)
+    try:
+        return drivers.make_driver(args.driver, settings)
+    except ValueError as exc:
+        raise DriverOptionError(str(exc)) from None
 
 
 def open_bus(args: argparse.Namespace) -> Any:

@@ -1,5 +1,5 @@
-"""``omnifleet emulate``: robots' four motor drivers and dynamics, each robot on a
-CAN bus of its own.
+"""``omnifleet emulate``: robots' four motor drives (of the protocol ``--driver``
+names) and dynamics, each robot on a CAN bus of its own.
 
 One process plays one or several robots (``--robot`` repeated, with one
 ``--can-channel`` and ``--truth-out`` per robot): :class:`bridges.fleet_emulator.FleetEmulator`
@@ -42,6 +42,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
     add_option(p, "--corrupt-rate")
     add_option(p, "--silent-node")
     add_option(p, "--silent-after")
+    add_option(p, "--refuse-enable")
     add_option(p, "--seed", default=0, help="fault random seed; the i-th --robot (from 0) "
                "uses K + i")
     add_option(p, "--physics-rate")
@@ -56,11 +57,13 @@ def _configure(p: argparse.ArgumentParser) -> None:
 def add_emulate_command(sub: argparse._SubParsersAction) -> None:
     """Register ``emulate`` on an ``omnifleet`` sub-command parser."""
     p = sub.add_parser(
-        "emulate", help="emulate robots' four ODrive drivers and dynamics, each on its CAN bus",
-        description="Play four ODrive CANSimple drives (arming, torque control, watchdog, Estop, "
-        "heartbeats, encoder estimates) and the robot's dynamics (eq. 4) on a python-can bus, so "
-        "a bridge runs without hardware; several robots in one process, each on its own bus. Runs "
-        "in real time until --duration or SIGINT/SIGTERM.",
+        "emulate", help="emulate robots' four motor drives and dynamics, each on its CAN bus",
+        description="Play four drives of --driver's protocol (ODrive CANSimple: arming, torque "
+        "control, watchdog, Estop, heartbeats, encoder estimates; CiA 402: NMT, SDO, PDOs on "
+        "SYNC, the power state machine, quick stop, SYNC and heartbeat watchdogs) and the "
+        "robot's dynamics (eq. 4) on a python-can bus, so a bridge runs without hardware; "
+        "several robots in one process, each on its own bus. Runs in real time until "
+        "--duration or SIGINT/SIGTERM.",
     )
     _configure(p)
     p.set_defaults(func=run_emulate)
@@ -69,9 +72,13 @@ def add_emulate_command(sub: argparse._SubParsersAction) -> None:
 def run_emulate(args: argparse.Namespace) -> int:
     """The ``emulate`` command; returns the exit code."""
 
+    import functools
+
     from bridges.drive_emulator import EmulatorFaults
+    from bridges.drivers import entry
     from bridges.fleet_emulator import FleetEmulator
     from deploy.contract.scenario import ScenarioError, load_scenario
+    from deploy.nodes.can_options import DriverOptionError, driver_settings
 
     def bad(msg: str) -> int:
         print(f"{PROG}: {msg}", file=sys.stderr)
@@ -82,9 +89,13 @@ def run_emulate(args: argparse.Namespace) -> int:
         return bad(f"--robot given twice for the same robot: {robots}")
     if args.silent_after is not None and args.silent_node is None:
         return bad("--silent-after needs --silent-node")
-    if args.silent_node is not None and args.silent_node not in args.node_ids:
-        return bad(f"--silent-node {args.silent_node} is not one of --node-ids "
-                   f"{','.join(map(str, args.node_ids))}")
+    try:
+        node_ids = driver_settings(args).node_ids
+    except DriverOptionError as exc:
+        return bad(str(exc))
+    for flag, node in (("--silent-node", args.silent_node), ("--refuse-enable", args.refuse_enable)):
+        if node is not None and node not in node_ids:
+            return bad(f"{flag} {node} is not one of --node-ids {','.join(map(str, node_ids))}")
     truths = [check_file(t, "--truth-out") for t in args.truth_out or []]  # exit 2 (cli.main)
     if truths and len(truths) != len(robots):
         return bad(f"give --truth-out once per --robot ({len(robots)}), or not at all")
@@ -98,15 +109,19 @@ def run_emulate(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         return bad(f"bad scenario: {exc}")
     faults = [EmulatorFaults(args.drop_rate, args.corrupt_rate, args.silent_node,
-                             args.silent_after or 0.0, args.seed + i) for i in range(len(robots))]
+                             args.silent_after or 0.0, args.seed + i, args.refuse_enable)
+              for i in range(len(robots))]
+    emulator = entry(args.driver).emulator()
+    if args.eds is not None:
+        emulator = functools.partial(emulator, eds=args.eds)
     try:
         buses = open_buses(args, len(robots))
     except CanBusError as exc:
         return bad(str(exc))
     try:
-        fleet = FleetEmulator(sc, list(zip(robots, buses, strict=True)), args.node_ids,
+        fleet = FleetEmulator(sc, list(zip(robots, buses, strict=True)), node_ids,
                               args.encoder_rate, args.heartbeat_rate, args.watchdog_timeout,
-                              args.physics_rate, faults=faults)
+                              args.physics_rate, faults=faults, emulator=emulator)
     except ValueError as exc:
         for bus in buses:
             bus.shutdown()
@@ -116,8 +131,9 @@ def run_emulate(args: argparse.Namespace) -> int:
     if args.priority:
         print(f"{PROG}: {raise_priority(args.priority)}", file=sys.stderr, flush=True)
     for r, ch in zip(robots, args.can_channel, strict=True):
-        print(f"{PROG}: robot {r} of {sc.name!r}, drives {','.join(map(str, args.node_ids))} "
-              f"on {args.can_interface}:{ch}", file=sys.stderr, flush=True)
+        print(f"{PROG}: robot {r} of {sc.name!r}, {args.driver} drives "
+              f"{','.join(map(str, node_ids))} on {args.can_interface}:{ch}", file=sys.stderr,
+              flush=True)
     try:
         fleet.run(lambda: bool(stop_reason), args.duration)
     finally:  # also when a bus fails: shut them down and keep what was simulated
@@ -130,9 +146,7 @@ def run_emulate(args: argparse.Namespace) -> int:
     lag = fleet.lag_stats()
     for emu in fleet.emulators:
         print(f"{PROG}: robot {emu.robot_id}: t = {emu.t:.3f} s ({reason}); "
-              f"{emu.counters.summary()}; axes "
-              + ", ".join(f"{a.node}: state {a.state} error 0x{a.axis_error:x}" for a in emu.axes),
-              file=sys.stderr)
+              f"{emu.counters.summary()}; drives {emu.describe_drives()}", file=sys.stderr)
     print(f"{PROG}: lag behind the wall clock p50 {lag['p50'] * 1e3:.1f} ms, p99 "
           f"{lag['p99'] * 1e3:.1f} ms, max {lag['max'] * 1e3:.1f} ms", file=sys.stderr)
     return _SIGNAL_EXIT.get(reason, 0)

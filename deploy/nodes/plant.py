@@ -336,7 +336,7 @@ class PlantNode:
         none of them mistakes our leaving for a crash of the plant."""
         log = contact_log(self.plant)
         contacts = None if log is None else [ContactRecord(**e) for e in log[:MAX_CONTACTS]]
-        getattr(self.plant, "close", lambda: None)()
+        self.plant.close()
         if self.gate is not None:
             self.gate.close()
         publish_report(self.node, -1, self.steps_done, self.timing, contacts=contacts,

@@ -31,10 +31,11 @@ from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, Keys, control
 from deploy.run.kill_schedule import KillSchedule
 from deploy.run.observer import Observer
-from deploy.run.plan import CAN_EMULATED, LaunchOptions, endpoint_of, key_roles, plan_run
+from deploy.run.plan import LaunchOptions, endpoint_of, key_roles, plan_run
 from deploy.run.run_figures import run_figures
 from deploy.run.supervisor import Interrupted, RunFailed, Supervisor
 from deploy.runtime.node_runtime import START_LEAD_S, StopFlag
+from deploy.runtime.plants import CAN_EMULATED
 from deploy.runtime.transport import Node, zenoh_config
 
 __all__ = ["Interrupted", "LaunchOptions", "Launcher", "RunFailed", "observing"]

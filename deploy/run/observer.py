@@ -26,7 +26,7 @@ from deploy.contract.wire import (
 )
 from deploy.nodes.leader import TICK_EVERY
 from deploy.run.collector import Collector
-from deploy.run.plan import CAN_EMULATED
+from deploy.runtime.plants import CAN_EMULATED
 from deploy.runtime.step_guard import CLOCK_SKEW_S
 from deploy.runtime.transport import WHAT
 

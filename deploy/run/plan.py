@@ -18,14 +18,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bridges.drivers import DEFAULT_DRIVER
 from deploy.contract.fault_plan import FaultPlan
 from deploy.contract.options import DEFAULT_STARTUP_TIMEOUT_S, DEFAULT_STEP_DEADLINE_S
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, LEADER_ROLE, PLANT_ROLE, agent_role, bridge_role
+from deploy.runtime.plants import CAN_EMULATED
 from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
 
 ENCODER_RATE_HZ = 100.0  # the driver emulator's encoder estimates (can-emulated)
-CAN_EMULATED = "can-emulated"  # every robot through a CAN bridge + driver emulator
 TAIL_LINES = 15
 
 
@@ -76,6 +77,7 @@ class LaunchOptions:
     endpoint: str | None = None  # where the launcher listens (default: its private socket)
     record: bool = True
     gui: bool = False  # pybullet plant: open its window
+    driver: str = DEFAULT_DRIVER  # can-emulated: the drives' protocol (bridges/drivers.py)
     extra_agent_args: list[str] = field(default_factory=list)
     faults: FaultPlan | None = None  # given to every node; kills done by the launcher
     realtime_priority: int = REALTIME_PRIORITY  # nice -N for every node on the realtime clock
@@ -236,7 +238,8 @@ def _can_plan(sc: Scenario, a: LaunchOptions, cmd: list[str], common: list[str],
     2-core host three emulators waking at the physics rate each fell seconds behind
     the wall clock (docs/hardware.md)."""
     logs = out / "logs"
-    plan, emulate = [], [*cmd, "emulate", "--scenario", a.scenario_arg,
+    driver = ["--driver", a.driver]
+    plan, emulate = [], [*cmd, "emulate", "--scenario", a.scenario_arg, *driver,
                          "--can-interface", "udp_multicast",
                          # ODrive's default encoder message rate (10 ms): half the
                          # frames of 200 Hz; odometry from the angle estimates loses
@@ -255,7 +258,7 @@ def _can_plan(sc: Scenario, a: LaunchOptions, cmd: list[str], common: list[str],
         emulate += ["--robot", str(r), "--can-channel", group, "--can-arg", port,
                     "--truth-out", str(truth[r])]
         plan.append(Child(bridge_role(r), r, [
-            *cmd, "bridge", *common, "--robot", str(r), "--can-interface", "udp_multicast",
+            *cmd, "bridge", *common, "--robot", str(r), *driver, "--can-interface", "udp_multicast",
             "--can-channel", group, "--can-arg", port], logs / f"{bridge_role(r)}.log"))
     plan.insert(0, Child("emulator", None, [*emulate, *_can_faults(a.faults)],
                          logs / "emulator.log", zenoh=False, stop_after_run=True))

@@ -17,6 +17,7 @@ from deploy.report.run_folder import prepare as prepare_run_folder
 from deploy.report.summary import summary
 from deploy.report.verdict import divergence_banner, verdict_line
 from deploy.runtime.fault_model import fault_metrics
+from deploy.runtime.plants import CAN_EMULATED, PLANTS
 
 RECORDING = "recording.mcap"
 
@@ -26,13 +27,17 @@ RECORDING = "recording.mcap"
 def cmd_run(args: argparse.Namespace) -> int:
     sc = run_scenario(args)  # the ranges were checked on parse (deploy/contract/options.py)
     plant = args.plant or sc.spec.plant.kind
-    if plant == "can-emulated":  # hardware through emulated drivers runs on the wall clock
+    if PLANTS[plant].realtime_only:  # hardware through emulated drivers runs on the wall clock
         if args.in_process or args.clock == "lockstep":
-            print("omnifleet run: --plant can-emulated runs realtime, one process per node",
+            print(f"omnifleet run: --plant {plant} runs realtime, one process per node",
                   file=sys.stderr)
             return EXIT_BAD_INPUT
         args.clock = "realtime"
     args.clock = args.clock or "lockstep"
+    if args.driver is not None and plant != CAN_EMULATED:
+        print(f"omnifleet run: --driver {args.driver} drives CAN bridges: it needs --plant "
+              f"{CAN_EMULATED}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     problem = gui_problem(plant, args.gui)
     if problem:
         print(f"omnifleet run: {problem}", file=sys.stderr)
@@ -189,6 +194,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         record=not args.no_record, fleet=args.fleet, endpoint=args.endpoint, gui=args.gui,
         faults=fault_plan(args, sc), realtime_priority=args.priority, recorder=recorder,
         lowlatency=args.zenoh_transport == "lowlatency",
+        **({} if args.driver is None else {"driver": args.driver}),
     )
     launcher = Launcher(sc, opts)
     if live is not None:
@@ -228,6 +234,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
             series, sc.robot_ids, launcher.truth_files, launcher.observer.t0_mono,
             launcher.observer.collector.have_state)
         extra["emulator_lag_ms"] = emulator_lag_ms(launcher.truth_files)
+        extra["driver"] = opts.driver  # the drives' protocol on every robot's bus
         c = launcher.observer.collector
         got = c.have_state.sum(axis=0)
         extra["bridge_faulted_fraction"] = [

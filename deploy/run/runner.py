@@ -84,7 +84,7 @@ def run_in_process(
     try:
         return _run(sc, plant, plant_kind, steps, progress, FaultModel(faults, dt), on_series)
     finally:
-        getattr(plant, "close", lambda: None)()
+        plant.close()
 
 
 def _run(sc: Scenario, plant, plant_kind: str, steps: int,

@@ -22,7 +22,7 @@ import pytest
 from procs import finish, start
 from realtime_clock import judge_clock, measured
 
-from bridges.protocol import CMD_SET_INPUT_TORQUE, OdriveCanSimple, SetInputTorque
+from bridges.odrive import CMD_SET_INPUT_TORQUE, OdriveCanSimple, SetInputTorque
 from deploy.contract.scenario import load_scenario
 from deploy.contract.wire import WIRE_VERSION, Codec, Keys, NodeReport, Reply, Sample, ShareData
 from deploy.run.plan import free_tcp_port
@@ -206,8 +206,11 @@ def test_can_check_lists_the_drivers_and_spins_each_wheel_its_torque_s_way():
             emulator.kill()
             emulator.wait()
     assert rc == 0, err
-    rows = [ln.split() for ln in out.splitlines() if ln[:4].strip().isdigit()]
-    assert [int(r[0]) for r in rows] == [0, 1, 2, 3]
-    assert all(r[1] == "1" for r in rows)  # idle before anyone arms them
-    spins = [ln for ln in out.splitlines() if ln.startswith("node ") and ln[5].isdigit()]
+    rows = [ln for ln in out.splitlines() if ln[:4].strip().isdigit()]
+    assert [int(r.split()[0]) for r in rows] == [0, 1, 2, 3]
+    # idle before anyone arms them: disabled, ODrive's axis state 1
+    assert all(r.split()[1] == "disabled" and "(axis state 1, axis error 0x0)" in r for r in rows)
+    spins = [ln for ln in out.splitlines() if ln.startswith("node ") and " rev/s at " in ln]
     assert len(spins) == 4 and all("positive" in ln and "against" not in ln for ln in spins), out
+    for n in range(4):  # each armed step by step: idle, then closed loop (axis state 8)
+        assert f"node {n}: axis state 1, axis error 0x0\nnode {n}: axis state 8" in out

@@ -26,7 +26,8 @@ from fuzzing import any_float, fuzz_decoder, fuzz_settings, mutated_bytes
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bridges.protocol import OdriveCanSimple, SetInputTorque
+from bridges.driver import DriverSettings, DriveState, WheelReport
+from bridges.odrive import OdriveCanSimple, OdriveDriver, SetInputTorque
 from deploy.contract.scenario import Scenario, load_scenario
 from deploy.contract.wire import WIRE_VERSION, Reply, ShareData, encode
 from deploy.nodes.bridge import BridgeNode
@@ -100,15 +101,22 @@ def test_plant_applies_only_finite_torques_within_the_limit(plant: PlantNode, ra
 
 
 # --- the CAN bridge ----------------------------------------------------------------------
+def enable(b: BridgeNode) -> None:
+    """Every drive has said it is enabled (the bridge drives no wheel before)."""
+    for n in b.node_ids:
+        b.monitor.feed(WheelReport(n, state=DriveState.ENABLED, fault=0), 0.0)
+
+
 @pytest.fixture(scope="module", params=SCENARIOS)
 def bridge(request: pytest.FixtureRequest) -> Iterator[tuple[BridgeNode, RecordingBus]]:
     sc: Scenario = load_scenario(request.param)
     bus = RecordingBus()
     rid = sc.robot_ids[0]
     b = BridgeNode(sc, rid, FakeNode(sc.robot_ids, f"bridge-{rid}"), StopFlag(), bus,
-                   OdriveCanSimple(NODE_IDS), NODE_IDS, command_timeout_s=1e9,
+                   OdriveDriver(DriverSettings(tuple(NODE_IDS))), NODE_IDS, command_timeout_s=1e9,
                    heartbeat_timeout_s=1e9)  # never stale, never faulted: commands reach the bus
     b.armed = True
+    enable(b)
     yield b, bus
     b.close()
     bus.shutdown()
@@ -173,10 +181,11 @@ def test_bridge_without_a_scenario_limit_clamps_to_what_the_protocol_encodes() -
     sc = load_scenario("paper")
     bus = RecordingBus()
     b = BridgeNode(sc, 1, FakeNode(sc.robot_ids, "bridge-1"), StopFlag(), bus,
-                   OdriveCanSimple(NODE_IDS), NODE_IDS, command_timeout_s=1e9,
+                   OdriveDriver(DriverSettings(tuple(NODE_IDS))), NODE_IDS, command_timeout_s=1e9,
                    heartbeat_timeout_s=1e9)
     try:
         b.armed = True
+        enable(b)
         b.published_k = 0  # the sample of step 0 went out
         b.node.deliver(b.node.keys.cmd(1), command((1001.0, -1e30, 5.0, 0.0)))
         assert b.clipped == 1

@@ -22,9 +22,9 @@ import msgspec
 import numpy as np
 import pytest
 
-from bridges.drive_emulator import DriverEmulator, EmulatorFaults, flip_bits
+from bridges.drive_emulator import EmulatorFaults, flip_bits
 from bridges.fleet_emulator import FleetEmulator
-from bridges.protocol import (
+from bridges.odrive import (
     AXIS_ERROR_ESTOP_REQUESTED,
     AXIS_ERROR_INVALID_STATE,
     AXIS_ERROR_WATCHDOG_TIMER_EXPIRED,
@@ -43,6 +43,7 @@ from bridges.protocol import (
     Request,
     SetAxisState,
 )
+from bridges.odrive_emulator import OdriveEmulator
 from deploy.contract.scenario import load_scenario
 from deploy.nodes.emulator_cli import main as emulate_main
 from plant.disturbance import make_disturbance
@@ -78,7 +79,7 @@ class Rig:
         channel = f"test-{uuid.uuid4()}"
         self.host_bus = can.Bus(interface="virtual", channel=channel)
         self.emu_bus = can.Bus(interface="virtual", channel=channel)
-        self.emu = DriverEmulator(sc, ROBOT, self.emu_bus, **kw)
+        self.emu = OdriveEmulator(sc, ROBOT, self.emu_bus, **kw)
         self.host = OdriveCanSimple(self.emu.node_ids)
         self.now = 0.0
         self.log: list[tuple[float, object]] = []  # (time of the step that delivered it, frame)
@@ -351,7 +352,7 @@ def test_constructor_rejects_bad_arguments(lab):
         for kw in ({"node_ids": (0, 1, 2)}, {"encoder_rate_hz": 0.0}, {"encoder_rate_hz": 5e3},
                    {"watchdog_timeout_s": -1.0}, {"faults": EmulatorFaults(silent_node=7)}):
             with pytest.raises(ValueError):
-                DriverEmulator(lab, ROBOT, bus, **kw)
+                OdriveEmulator(lab, ROBOT, bus, **kw)
         with pytest.raises(ValueError):
             EmulatorFaults(drop_rate=1.5)
     finally:
@@ -378,7 +379,7 @@ def test_fleet_emulator_equals_one_emulator_per_robot_each_on_its_bus(lab, calm,
         s_hosts, s_emus = _fleet_rigs(sc, robots)
         fleet = FleetEmulator(sc, list(zip(robots, emus, strict=True)),
                               physics_rate_hz=physics_rate_hz)
-        singles = [DriverEmulator(sc, r, b, physics_rate_hz=physics_rate_hz)
+        singles = [OdriveEmulator(sc, r, b, physics_rate_hz=physics_rate_hz)
                    for r, b in zip(robots, s_emus, strict=True)]
         codec = OdriveCanSimple(NODES)
         try:
@@ -406,13 +407,12 @@ def test_fleet_emulator_equals_one_emulator_per_robot_each_on_its_bus(lab, calm,
                 assert e.robot_id == r and e.t == one.t == pytest.approx(1.0)
                 np.testing.assert_allclose(e.q, one.q, rtol=0, atol=1e-12)
                 np.testing.assert_allclose(e.q_dot, one.q_dot, rtol=0, atol=1e-12)
-                assert [a.position_rev for a in e.axes] == pytest.approx(
-                    [a.position_rev for a in one.axes], abs=1e-12)
+                assert list(e.wheel_rev) == pytest.approx(list(one.wheel_rev), abs=1e-12)
                 assert e.counters.sent == one.counters.sent
                 # what robot r's bus carried is robot r's: its encoder angles, its states
                 last = {m.node: m for m in heard[r] if isinstance(m, EncoderEstimate)}
                 assert [last[n].position_rev for n in NODES] == pytest.approx(
-                    [a.position_rev for a in e.axes], abs=1e-6)
+                    list(e.wheel_rev), abs=1e-6)
                 armed = patterns[r] is not None
                 assert all(a.armed == armed for a in e.axes)
             # never armed: robot 3 has not moved at all, disturbance or none (it acts

@@ -24,7 +24,8 @@ def _can_keys(master: bytes | None = None):
     from deploy.contract.keyring import Keyring, keyring_text, new_master
     from deploy.contract.scenario import load_scenario
     from deploy.contract.wire import Keys
-    from deploy.run.plan import CAN_EMULATED, key_roles
+    from deploy.run.plan import key_roles
+    from deploy.runtime.plants import CAN_EMULATED
 
     sc = load_scenario("lab")
     roles = key_roles(sc, CAN_EMULATED)
@@ -36,7 +37,8 @@ def _can_keys(master: bytes | None = None):
 def _bridge(keyring=None):
     from fuzz_fakes import FakeNode, RecordingBus
 
-    from bridges.protocol import OdriveCanSimple
+    from bridges.driver import DriverSettings
+    from bridges.odrive import OdriveDriver
     from deploy.contract.scenario import load_scenario
     from deploy.nodes.bridge import BridgeNode
     from deploy.runtime.node_runtime import StopFlag
@@ -45,10 +47,9 @@ def _bridge(keyring=None):
     bus = RecordingBus()
     ids = [0, 1, 2, 3]
     b = BridgeNode(sc, 2, FakeNode(sc.robot_ids, "bridge-2", keyring), StopFlag(), bus,
-                   OdriveCanSimple(ids), ids, command_timeout_s=1e9, heartbeat_timeout_s=1e9)
+                   OdriveDriver(DriverSettings(tuple(ids))), ids, command_timeout_s=1e9,
+                   heartbeat_timeout_s=1e9)
     return b, bus
-
-
 
 
 def _reply(k: int, seq: int, torque: float) -> bytes:

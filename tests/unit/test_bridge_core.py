@@ -8,9 +8,31 @@ import math
 import numpy as np
 import pytest
 
+from bridges.driver import DriverSettings, DriveState, WheelReport
 from bridges.odometry import Odometry
+from bridges.odrive import (
+    AXIS_ERROR_WATCHDOG_TIMER_EXPIRED,
+    EncoderEstimate,
+    Heartbeat,
+    OdriveCanSimple,
+    OdriveDriver,
+)
 from bridges.safety import ZERO, CommandGate
 from deploy.contract.scenario import load_scenario
+
+ODRIVE = OdriveDriver(DriverSettings((0, 1, 2, 3)))
+DRIVES = OdriveCanSimple((0, 1, 2, 3), role="drive")
+
+
+def heard(msg) -> WheelReport:
+    """An ODrive frame as the bridge hears it: on the wire, then the driver's report."""
+    report = ODRIVE.decode(DRIVES.encode(msg))
+    assert report is not None
+    return report
+
+
+def encoder(node: int, position_rev: float, velocity_rev_s: float) -> WheelReport:
+    return WheelReport(node, position_rev=position_rev, velocity_rev_s=velocity_rev_s)
 
 
 @pytest.fixture(scope="module")
@@ -89,28 +111,32 @@ def test_gate_timeout_must_be_positive():
 
 def test_monitor_faults_on_errors_and_silence_but_not_on_a_watchdog_expiry():
     from bridges.monitor import DriverMonitor
-    from bridges.protocol import AXIS_ERROR_WATCHDOG_TIMER_EXPIRED, EncoderEstimate, Heartbeat
 
     mon = DriverMonitor([0, 1, 2, 3], heartbeat_timeout_s=0.35, started_at=0.0)
     assert not mon.faulted(0.3)
     assert mon.faulted(0.4)  # nobody heard since the start
     for n in range(4):
-        mon.feed(Heartbeat(n, 0, 1), 0.5)
-        mon.feed(EncoderEstimate(n, 1.0, 0.5 * (n + 1)), 0.5)
+        mon.feed(heard(Heartbeat(n, 0, 1)), 0.5)
+        mon.feed(heard(EncoderEstimate(n, 1.0, 0.5 * (n + 1))), 0.5)
     assert not mon.faulted(0.6)
+    assert [a.state for a in mon.axes] == [DriveState.DISABLED] * 4
     assert np.allclose(mon.wheel_speeds_radps(), 2 * math.pi * 0.5 * np.arange(1, 5))
     # the drive stopped itself because the host fell silent: recoverable by re-arming
-    mon.feed(Heartbeat(2, AXIS_ERROR_WATCHDOG_TIMER_EXPIRED, 1), 0.7)
-    assert not mon.faulted(0.7)
-    mon.feed(Heartbeat(2, 0x1 | AXIS_ERROR_WATCHDOG_TIMER_EXPIRED, 1), 0.8)  # another error
+    mon.feed(heard(Heartbeat(2, AXIS_ERROR_WATCHDOG_TIMER_EXPIRED, 1)), 0.7)
+    assert not mon.faulted(0.7) and mon.axes[2].state is DriveState.FAULT
+    mon.feed(heard(Heartbeat(2, 0x1 | AXIS_ERROR_WATCHDOG_TIMER_EXPIRED, 1)), 0.8)  # another error
     assert mon.faulted(0.8) and "node 2" in mon.fault_reasons(0.8)[0]
-    mon.feed(Heartbeat(2, 0, 8), 0.9)
+    mon.feed(heard(Heartbeat(2, 0, 8)), 0.9)
     for n in (0, 1, 3):
-        mon.feed(Heartbeat(n, 0, 8), 0.9)
-    assert not mon.faulted(1.0)
+        mon.feed(heard(Heartbeat(n, 0, 8)), 0.9)
+    assert not mon.faulted(1.0) and all(a.state is DriveState.ENABLED for a in mon.axes)
     assert mon.faulted(1.3)  # every heartbeat 0.4 s old
-    mon.feed(Heartbeat(9, 0x1, 1), 1.3)  # another node's frame changes nothing
+    mon.feed(WheelReport(9, state=DriveState.FAULT, fault=1), 1.3)  # another node's: nothing
     assert [a.node for a in mon.axes] == [0, 1, 2, 3]
+    mon.give_up(1, "not enabled")  # the bridge gave up on a drive: faulted for good
+    for n in range(4):
+        mon.feed(WheelReport(n, state=DriveState.ENABLED, fault=0), 1.4)
+    assert mon.fault_reasons(1.4) == ["node 1: not enabled"]
 
 
 def test_advance_by_wheel_rotation_equals_speed_times_dt_and_ignores_skipped_samples(model):
@@ -142,7 +168,6 @@ def test_odometry_start_up_stands_until_every_drive_reported_then_counts_queued_
     (b) the newest angles taken as the baseline drop the rotation of frames queued
     before the first full sample. Driving straight at 0.5 m/s, measured exactly."""
     from bridges.monitor import DriverMonitor
-    from bridges.protocol import EncoderEstimate
 
     speeds = wheel_speeds_of(model, [0.5, 0.0, 0.0])  # rad/s; a straight line: exact
     mon = DriverMonitor([0, 1, 2, 3], heartbeat_timeout_s=0.35, started_at=0.0)
@@ -151,7 +176,7 @@ def test_odometry_start_up_stands_until_every_drive_reported_then_counts_queued_
 
     def report(nodes, t):
         for n in nodes:
-            mon.feed(EncoderEstimate(n, float(angle0[n] + speeds[n] * t / (2 * math.pi)),
+            mon.feed(encoder(n, float(angle0[n] + speeds[n] * t / (2 * math.pi)),
                                      float(speeds[n] / (2 * math.pi))), t)
 
     def period(dt=0.005):
@@ -180,7 +205,6 @@ def test_odometry_ignores_a_burst_of_encoder_frames_that_is_half_in():
     displacement between went in at the wrong heading (a 0.2-0.9 cm random walk over
     60 s of can-emulated lab). Complete sets only: driving straight stays straight."""
     from bridges.monitor import DriverMonitor
-    from bridges.protocol import EncoderEstimate
 
     speeds = wheel_speeds_of(model_of_lab(), [0.0, 0.8, 0.0])  # strafing: wheels turn both ways
     mon = DriverMonitor([0, 1, 2, 3], heartbeat_timeout_s=0.35, started_at=0.0)
@@ -188,7 +212,7 @@ def test_odometry_ignores_a_burst_of_encoder_frames_that_is_half_in():
 
     def report(nodes, t):
         for n in nodes:
-            mon.feed(EncoderEstimate(n, float(speeds[n] * t / (2 * math.pi)),
+            mon.feed(encoder(n, float(speeds[n] * t / (2 * math.pi)),
                                      float(speeds[n] / (2 * math.pi))), t)
 
     def period():

@@ -1,4 +1,5 @@
-"""ODrive CANSimple codec: bytes against the DBC, rejection of everything else."""
+"""ODrive CANSimple codec: bytes against the DBC, rejection of everything else; the
+host's plug-in in neutral terms (bridges/driver.py)."""
 
 from __future__ import annotations
 
@@ -12,23 +13,25 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridges.protocol import (
+from bridges.driver import DriverSettings, DriveState, WheelDriver, WheelReport
+from bridges.odrive import (
     AXIS_ERROR_WATCHDOG_TIMER_EXPIRED,
     AXIS_STATE_CLOSED_LOOP_CONTROL,
     AXIS_STATE_IDLE,
     CMD_GET_BUS_VOLTAGE_CURRENT,
     CMD_GET_ERROR,
+    CMD_HEARTBEAT,
     CONTROL_MODE_TORQUE_CONTROL,
     DBC_PATH,
     INPUT_MODE_PASSTHROUGH,
     BusVoltageCurrent,
     ClearErrors,
     DriverErrors,
-    DriverProtocol,
     EncoderEstimate,
     Estop,
     Heartbeat,
     OdriveCanSimple,
+    OdriveDriver,
     Request,
     SetAxisState,
     SetControllerMode,
@@ -107,16 +110,31 @@ def test_float_round_trip_is_float32_exact(node, pos, vel, torque):
     assert t == SetInputTorque(node, float(np.float32(torque)))
 
 
-def test_is_a_driver_protocol_and_arming_frames():
-    c = codec()
-    assert isinstance(c, DriverProtocol) and c.name == "odrive-cansimple"
+def test_the_driver_plug_in_sends_the_arming_frames_and_reports_in_neutral_terms():
+    c = OdriveDriver(DriverSettings(NODES))
+    assert isinstance(c, WheelDriver) and c.name == "odrive-cansimple"
     drive = codec("drive")
+    # torque control, closed loop, and its heartbeat asked for at once (remote frame)
     assert [drive.decode(f) for f in c.arm_frames(1)] == [
         SetControllerMode(1, CONTROL_MODE_TORQUE_CONTROL, INPUT_MODE_PASSTHROUGH),
-        SetAxisState(1, AXIS_STATE_CLOSED_LOOP_CONTROL)]
+        SetAxisState(1, AXIS_STATE_CLOSED_LOOP_CONTROL), Request(1, CMD_HEARTBEAT)]
     assert [drive.decode(f) for f in c.disarm_frames(1)] == [SetInputTorque(1, 0.0),
                                                              SetAxisState(1, AXIS_STATE_IDLE)]
     assert drive.decode(c.torque_frame(2, 1.25)) == SetInputTorque(2, 1.25)
+    assert [drive.decode(f) for f in c.estop_frames(3)] == [Estop(3)]
+    assert [drive.decode(f) for f in c.clear_faults_frames(0)] == [ClearErrors(0)]
+    assert c.cycle_frames(0.0) == []  # its torque frames feed the watchdogs
+    # what the drives send, in neutral terms
+    assert c.decode(drive.encode(Heartbeat(1, AXIS_ERROR_WATCHDOG_TIMER_EXPIRED, AXIS_STATE_IDLE))) \
+        == WheelReport(1, state=DriveState.FAULT, fault=0x800, recoverable=True)
+    assert c.decode(drive.encode(Heartbeat(1, 0x4800, AXIS_STATE_IDLE))) \
+        == WheelReport(1, state=DriveState.FAULT, fault=0x4800, recoverable=False)
+    assert c.decode(drive.encode(Heartbeat(2, 0, AXIS_STATE_CLOSED_LOOP_CONTROL))) \
+        == WheelReport(2, state=DriveState.ENABLED, fault=0, recoverable=False)
+    assert c.decode(drive.encode(Heartbeat(2, 0, 4))).state is DriveState.STARTING  # calibrating
+    assert c.decode(drive.encode(EncoderEstimate(3, 2.5, -1.0))) == WheelReport(3, 2.5, -1.0)
+    assert c.describe(2) == "axis state 4, axis error 0x0"  # the newest heartbeat
+    assert "watchdog" in c.describe_fault(0x800) and "e-stop" in c.describe_fault(0x4000)
 
 
 def test_other_nodes_and_unknown_commands_are_counted():
@@ -292,7 +310,7 @@ def _same(a: dict, b: dict) -> bool:
 @given(data=st.data())
 @settings(max_examples=300, deadline=None)
 def test_fast_packing_equals_cantools_for_every_dbc_message(name, data):
-    from bridges.protocol import _Packing
+    from bridges.odrive import _Packing
 
     m = DB.get_message_by_name(name)
     p = _Packing(m)

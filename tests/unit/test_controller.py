@@ -121,7 +121,6 @@ def test_reaching_term_satisfies_the_lyapunov_identity_of_eq_47(s):
     # V^p written as |s|^(2p) / 2^p with |s| from a scaled norm: |s|^2 underflows to 0 for
     # |s| ~ 1e-200 where s^T r(s) does not (a hypothesis example failed so)
     n = float(np.linalg.norm(s))
-    V = 0.5 * n * n
     a = G.alpha
     expected = G.gamma_p * (n ** (2 - a) / 2 ** (1 - a / 2) + G.mu**2 * n ** (2 + a) / 2 ** (1 + a / 2))
     got = float(s @ reaching_term(s, G))

@@ -72,3 +72,22 @@ def test_can_emulated_is_one_emulator_and_a_bridge_per_robot_each_on_its_own_bus
     agents = [c for c in plan.children if c.role.startswith("agent-")]
     for a in agents:  # an agent's plant is its robot's bridge
         assert a.argv[a.argv.index("--plant-role") + 1] == f"bridge-{a.robot}"
+
+
+def test_the_driver_reaches_the_emulator_and_every_bridge():
+    """``omnifleet run --plant can-emulated --driver cia402``: the one protocol on every bus."""
+    sc = load_scenario("lab")
+    for driver in ("odrive-cansimple", "cia402"):
+        opts = LaunchOptions("lab", "can-emulated", "realtime", Path("/tmp/out"), driver=driver)
+        plan = plan_run(sc, opts, LAUNCHER, RUN_DIR)
+        can_nodes = [c for c in plan.children if c.role == "emulator" or c.role.startswith("bridge-")]
+        assert len(can_nodes) == 1 + sc.n
+        assert all(c.argv[c.argv.index("--driver") + 1] == driver for c in can_nodes)
+
+
+def test_run_refuses_a_driver_without_can_bridges(capsys):
+    from deploy.cli import main
+
+    assert main(["run", "lab", "--plant", "model", "--driver", "cia402", "--in-process",
+                 "--out", "/tmp/never-written"]) == 2
+    assert "--driver cia402 drives CAN bridges: it needs --plant can-emulated" in capsys.readouterr().err

@@ -1,12 +1,9 @@
-"""Motor-driver CAN protocols: frames as typed values, encoded and decoded.
+"""ODrive CANSimple (firmware 0.5/0.6 style): the frames as typed values, encoded and
+decoded (:class:`OdriveCanSimple`, both roles: the emulator plays the drives with it),
+and the host's plug-in behind the neutral :class:`bridges.driver.WheelDriver`
+(:class:`OdriveDriver`). Pure encoding: no bus I/O here (the bridge and the emulator
+own their buses).
 
-Pure encoding: no bus I/O here (the bridge and the emulator own their buses).
-One protocol is implemented, ODrive CANSimple (firmware 0.5/0.6 style); a CiA 402
-(CANopen) driver can follow behind the same small :class:`DriverProtocol`
-interface.
-
-ODrive CANSimple
-----------------
 * 11-bit standard frames; arbitration id = ``node_id << 5 | cmd_id`` (node 0..63);
   little-endian payloads. The frame layouts live in ``odrive_cansimple.dbc``
   (messages given for node 0), parsed by cantools; payloads are packed with
@@ -37,12 +34,19 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Protocol, runtime_checkable
+from typing import Any, Literal
 
 import can
 import cantools
+
+from bridges.driver import (
+    DriverSettings,
+    DriveState,
+    FrameCounters,
+    WheelReport,
+)
 
 DBC_PATH = Path(__file__).resolve().parent / "odrive_cansimple.dbc"
 
@@ -170,54 +174,6 @@ Frame = (Heartbeat | EncoderEstimate | DriverErrors | BusVoltageCurrent | SetAxi
          | SetControllerMode | SetInputTorque | ClearErrors | Estop | Request)
 REQUESTABLE = frozenset({CMD_HEARTBEAT, CMD_GET_ERROR, CMD_GET_ENCODER_ESTIMATES,
                          CMD_GET_BUS_VOLTAGE_CURRENT})
-
-
-@dataclass
-class FrameCounters:
-    """What ``decode`` made of the frames it was given (each frame counted once)."""
-
-    decoded: int = 0
-    unknown_id: int = 0  # a node id not ours, or a cmd id not in this protocol
-    bad_length: int = 0  # DLC outside [bytes the signals need, DBC length]
-    invalid: int = 0  # non-finite float, unknown state/mode value, implausible magnitude
-    ignored_direction: int = 0  # a host->drive frame seen by the host, or vice versa
-    other_frame: int = 0  # extended id, error frame, CAN FD: not CANSimple
-
-    def as_dict(self) -> dict[str, int]:
-        return asdict(self)
-
-    @property
-    def rejected(self) -> int:
-        return self.unknown_id + self.bad_length + self.invalid + self.ignored_direction \
-            + self.other_frame
-
-
-@runtime_checkable
-class DriverProtocol(Protocol):
-    """A motor-driver protocol: typed frames <-> ``can.Message``, no bus I/O.
-
-    ``decode`` never raises (``None`` + a counter for a frame it cannot use).
-    The bridge sends nothing but the frames of these helpers, so it drives any
-    protocol the same way; :mod:`bridges.drivers` names the implemented ones.
-    """
-
-    name: str
-    counters: FrameCounters
-    max_abs_torque_nm: float  # the largest |torque| encode accepts
-
-    def encode(self, msg: Any) -> can.Message: ...
-
-    def decode(self, frame: can.Message) -> Any | None: ...
-
-    def arm_frames(self, node: int) -> list[can.Message]: ...
-
-    def disarm_frames(self, node: int) -> list[can.Message]: ...
-
-    def torque_frame(self, node: int, torque_nm: float) -> can.Message: ...
-
-    def estop_frames(self, node: int) -> list[can.Message]: ...
-
-    def clear_errors_frames(self, node: int) -> list[can.Message]: ...
 
 
 # --- ODrive CANSimple ----------------------------------------------------------------
@@ -536,7 +492,7 @@ class OdriveCanSimple:
         msg = layout.spec.from_signals(node, signals)
         return msg if self.problem(msg) is None else None
 
-    # --- the arming helpers of DriverProtocol ----------------------------------------
+    # --- the frames the host plug-in sends ----------------------------------------------
     def arm_frames(self, node: int) -> list[can.Message]:
         """Torque control with passthrough input, then closed loop (errors are not
         cleared: a latched error needs an explicit :class:`ClearErrors`)."""
@@ -559,3 +515,99 @@ class OdriveCanSimple:
 
     def clear_errors_frames(self, node: int) -> list[can.Message]:
         return [self.encode(ClearErrors(node))]
+
+
+# --- the host's plug-in ----------------------------------------------------------------
+_ERROR_NAMES = {AXIS_ERROR_INVALID_STATE: "invalid state requested",
+                AXIS_ERROR_WATCHDOG_TIMER_EXPIRED: "watchdog expired",
+                AXIS_ERROR_ESTOP_REQUESTED: "e-stop"}
+
+
+def neutral_state(axis_state: int, axis_error: int) -> DriveState:
+    """An ODrive axis state in neutral terms. ODrive has no fault state: an error
+    disarms the axis to IDLE with its bits latched, which is FAULT here."""
+    if axis_state == AXIS_STATE_CLOSED_LOOP_CONTROL:
+        return DriveState.ENABLED
+    if axis_error:
+        return DriveState.FAULT
+    if axis_state in (AXIS_STATE_IDLE, AXIS_STATE_UNDEFINED):
+        return DriveState.DISABLED
+    return DriveState.STARTING  # calibration, start-up sequences, ...
+
+
+class OdriveDriver:
+    """ODrive CANSimple behind :class:`bridges.driver.WheelDriver`: the host-role codec,
+    its frames mapped to neutral reports. Nothing to configure over the bus (the
+    drives' watchdog and CAN rates are set in their own configuration)."""
+
+    name = OdriveCanSimple.name
+    # heartbeats come at 10 Hz: an axis still idle this long after its arming frames
+    # missed them (a lost frame, a drive that rebooted) and is asked again
+    rearm_after_s = 0.25
+
+    def __init__(self, settings: DriverSettings) -> None:
+        self.codec = OdriveCanSimple(settings.node_ids, role="host")
+        self.node_ids = tuple(settings.node_ids)
+        self.counters = self.codec.counters
+        self.max_abs_torque_nm = self.codec.max_abs_torque_nm
+        self._heartbeats: dict[int, Heartbeat] = {}
+
+    def bring_up(self, bus: can.BusABC, timeout_s: float, say: Callable[[str], None]) -> None:
+        say("ODrive CANSimple: nothing to configure over the bus (watchdog, CAN rates and "
+            "node ids live in each drive's own configuration)")
+
+    def decode(self, frame: can.Message) -> WheelReport | None:
+        msg = self.codec.decode(frame)
+        match msg:
+            case Heartbeat():
+                self._heartbeats[msg.node] = msg
+                return WheelReport(msg.node, state=neutral_state(msg.axis_state, msg.axis_error),
+                                   fault=msg.axis_error, recoverable=_recoverable(msg.axis_error))
+            case EncoderEstimate():
+                return WheelReport(msg.node, position_rev=msg.position_rev,
+                                   velocity_rev_s=msg.velocity_rev_s)
+            case DriverErrors():
+                return WheelReport(msg.node, fault=msg.active_errors,
+                                   recoverable=_recoverable(msg.active_errors))
+            case BusVoltageCurrent():
+                return WheelReport(msg.node)  # nothing the neutral report carries
+        return None
+
+    def arm_frames(self, node: int) -> list[can.Message]:
+        """Torque control, closed loop, and a heartbeat asked for at once (a remote
+        frame): the bridge drives no wheel until every axis says closed loop, and the
+        cyclic heartbeat comes only every 100 ms."""
+        return [*self.codec.arm_frames(node), self.codec.encode(Request(node, CMD_HEARTBEAT))]
+
+    def disarm_frames(self, node: int) -> list[can.Message]:
+        return self.codec.disarm_frames(node)
+
+    def estop_frames(self, node: int) -> list[can.Message]:
+        return self.codec.estop_frames(node)
+
+    def clear_faults_frames(self, node: int) -> list[can.Message]:
+        return self.codec.clear_errors_frames(node)
+
+    def torque_frame(self, node: int, torque_nm: float) -> can.Message:
+        return self.codec.torque_frame(node, torque_nm)
+
+    def cycle_frames(self, now_s: float) -> list[can.Message]:
+        return []  # the torque frames of every period feed the drives' watchdogs
+
+    def describe(self, node: int) -> str:
+        hb = self._heartbeats.get(node)
+        if hb is None:
+            return "no heartbeat yet"
+        return f"axis state {hb.axis_state}, axis error 0x{hb.axis_error:x}"
+
+    def describe_fault(self, code: int) -> str:
+        names = [n for bit, n in _ERROR_NAMES.items() if code & bit]
+        rest = code & ~sum(_ERROR_NAMES)
+        if rest:
+            names.append(f"axis error bits 0x{rest:x}")
+        return f"0x{code:x} ({', '.join(names)})" if names else "0x0 (none)"
+
+
+def _recoverable(bits: int) -> bool:
+    """Only the watchdog: the drive stopped itself because the host fell silent."""
+    return bool(bits) and not bits & ~AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
