@@ -3,8 +3,11 @@
 What a hostile or faulty local process can do: read the run's
 ``logs/endpoints.json``, connect a zenoh peer of its own to the nodes' endpoints,
 listen to the fleet's traffic and publish well-formed messages with the project's
-own wire codec. It holds no run secret. The tests of tests/e2e/test_forged.py use it
-to probe a run from outside and judge what the run did about each message.
+own wire codec, plain or in an envelope (deploy/contract/mac.py) tagged under keys
+it made up (a guessed keyring: the run's keys travel on pipes, it holds none of
+them), answering each sample of a robot within a hop (:meth:`Attacker.race`). The
+tests of tests/e2e/test_forged.py use it to probe a run from outside and judge what
+the run did about each message.
 
 :func:`fleet_under_attack` starts ``omnifleet run`` and yields once every node is
 ready; every process it started is ended by pid on the way out.
@@ -15,19 +18,25 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import queue
 import subprocess
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from procs import kill_run, start
 
+from deploy.contract.keyring import Keyring, keyring_text, new_master
+from deploy.contract.scenario import Scenario, load_scenario
 from deploy.contract.wire import (
+    LAUNCHER_ROLE,
     WIRE_VERSION,
     Codec,
     Control,
     Keys,
+    LeaderState,
     NodeReport,
     Reply,
     Sample,
@@ -37,28 +46,45 @@ from deploy.contract.wire import (
     Telemetry,
     TelemetryRow,
     encode,
+    run_roles,
 )
 
 ZERO3 = (0.0, 0.0, 0.0)
 READY_TIMEOUT_S = 60.0
 
 
+def guessed_keys(sc: Scenario, fleet: str, master: bytes | None = None) -> dict[str, Keyring]:
+    """Keyrings for every role of a run of ``sc`` under ``master`` (default: a made-up
+    one: what a forger without the run's keys can tag with)."""
+    roles = [*run_roles(sc.robot_ids), LAUNCHER_ROLE]
+    master = master if master is not None else new_master()
+    return {r: Keyring.from_text(keyring_text(master, fleet, r, roles), "guessed", r, sc,
+                                 Keys(fleet)) for r in roles}
+
+
 @dataclass
 class Attacker:
-    """A zenoh session linked to every node of a run, and the forgeries it can send."""
+    """A zenoh session linked to every node of a run, and the forgeries it can send.
+    ``as_role``: the keyrings it tags with, by the role it claims to be (a forgery
+    ``as_`` a role is put in an envelope under that keyring; else plain)."""
 
     fleet: str
     session: object
+    sc: Scenario
     keys: Keys = field(init=False)
     codec: Codec = field(init=False)
     newest_sample: dict[int, Sample] = field(default_factory=dict)
     endpoints: dict[str, str] = field(default_factory=dict)  # role -> where it listens
+    as_role: dict[str, Keyring] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.keys = Keys(self.fleet)
         self.codec = Codec(list(range(1, 65)))
         self._subs: list[object] = []
         self._watched: set[int] = set()
+        self._racers: dict[int, Callable[[Sample], None]] = {}
+        if not self.as_role:
+            self.as_role = guessed_keys(self.sc, self.fleet)
 
     # -- listening: what step the fleet is at --------------------------------------
     def watch_samples(self, robot: int) -> None:
@@ -68,8 +94,12 @@ class Attacker:
         self._watched.add(robot)
 
         def arrived(s) -> None:  # zenoh's thread
-            m = self.codec.decode(Sample, s.payload.to_bytes(), robot)
+            data = s.payload.to_bytes()
+            m = self.codec.decode(Sample, _payload_of(data), robot)
             if m is not None:
+                racer = self._racers.get(robot)
+                if racer is not None:
+                    racer(m)
                 old = self.newest_sample.get(robot)
                 if old is None or m.k > old.k:
                     self.newest_sample[robot] = m
@@ -86,31 +116,61 @@ class Attacker:
         raise TimeoutError(f"no sample of robot {robot} past step {after}")
 
     # -- forgeries --------------------------------------------------------------------
-    def put(self, key: str, msg) -> None:
-        self.raw(key, encode(msg))
+    def put(self, key: str, msg, as_: str | None = None) -> None:
+        """``msg`` on ``key``: plain, or in an envelope of the keyring it holds for
+        role ``as_`` (guessed keys, unless the test gave it real ones)."""
+        data = encode(msg)
+        self.raw(key, data if as_ is None else self.as_role[as_].seal(data, key))
 
-    def sample(self, robot: int, k: int, seq: int = 0, q=(50.0, 50.0, 0.0)) -> Sample:
+    def sample(self, robot: int, k: int, seq: int = 0, q=(50.0, 50.0, 0.0),
+               as_: str | None = None) -> Sample:
         """A well-formed sample of ``robot`` for step ``k`` (a robot far from where it is)."""
         m = Sample(WIRE_VERSION, 0, seq, time.monotonic_ns(), robot=robot, k=k, t=k * 1e-3,
                    q=q, q_dot=ZERO3, robots=[], obstacles=[])
-        self.put(self.keys.sample(robot), m)
+        self.put(self.keys.sample(robot), m, as_)
         return m
 
     def cmd(self, robot: int, k: int, seq: int = 0, torque: float = 1.0,
-            plan_steps: int = 0) -> Reply:
-        """A well-formed command (and share) of ``robot``'s agent for step ``k``."""
-        share = ShareData(ZERO3, ZERO3, ZERO3, ZERO3, ZERO3, ZERO3)
+            plan_steps: int = 0, as_: str | None = None, q0_hat=ZERO3) -> Reply:
+        """A well-formed command (and share: ``q0_hat``, its leader estimate) of
+        ``robot``'s agent for step ``k``."""
+        share = ShareData(q0_hat, ZERO3, ZERO3, ZERO3, ZERO3, ZERO3)
         u = (torque,) * 4
         m = Reply(WIRE_VERSION, robot, seq, time.monotonic_ns(), robot=robot, k=k, t=0.0,
                   torques=u, v_cmd=ZERO3, state_seq=0, state_stamp_ns=0, share=share,
                   plan=[u] * plan_steps)
-        self.put(self.keys.cmd(robot), m)
+        self.put(self.keys.cmd(robot), m, as_)
         return m
 
-    def control(self, command: str, seq: int = 0, k: int = 0, mac: str = "") -> None:
-        """A control message without the run's secret (a guessed or empty MAC)."""
+    def leader(self, k: int, steps: int = 32, q=(5000.0, 5000.0, 0.0), as_: str | None = None
+               ) -> None:
+        """A batch of leader states for steps k..k+steps-1, the leader at ``q``."""
+        self.put(self.keys.leader_state, LeaderState(
+            WIRE_VERSION, 0, k, time.monotonic_ns(), k=k, t=k * 1e-3, q=[q] * steps,
+            q_dot=[ZERO3] * steps), as_)
+
+    def control(self, command: str, seq: int = 0, k: int = 0, as_: str | None = None) -> None:
+        """A control message, plain or tagged under keys the attacker holds as ``as_``."""
         self.put(self.keys.ctl(command), Control(WIRE_VERSION, 0, seq, time.monotonic_ns(),
-                                                 command=command, k=k, mac=mac))
+                                                 command=command, k=k), as_)
+
+    def race(self, robot: int, forgeries: int, make: Callable[[Sample], None]) -> threading.Event:
+        """From now on, answer each of ``robot``'s samples at once with ``make(sample)``
+        (on a thread of its own, a hop after the sample appears), ``forgeries`` times;
+        the returned event is set once all went out."""
+        self.watch_samples(robot)
+        todo: queue.SimpleQueue = queue.SimpleQueue()
+        done = threading.Event()
+
+        def answer() -> None:
+            for _ in range(forgeries):
+                make(todo.get())
+            self._racers.pop(robot, None)
+            done.set()
+
+        threading.Thread(target=answer, daemon=True, name=f"race-{robot}").start()
+        self._racers[robot] = todo.put
+        return done
 
     def report(self, on_role: str, body_role: str, **fields) -> None:
         """A report on ``report/<on_role>`` whose body says ``body_role``; ``fields`` may
@@ -126,20 +186,21 @@ class Attacker:
         self.raw(self.keys.report(on_role), msgspec.msgpack.encode(row))
 
     def state_log(self, role: str, robots: list[int], steps: list[int],
-                  q=(50.0, 50.0, 0.0)) -> None:
+                  q=(50.0, 50.0, 0.0), as_: str | None = None) -> None:
         """Robot states for observers on ``log/<role>``, every robot at ``q``."""
         rows = [StateRow(k, k * 1e-3, [q] * len(robots), [ZERO3] * len(robots),
                          [False] * len(robots)) for k in steps]
         self.put(self.keys.state_log(role), StateLog(WIRE_VERSION, 0, 0, 0, robots=robots,
-                                                     rows=rows))
+                                                     rows=rows), as_)
 
-    def telemetry(self, robot: int, steps: list[int], nonfinite: bool = True) -> None:
+    def telemetry(self, robot: int, steps: list[int], nonfinite: bool = True,
+                  as_: str | None = None) -> None:
         """Telemetry rows of ``robot`` that say its law diverged."""
         rows = [TelemetryRow(k=k, t=k * 1e-3, q_d=ZERO3, e=(9.0, 9.0, 0.0), s=ZERO3,
                              v_cmd=ZERO3, torques=(0.0,) * 4, q0_hat=ZERO3, q_fd=ZERO3,
                              fdb_error=None, order="", nonfinite=nonfinite) for k in steps]
         self.put(self.keys.telemetry(robot), Telemetry(WIRE_VERSION, robot, 0, 0, robot=robot,
-                                                       rows=rows))
+                                                       rows=rows), as_)
 
     def raw(self, key: str, data: bytes) -> None:
         """Put ``data`` on ``key``, blocking rather than dropping when a link is busy
@@ -149,9 +210,34 @@ class Attacker:
         self.session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK)
 
     def close(self) -> None:
+        self._racers.clear()
         for s in self._subs:
             s.undeclare()
         self.session.close()
+
+
+def environments(fleet: str) -> dict[int, dict[str, str]]:
+    """The environment of every process of the run (by pid), as any process of the same
+    user reads it from /proc/PID/environ."""
+    from procs import pids_with
+
+    out = {}
+    for pid in pids_with(fleet):
+        try:
+            raw = Path(f"/proc/{pid}/environ").read_bytes()
+        except OSError:
+            continue
+        out[pid] = dict(item.decode(errors="replace").partition("=")[::2]
+                        for item in raw.split(b"\0") if item)
+    return out
+
+
+def _payload_of(data: bytes) -> bytes:
+    """The message in an envelope (what a listener reads; nothing is checked)."""
+    from deploy.contract import mac
+
+    head = mac.parse_head(data)
+    return data if head is None else data[:head[0]]
 
 
 def _wait_ready(attacker: Attacker, roles: set[str], proc: subprocess.Popen,
@@ -197,7 +283,7 @@ def fleet_under_attack(scenario: str, out: Path, *args: str, robots: int = 3
                and proc.poll() is None):
             time.sleep(0.02)  # polling for files other processes create
         session = zenoh.open(zenoh_config(connect=list(endpoints.values()), gossip=False))
-        attacker = Attacker(fleet, session, endpoints=endpoints)
+        attacker = Attacker(fleet, session, load_scenario(scenario), endpoints=endpoints)
         for r in range(1, robots + 1):  # declared before the fleet starts stepping
             attacker.watch_samples(r)
         roles = {"plant", "leader", *(f"agent-{r}" for r in range(1, robots + 1))}

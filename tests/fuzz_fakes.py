@@ -13,12 +13,15 @@ from typing import Any
 import can
 
 from deploy.contract.wire import Codec, Keys, Message
-from deploy.runtime.transport import Counters, Mailbox
+from deploy.runtime.transport import WHAT, Counters, Mailbox
 
 
 class FakeNode:
-    def __init__(self, robot_ids: list[int], role: str = "fuzz") -> None:
+    def __init__(self, robot_ids: list[int], role: str = "fuzz", keyring: Any = None) -> None:
+        """``keyring``: the node's keys (deploy/contract/keyring.py, fleet ``fuzz``): what
+        is delivered is opened as Node.subscribe opens it, before decoding."""
         self.role = role
+        self.keyring = keyring
         self.keys = Keys("fuzz")
         self.codec = Codec(robot_ids)
         self.counters = Counters()
@@ -34,12 +37,19 @@ class FakeNode:
         self._subs.append((key, kind, on_message, robot))
 
     def deliver(self, key: str, payload: bytes) -> Message | None:
-        """``payload`` arrives on ``key``: what Node.subscribe's callback does."""
-        subs = [s for s in self._subs if s[0] == key]
+        """``payload`` arrives on ``key``: what Node.subscribe's callback does (a
+        subscription with a ``*`` chunk hears every key that chunk matches)."""
+        subs = [s for s in self._subs if _matches(s[0], key)]
         assert subs, f"nobody subscribed to {key}"
         out = None
         for _, kind, on_message, robot in subs:
-            msg = self.codec.decode(kind, payload, robot)
+            data = payload
+            if self.keyring is not None:
+                data, why = self.keyring.open(payload, key)
+                if data is None:
+                    self.refuse(f"{WHAT[kind]}: {why}")
+                    continue
+            msg = self.codec.decode(kind, data, robot)
             if msg is None:
                 self.counters.invalid += 1
                 continue
@@ -67,6 +77,12 @@ class FakeNode:
 
     def declare_ready(self) -> None:
         pass
+
+
+def _matches(pattern: str, key: str) -> bool:
+    """A key expression with ``*`` chunks (one chunk each) against a concrete key."""
+    a, b = pattern.split("/"), key.split("/")
+    return len(a) == len(b) and all(x in ("*", y) for x, y in zip(a, b, strict=True))
 
 
 class RecordingBus(can.BusABC):

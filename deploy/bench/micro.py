@@ -174,26 +174,45 @@ def _median_us(fn: Callable[[], object], calls: int) -> float:
 
 
 def defence_us(sc: Scenario, calls: int, repeats: int) -> dict[str, list[float]]:
-    """What the defences against one forged message (docs/hardening.md) cost (µs), in
-    the form the nodes run them:
+    """What the defences against forged messages cost (µs), in the form the nodes run
+    them (docs/hardening.md):
 
     - ``guard_message``: one received control-path message judged against the
       receiver's own clock and its stream (``OwnClock.refusal`` + ``StepGuard.admit``,
       as an agent does for its sample and each neighbour's share);
     - ``guards_per_agent_step``: every guard an agent of ``sc`` runs in one step (its
       sample and the shares of its most-connected robot's neighbours);
-    - ``control_mac``: checking one control message's HMAC (control travels every 32
-      steps in lockstep, ``agents/leader_node.TICK_EVERY``; start and end once a run)."""
-    from deploy.contract.run_secret import control_is_genuine, new_secret
-    from deploy.contract.wire import control
+    - ``mac_open``: checking one received Sample's envelope (``Keyring.open``: its tag
+      under the key its sender shares with this node, on the raw bytes);
+    - ``mac_seal_reply``: sealing one Reply for every receiver of it (the plant, the
+      launcher and the agents that listen to it), for the robot with most listeners;
+    - ``mac_per_agent_step``: every MAC one agent step costs, for the most-connected
+      robot: its sample and its neighbours' shares checked, its reply sealed."""
+    from deploy.contract.keyring import Keyring, keyring_text, new_master
+    from deploy.contract.wire import LAUNCHER_ROLE, Keys, agent_role, run_roles
     from deploy.runtime.step_guard import OwnClock, StepGuard
 
     neighbours = max(len(sc.agent_config(i).neighbours) for i in range(sc.n))
     out: dict[str, list[float]] = {"guard_message": [], "guards_per_agent_step": [],
-                                   "control_mac": []}
-    secret = new_secret()
-    msg = control("tick", 7, 123, secret, k=64)
-    assert control_is_genuine(secret, msg)  # a benchmark of a check that passes
+                                   "mac_open": [], "mac_seal_reply": [],
+                                   "mac_per_agent_step": []}
+    keys, master = Keys(sc.name), new_master()
+    roles = [*run_roles(sc.robot_ids), LAUNCHER_ROLE]
+    rings = {r: Keyring.from_text(keyring_text(master, sc.name, r, roles), "bench", r, sc, keys)
+             for r in roles}
+    msgs = sample_messages(sc)
+    sample, reply = encode(msgs["Sample"]), encode(msgs["Reply"])
+    # the robot whose step costs most MACs: most neighbours heard plus listeners tagged
+    i = max(range(sc.n), key=lambda i: len(sc.agent_config(i).neighbours) + len(sc.listeners(i)))
+    rid = sc.robot_ids[i]
+    me = rings[agent_role(rid)]
+    heard = [(rings["plant"].seal(sample, keys.sample(rid)), keys.sample(rid))]
+    heard += [(rings[agent_role(j)].seal(reply, keys.cmd(j)), keys.cmd(j))
+              for j, _w in sc.agent_config(i).neighbours]
+    assert all(me.open(d, k)[0] is not None for d, k in heard)  # a benchmark of checks that pass
+    sealer = max((rings[agent_role(r)] for r in sc.robot_ids),
+                 key=lambda k: len(k.receivers[keys.cmd(int(k.role.split("-")[1]))]))
+    sealer_key = keys.cmd(int(sealer.role.split("-")[1]))
     for _ in range(repeats):
         own = OwnClock(sc.dt, deadline_s=2.0, answered_at=time.monotonic())
         streams = [StepGuard(newest=-1) for _ in range(1 + neighbours)]
@@ -218,5 +237,15 @@ def defence_us(sc: Scenario, calls: int, repeats: int) -> dict[str, list[float]]
             k[0] += 1
 
         out["guard_message"].append(_median_us(message, calls))
-        out["control_mac"].append(_median_us(lambda: control_is_genuine(secret, msg), calls))
+        data, key = heard[0]
+        out["mac_open"].append(_median_us(lambda d=data, k=key: me.open(d, k), calls))
+        out["mac_seal_reply"].append(_median_us(
+            lambda: sealer.seal(reply, sealer_key), calls))
+
+        def step(heard=heard) -> None:
+            for d, k in heard:
+                me.open(d, k)
+            me.seal(reply, keys.cmd(rid))
+
+        out["mac_per_agent_step"].append(_median_us(step, calls))
     return out

@@ -423,13 +423,18 @@ class Bench:
         for name, samples in codec_us(paper, self.s.codec_calls, self.s.repeats).items():
             self.figure(f"cost.codec_{name}_us", "µs",
                         f"{name}: encode + validated decode").samples += samples
-        # the defences against one forged message (docs/hardening.md): per message, per agent step, per
-        # control message
+        # the defences against forged messages (docs/hardening.md): per message and per
+        # agent step, the step guards and the per-node keys' MACs
         what = {"guard_message": "one received message judged against the receiver's own "
                 "clock and its stream (OwnClock + StepGuard)",
                 "guards_per_agent_step": "every such judgement of one agent step, paper "
                 "(its sample and its neighbours' shares)",
-                "control_mac": "the HMAC check of one control message (every 32 steps)"}
+                "mac_open": "one received message's envelope checked (its tag, keyed "
+                "BLAKE2b, on the raw bytes): a Sample",
+                "mac_seal_reply": "one Reply sealed for all its receivers (plant, launcher, "
+                "listening agents), paper's most-listened robot",
+                "mac_per_agent_step": "every MAC of one agent step, paper's most-connected "
+                "robot: its sample and neighbours' shares checked, its reply sealed"}
         for name, samples in defence_us(paper, self.s.codec_calls, self.s.repeats).items():
             self.figure(f"cost.defence_{name}_us", "µs", what[name]).samples += samples
         hops = {path: self.figure(f"cost.zenoh_hop_{path}_us", "µs", what) for path, what in (

@@ -172,6 +172,9 @@ OPTIONS: dict[str, Option] = {o.flag: o for o in (
     Option("--robots", Bound(1, MAX_ROBOTS, integer=True), "N", "how many robots"),
     Option("--seed", SEED, "K", "random seed"),
     Option("--days", COUNT, "N", "validity in days", 365),
+    Option("--keys-fd", Bound(0, 1 << 20, integer=True), "N",
+           "read this node's keyring from the pipe N (how `omnifleet run` hands each node "
+           "its keys: never in its environment or on disk)"),
     Option("--speed", Bound(0.0, 1e3, lo_open=True), "X", "playback speed", 1.0),
 )}
 

@@ -32,7 +32,10 @@ import numpy as np
 
 from agents.degradation import MAX_COMMAND_HORIZON
 
-WIRE_VERSION = 3  # 2: Sample, Reply, batched LeaderState/Telemetry, StateLog; 3: safety in Telemetry
+# 2: Sample, Reply, batched LeaderState/Telemetry, StateLog; 3: safety in Telemetry; 4: no MAC
+# fields in Control and NodeReport (every message of a keyed node is authenticated by its
+# envelope, deploy/contract/mac.py)
+WIRE_VERSION = 4
 MAX_BODIES = 256  # bodies per perception message
 MAX_ORDER_CHARS = 32
 MAX_ROLE_CHARS = 32
@@ -248,25 +251,19 @@ class Control(Message, frozen=True):
     k: int = 0  # tick: the step the plant is publishing
     t: Finite = 0.0
     start_unix_ns: int = 0  # start (realtime): when t = 0 is, on the wall clock
-    mac: str = ""  # HMAC of the above with the run's secret (deploy/contract/run_secret.py)
 
     def __post_init__(self) -> None:
-        if len(self.mac) > 64:
-            raise ValueError("mac too long")
         if self.command not in CONTROL_COMMANDS:
             raise ValueError(f"unknown command {self.command!r}")
         super().__post_init__()
 
 
-def control(command: str, seq: int, stamp_ns: int, secret: str | None, k: int = 0,
-            t: float = 0.0, start_unix_ns: int = 0, sender: int = 0) -> Control:
-    """A control message, signed with the run's secret when this process has one."""
-    from deploy.contract.run_secret import control_mac
-
-    mac = "" if secret is None else control_mac(secret, command, k, t, start_unix_ns, seq,
-                                                stamp_ns)
+def control(command: str, seq: int, stamp_ns: int, k: int = 0, t: float = 0.0,
+            start_unix_ns: int = 0, sender: int = 0) -> Control:
+    """A control message (authenticated, like every message of a keyed node, by the
+    envelope its node puts around it: deploy/contract/keyring.py)."""
     return Control(WIRE_VERSION, sender, seq, stamp_ns, command=command, k=k, t=t,
-                   start_unix_ns=start_unix_ns, mac=mac)
+                   start_unix_ns=start_unix_ns)
 
 
 class ContactRecord(msgspec.Struct, array_like=True, frozen=True):
@@ -313,7 +310,6 @@ class NodeReport(Message, frozen=True):
     # plant or CAN bridge: per robot id (as text, as in metrics.json), the commands that asked
     # for more wheel torque than the bound (plant/command.py torque_bound): clipped to it
     torque_clipped: dict[str, int] = {}
-    mac: str = ""  # HMAC of the report's encoding with the run's secret (deploy/contract/run_secret.py)
     # agent (realtime): steps its loop ran slower than its period allows, robot slowed (agents/pace.py)
     overloaded_steps: int = 0
     # realtime: the node's longest late wake (ns; a stall) and the step it was due for
@@ -324,8 +320,6 @@ class NodeReport(Message, frozen=True):
     unanswered: list[int] = []
 
     def __post_init__(self) -> None:
-        if len(self.mac) > 64:
-            raise ValueError("mac too long")
         if min(self.sent, self.dropped, self.late, self.invalid, self.steps, self.nonfinite,
                self.deadline_misses, self.law_resets, self.nonfinite_commands,
                self.stale_samples, self.contacts_total, self.overloaded_steps,

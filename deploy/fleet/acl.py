@@ -1,20 +1,9 @@
 """Access control generated from the scenario's graph (zenoh 1.x ``access_control``).
 
 Identity is the common name of a peer's TLS certificate (:mod:`deploy.fleet.certs`:
-the CN is the role). For every role the scenario can have we list
-
-- what it may **publish** (``put``): agent i only ``robot/i/cmd`` (its reply:
-  command and share), its telemetry and its own report; the plant the samples,
-  its state log and control; the leader ``leader/state``; bridge i robot i's
-  sample and its state log;
-- what it may **receive**: agent i its robot's sample, the replies of its
-  neighbours j (a_ij != 0: it reads their shares in them), ``leader/state`` iff
-  b_i != 0, and control; the launcher (recorder) and a router everything.
-
-A neighbour reads agent j's wheel command along with j's share (wire v2 puts both
-in one message, one put a step): a command says nothing a neighbour could not
-compute from j's share and state, and a key of its own for the share would cost
-every agent a second message per step.
+the CN is the role). What each role may publish and receive is the table of
+:mod:`deploy.contract.audience` (the same table decides which receivers a
+message's authentication tags are for: deploy/contract/keyring.py).
 
 Every node's configuration holds the same table, as zenoh enforces it per
 session on each link, by the remote's certificate: an ``ingress`` rule for
@@ -38,86 +27,16 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from deploy.contract.scenario import Scenario
-from deploy.contract.wire import (
-    CONTROL_COMMANDS,
-    LAUNCHER_ROLE,
-    LEADER_ROLE,
-    PLANT_ROLE,
-    Keys,
-    agent_role,
-    bridge_role,
+from deploy.contract.audience import (  # noqa: F401 - fleet_roles: the roles a deployment has
+    ROUTER_ROLE,
+    fleet_roles,
+    publishes,
+    receives,
 )
+from deploy.contract.scenario import Scenario
+from deploy.contract.wire import Keys
 
-ROUTER_ROLE = "router"
 DECLARATIONS = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"]
-
-
-def fleet_roles(sc: Scenario, bridges: bool = True, router: bool = True) -> list[str]:
-    """Every role a deployment of this scenario can have (one certificate each)."""
-    roles = [LEADER_ROLE, PLANT_ROLE, LAUNCHER_ROLE]
-    roles += [agent_role(r) for r in sc.robot_ids]
-    if bridges:
-        roles += [bridge_role(r) for r in sc.robot_ids]
-    if router:
-        roles.append(ROUTER_ROLE)
-    return roles
-
-
-def _robot_of(role: str, prefix: str) -> int | None:
-    if role.startswith(prefix) and role[len(prefix):].lstrip("-").isdigit():
-        return int(role[len(prefix):])
-    return None
-
-
-def all_keys(sc: Scenario, keys: Keys, roles: Iterable[str]) -> set[str]:
-    """Every key expression the fleet's wire contract uses (concrete, no wildcards:
-    then what a node may send to a peer is a plain set intersection)."""
-    out = {keys.leader_state, *(keys.ctl(c) for c in CONTROL_COMMANDS),
-           *(keys.report(r) for r in roles)}
-    for r in sc.robot_ids:
-        out |= {keys.sample(r), keys.cmd(r), keys.telemetry(r)}
-    out |= {keys.state_log(r) for r in roles}
-    return out
-
-
-def publishes(role: str, sc: Scenario, keys: Keys, roles: Iterable[str]) -> set[str]:
-    """Keys ``role`` may put."""
-    ctl = {keys.ctl(c) for c in CONTROL_COMMANDS}
-    if role in (LAUNCHER_ROLE, ROUTER_ROLE):
-        return all_keys(sc, keys, roles)  # the launcher sends ctl; a router forwards all
-    if role == PLANT_ROLE:
-        return ({keys.sample(r) for r in sc.robot_ids} | ctl | {keys.report(role),
-                                                                  keys.state_log(role)})
-    if role == LEADER_ROLE:
-        return {keys.leader_state, keys.report(role)}
-    if (r := _robot_of(role, "agent-")) is not None:
-        return {keys.telemetry(r), keys.cmd(r), keys.report(role)}
-    if (r := _robot_of(role, "bridge-")) is not None:
-        return {keys.sample(r), keys.report(role), keys.state_log(role)}
-    raise ValueError(f"no access rules for role {role!r}")
-
-
-def receives(role: str, sc: Scenario, keys: Keys, roles: Iterable[str]) -> set[str]:
-    """Keys that may be put to ``role``."""
-    ctl = {keys.ctl(c) for c in CONTROL_COMMANDS}
-    if role in (LAUNCHER_ROLE, ROUTER_ROLE):
-        return all_keys(sc, keys, roles)  # the recorder hears the whole fleet
-    if role == PLANT_ROLE:
-        return {keys.cmd(r) for r in sc.robot_ids} | ctl
-    if role == LEADER_ROLE:
-        return ctl
-    if (r := _robot_of(role, "agent-")) is not None:
-        cfg = sc.agent_config(sc.index_of(r))
-        out = {keys.sample(r)} | ctl
-        out |= {keys.cmd(j) for j, _w in cfg.neighbours}
-        if cfg.leader_weight != 0.0:
-            out.add(keys.leader_state)
-        return out
-    if (r := _robot_of(role, "bridge-")) is not None:
-        # the other robots' samples: the bridge builds its robot's perception from them
-        return {keys.cmd(r)} | {keys.sample(j) for j in sc.robot_ids if j != r} | ctl
-    raise ValueError(f"no access rules for role {role!r}")
 
 
 def _tokens(role: str, keys: Keys) -> list[str]:

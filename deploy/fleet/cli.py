@@ -9,9 +9,11 @@ import sys
 from pathlib import Path
 
 from deploy.contract.hosts import Hosts, HostsError, load_hosts
+from deploy.contract.keyring import keyring_text, new_master, write_file
 from deploy.contract.options import EXIT_BAD_INPUT, OPTIONS, add_option, check_duration
 from deploy.contract.output_paths import check_folder
 from deploy.fleet.certs import CA_NAME, make_ca, make_role_cert
+from deploy.fleet.deploy_plan import MASTER_FILE, key_roles, keys_file_name
 
 
 def _load(args: argparse.Namespace):
@@ -23,11 +25,18 @@ def _load(args: argparse.Namespace):
 
 def make_hosts_certs(hosts: Hosts, out: str | Path, days: int = 365) -> dict[str, Path]:
     """A fleet CA in ``out/ca/`` and, per machine, ``out/<machine>/``: the CA's
-    certificate and its roles' certificates and keys (each machine gets only its
-    own keys). Returns the machine folders."""
+    certificate and its roles' certificates, TLS keys and keyrings (each machine gets
+    only its own). Returns the machine folders.
+
+    The keyrings (deploy/contract/keyring.py: a key per pair of roles, for the MAC of
+    every message) come from a master drawn here, kept beside the CA's key in
+    ``out/ca/fleet.master`` (0600): like ``ca.key``, it stays off the robots."""
     out = Path(out)
     (out / CA_NAME).mkdir(parents=True, exist_ok=True)
     ca_cert, ca_key = make_ca(out / CA_NAME, hosts.fleet, days)
+    master = new_master()
+    write_file(out / CA_NAME / MASTER_FILE, master.hex())
+    roles = key_roles(hosts)
     folders = {}
     for machine in hosts.spec.machines:
         d = out / machine
@@ -35,6 +44,9 @@ def make_hosts_certs(hosts: Hosts, out: str | Path, days: int = 365) -> dict[str
         shutil.copyfile(out / CA_NAME / f"{CA_NAME}.pem", d / f"{CA_NAME}.pem")
         for p in hosts.on(machine):
             make_role_cert(d, p.wire_role, ca_cert, ca_key, hosts.addresses(p.wire_role), days)
+            if p.wire_role in roles:
+                write_file(d / keys_file_name(p.wire_role),
+                           keyring_text(master, hosts.fleet, p.wire_role, roles))
         folders[machine] = d
     return folders
 
@@ -69,8 +81,8 @@ def _cmd_certs(args: argparse.Namespace) -> int:
         print(f"omnifleet deploy certs: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     folders = make_hosts_certs(hosts, args.out, args.days)
-    print(f"fleet {hosts.fleet}: CA in {Path(args.out) / CA_NAME} (keep ca.key off the "
-          "robots); copy each machine's folder to its dir:")
+    print(f"fleet {hosts.fleet}: CA in {Path(args.out) / CA_NAME} (keep ca.key and "
+          f"{MASTER_FILE} off the robots); copy each machine's folder to its dir:")
     for machine, d in folders.items():
         print(f"  {machine}: {d} -> {hosts.machine_dir(machine)}/ "
               f"({', '.join(p.wire_role for p in hosts.on(machine))})")
@@ -111,7 +123,10 @@ def add_deploy_commands(sub: argparse._SubParsersAction) -> None:
     certs = dsub.add_parser("certs", help="make the fleet's CA and one certificate per role",
                             description="Write a new CA to OUT/ca/ and, per machine, OUT/<machine>/ "
                             "with ca.pem and the certificate and key of each of its roles "
-                            "(common name = role, the identity the access control matches).")
+                            "(common name = role, the identity the access control matches) "
+                            "and its keyring <role>.keys (a key per pair of roles: every "
+                            "message is authenticated per sender and receiver; "
+                            "docs/hardening.md).")
     certs.add_argument("hosts", metavar="HOSTS", help="hosts file (TOML)")
     certs.add_argument("scenario", metavar="SCENARIO", help="scenario file or bundled name")
     certs.add_argument("--out", required=True, metavar="DIR", help="where to write them")

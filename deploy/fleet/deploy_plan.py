@@ -36,8 +36,22 @@ class RunOptions:
     record_out: str = "runs/{fleet}"
 
 
+MASTER_FILE = "fleet.master"  # the keyrings' master secret, beside the CA's key
+
+
 def config_path(hosts: Hosts, p: Placement) -> str:
     return f"{hosts.machine_dir(p.machine)}/{p.wire_role}.json5"
+
+
+def keys_file_name(wire_role: str) -> str:
+    """A role's keyring, beside its certificate (``omnifleet deploy certs``)."""
+    return f"{wire_role}.keys"
+
+
+def key_roles(hosts: Hosts) -> list[str]:
+    """The roles of a deployment that hold keyrings: every node but a router (which
+    forwards and tags nothing)."""
+    return [p.wire_role for p in hosts.placements if p.role != ROUTER]
 
 
 def zenoh_config_for(hosts: Hosts, sc: Scenario, p: Placement) -> dict:
@@ -62,8 +76,9 @@ def command_for(hosts: Hosts, sc: Scenario, p: Placement, run: RunOptions) -> li
     exe = hosts.spec.command.split()
     if p.role == ROUTER:
         return [*exe, "router", "--zenoh-config", cfg]
+    keys = f"{hosts.machine_dir(p.machine)}/{keys_file_name(p.wire_role)}"
     common = ["--scenario", run.scenario, "--fleet", hosts.fleet, "--clock", run.clock,
-              "--zenoh-config", cfg]
+              "--zenoh-config", cfg, "--keys", keys]
     if run.duration_s is not None:
         common += ["--duration", repr(run.duration_s)]
     if run.control_rate_hz is not None:
@@ -111,7 +126,7 @@ def plan_text(hosts: Hosts, sc: Scenario, run: RunOptions) -> str:
     for machine, m in hosts.spec.machines.items():
         lines.append("")
         lines.append(f"## {machine} ({m.address}): copy {hosts.machine_dir(machine)}/ "
-                     f"({'certificates and ' if tls else ''}zenoh configs) there")
+                     f"({'certificates, ' if tls else ''}keyrings and zenoh configs) there")
         for p in sorted(hosts.on(machine), key=_order):
             lines.append(shlex.join(command_for(hosts, sc, p, run)))
     return "\n".join(lines) + "\n"

@@ -112,8 +112,9 @@ class BridgeNode:
             if rid != robot_id:
                 node.subscribe(node.keys.sample(rid), Sample,
                                lambda m, j=j: self._on_other(j, m), robot=rid)
-        # only control signed with the run's secret reaches _on_ctl: a forged ctl/estop
-        # from any peer e-stopped the drives (it was subscribed apart, unchecked)
+        # only control the launcher tagged for this bridge reaches _on_ctl (its keyring,
+        # docs/hardening.md): a forged ctl/estop from any peer e-stopped the drives (it
+        # was subscribed apart, unchecked)
         self.control = ControlInbox(node, stop, on_genuine=self._on_ctl)
         self._reader = threading.Thread(target=self._read_bus, name="can-rx", daemon=True)
         self._reader.start()

@@ -15,6 +15,7 @@ import sys
 import threading
 
 from deploy.contract.fault_plan import FaultPlan
+from deploy.contract.keyring import Keyring, KeysError, read_fd, read_file
 from deploy.contract.options import EXIT_BAD_INPUT, add_option, check_duration
 from deploy.contract.scenario import PLANT_KINDS, Scenario, load_scenario
 from deploy.contract.wire import LEADER_ROLE, PLANT_ROLE, Codec, Keys, agent_role
@@ -54,7 +55,20 @@ def steps_of(sc: Scenario, args: argparse.Namespace) -> int:
     return sc.steps if args.duration is None else int(round(args.duration / sc.dt))
 
 
-def _open(args: argparse.Namespace, sc: Scenario, role: str, sender: int) -> Node:
+def keyring_of(args: argparse.Namespace, sc: Scenario, role: str) -> Keyring | None:
+    """This node's keys (``--keys-fd`` from the launcher, ``--keys FILE`` across hosts),
+    or None (started by hand without keys). KeysError (exit 2) names what is wrong."""
+    keys = Keys(args.fleet or sc.name)
+    if getattr(args, "keys_fd", None) is not None:
+        return Keyring.from_text(read_fd(args.keys_fd), f"--keys-fd {args.keys_fd}", role, sc,
+                                 keys)
+    if getattr(args, "keys", None):
+        return Keyring.from_text(read_file(args.keys), args.keys, role, sc, keys)
+    return None
+
+
+def _open(args: argparse.Namespace, sc: Scenario, role: str, sender: int,
+          keyring: Keyring | None) -> Node:
     if args.with_recorder:
         die_with_parent()
         if os.getppid() == 1:  # the launcher is already gone
@@ -62,7 +76,7 @@ def _open(args: argparse.Namespace, sc: Scenario, role: str, sender: int) -> Nod
     cfg = zenoh_config(args.zenoh_config, args.listen, args.connect, gossip=not args.no_gossip,
                        lowlatency=args.lowlatency)
     return Node(role, Keys(args.fleet or sc.name), Codec(sc.robot_ids), cfg, sender,
-                lossless=args.clock == "lockstep")
+                lossless=args.clock == "lockstep", keyring=keyring)
 
 
 def _exit_code(stop: StopFlag) -> int:
@@ -84,10 +98,15 @@ def gui_problem(plant_kind: str, gui: bool) -> str | None:
 
 def run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, realtime) -> int:
     sc = run_scenario(args)
+    try:  # read first: the pipe's write end is the launcher's, whatever happens next
+        keyring = keyring_of(args, sc, role)
+    except KeysError as exc:
+        print(f"omnifleet {role}: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     stop = StopFlag()
     if args.priority:
         print(f"omnifleet {role}: {raise_priority(args.priority)}", file=sys.stderr, flush=True)
-    node = _open(args, sc, role, sender)
+    node = _open(args, sc, role, sender, keyring)
     install_signal_handlers(stop, node)
     try:
         obj = build(sc, node, stop)
@@ -225,6 +244,7 @@ def add_node_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--faults", metavar="PLAN",
                    help="a fault plan (TOML, docs/faults.md): this node applies the faults of "
                    "the links it receives on; give every node of a run the same plan")
+    add_keys_options(p)
     p.add_argument("--with-recorder", action="store_true",
                    help="started by `omnifleet run`: wait for its recorder, die with it")
     p.add_argument("--wait-recorder", action="store_true",
@@ -232,6 +252,16 @@ def add_node_options(p: argparse.ArgumentParser) -> None:
     add_priority_argument(p, "for a control loop on the realtime clock on a host that "
                           f"runs other work (the launcher asks for {REALTIME_PRIORITY} there)")
     add_option(p, "--lost-peer-grace")
+
+
+def add_keys_options(p: argparse.ArgumentParser) -> None:
+    """``--keys FILE`` and ``--keys-fd N``: where this node's keys come from."""
+    keys = p.add_mutually_exclusive_group()
+    keys.add_argument("--keys", metavar="FILE",
+                      help="this node's keyring (`omnifleet deploy certs` writes one per role, "
+                      "mode 0600): every message is authenticated per sender and receiver "
+                      "(docs/hardening.md); without it, nothing is")
+    add_option(keys, "--keys-fd")  # type: ignore[arg-type]  # a group adds arguments alike
 
 
 def add_node_commands(sub: argparse._SubParsersAction) -> None:

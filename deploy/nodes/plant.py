@@ -215,9 +215,8 @@ class PlantNode:
                 WIRE_VERSION, 0, seq, stamp, robots=list(self.ids), rows=rows))
 
     def _control(self, command: str, k: int = 0, t: float = 0.0, start_unix_ns: int = 0) -> None:
-        secret = self.control.secret
         self.node.publish(self.node.keys.ctl(command), lambda seq, stamp: control(
-            command, seq, stamp, secret, k=k, t=t, start_unix_ns=start_unix_ns))
+            command, seq, stamp, k=k, t=t, start_unix_ns=start_unix_ns))
 
     # -- lockstep -------------------------------------------------------------------
     def run_lockstep(self, steps: int, step_deadline_s: float) -> None:

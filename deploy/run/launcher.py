@@ -26,12 +26,12 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from deploy.contract.run_secret import new_secret
+from deploy.contract.keyring import Keyring, keyring_text, new_master
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, Keys, control
 from deploy.run.kill_schedule import KillSchedule
 from deploy.run.observer import Observer
-from deploy.run.plan import LaunchOptions, endpoint_of, plan_run
+from deploy.run.plan import LaunchOptions, endpoint_of, key_roles, plan_run
 from deploy.run.run_figures import run_figures
 from deploy.run.supervisor import Interrupted, RunFailed, Supervisor
 from deploy.runtime.node_runtime import START_LEAD_S, StopFlag
@@ -43,9 +43,9 @@ __all__ = ["Interrupted", "LaunchOptions", "Launcher", "RunFailed", "observing"]
 Progress = Callable[[int, int], None] | None
 
 
-def make_observer(sc: Scenario, opts: LaunchOptions, secret: str | None) -> Observer:
+def make_observer(sc: Scenario, opts: LaunchOptions, keyring: Keyring | None) -> Observer:
     return Observer(sc, Keys(opts.fleet or sc.name), opts.clock, opts.plant, opts.steps(sc),
-                    secret, record_all=opts.record)
+                    keyring, record_all=opts.record)
 
 
 @contextmanager
@@ -80,9 +80,17 @@ class Launcher:
 
     def __init__(self, sc: Scenario, opts: LaunchOptions) -> None:
         self.sc, self.opts = sc, opts
-        self.secret = new_secret()  # the run's: only its own nodes can sign ctl/* (run_secret.py)
-        self.observer = make_observer(sc, opts, self.secret)
-        self.supervisor = Supervisor(self.secret)
+        # the run's keys (deploy/contract/keyring.py): a master drawn for this run, a keyring
+        # per node derived from it and handed over on a pipe; the master stays here
+        fleet, master, roles = opts.fleet or sc.name, new_master(), key_roles(sc, opts.plant)
+
+        def keyring_of(role: str) -> str:
+            return keyring_text(master, fleet, role, roles)
+
+        self.keyring = Keyring.from_text(keyring_of(LAUNCHER_ROLE), "the launcher's keys",
+                                         LAUNCHER_ROLE, sc, Keys(fleet))
+        self.observer = make_observer(sc, opts, self.keyring)
+        self.supervisor = Supervisor(keyring_of)
         self.stop = StopFlag()
         self.steps = opts.steps(sc)
         self.kills = KillSchedule(opts.faults.kills if opts.faults else ())
@@ -98,7 +106,8 @@ class Launcher:
         endpoint = o.endpoint or endpoint_of(run_dir, LAUNCHER_ROLE)
         try:
             node = Node(LAUNCHER_ROLE, obs.keys, obs.codec,
-                        zenoh_config(listen=[endpoint], gossip=False, lowlatency=o.lowlatency))
+                        zenoh_config(listen=[endpoint], gossip=False, lowlatency=o.lowlatency),
+                        keyring=self.keyring)
         except BaseException:
             shutil.rmtree(run_dir, ignore_errors=True)
             raise
@@ -177,7 +186,7 @@ class Launcher:
 
     def _control(self, node: Node, command: str, start_unix_ns: int = 0) -> None:
         node.publish(self.observer.keys.ctl(command), lambda seq, stamp: control(
-            command, seq, stamp, self.secret, start_unix_ns=start_unix_ns))
+            command, seq, stamp, start_unix_ns=start_unix_ns))
 
 
 def _write_endpoints(out: Path, launcher_endpoint: str, children, run_dir: Path) -> None:

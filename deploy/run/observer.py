@@ -1,9 +1,9 @@
 """Hearing a run from outside its control path: every sample the launcher (or the
 recorder across hosts) subscribes to goes through :meth:`Observer.on_sample`, which
-decodes it, records it, judges it (signed control, reports filed by their key,
-state logs from the node that holds those robots, rows no further than the run
-can have reached on our own clock) and files what is kept in the
-:class:`Collector`. What it refused is counted, by reason.
+checks who sent it (deploy/contract/keyring.py), decodes it, records it, judges it
+(reports filed by their key, state logs from the node that holds those robots, rows
+no further than the run can have reached on our own clock) and files what is kept
+in the :class:`Collector`. What it refused is counted, by reason.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from deploy.contract.run_secret import control_is_genuine, report_is_genuine
+from deploy.contract.keyring import Keyring
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import (
     PLANT_ROLE,
@@ -28,6 +28,7 @@ from deploy.nodes.leader import TICK_EVERY
 from deploy.run.collector import Collector
 from deploy.runtime.plants import CAN_EMULATED
 from deploy.runtime.step_guard import CLOCK_SKEW_S
+from deploy.runtime.transport import WHAT
 
 
 class Observer:
@@ -36,10 +37,13 @@ class Observer:
     lockstep), whether it has ended or been stopped, and what it refused."""
 
     def __init__(self, sc: Scenario, keys: Keys, clock: str, plant: str, steps: int,
-                 secret: str | None, recorder: Any = None, record_all: bool = False) -> None:
+                 keyring: Keyring | None, recorder: Any = None, record_all: bool = False) -> None:
         self.sc, self.keys, self.clock, self.plant = sc, keys, clock, plant
         self.codec = Codec(sc.robot_ids)
-        self.secret = secret  # None: across hosts the ACL says who may publish (fleet/acl.py)
+        # the launcher's keys: what it hears is taken only from a sender of its key, tagged
+        # for the launcher (deploy/contract/keyring.py). None (a recorder across hosts given
+        # no --keys): the ACL alone says who may publish what (deploy/fleet/acl.py)
+        self.keyring = keyring
         self.recorder = recorder  # McapRecorder or None
         self.record_all = record_all  # subscribe to every key (recording)
         self.steps = steps
@@ -53,7 +57,7 @@ class Observer:
         self.t0_mono: float | None = None  # t = 0 when the launcher keeps the time (CAN)
         self.tick_k = -1  # lockstep: the newest signed ctl/tick (the plant's step)
         self.stopped_by: dict[str, Any] | None = None  # a genuine ctl/stop or ctl/estop
-        self.control_refused = 0  # control messages heard whose signature did not check
+        self.unsigned: dict[str, int] = {}  # refused before decoding: authentication, by reason
         self.misfiled = 0  # reports and state logs whose key is not their sender's
         self.forged_reports = 0  # reports of no role of the run, or not signed by its nodes
         self.on_report: Callable[[str], None] = lambda role: None  # a report was filed
@@ -73,6 +77,13 @@ class Observer:
         if found is None:
             return
         kind, robot = found
+        if self.keyring is not None:  # before anything decodes or files it
+            payload, why = self.keyring.open(data, key)
+            if payload is None:
+                reason = f"{WHAT[kind]}: {why}"
+                self.unsigned[reason] = self.unsigned.get(reason, 0) + 1
+                return
+            data = payload
         msg = self.codec.decode(kind, data, robot)
         if msg is None:
             self.invalid += 1
@@ -92,9 +103,6 @@ class Observer:
             self.collector.add(msg)
 
     def _on_control(self, msg: Control) -> None:
-        if not control_is_genuine(self.secret, msg):
-            self.control_refused += 1
-            return
         if msg.command == "start" and self.run_t0 is None:
             self.run_t0 = time.monotonic() + (msg.start_unix_ns - time.time_ns()) * 1e-9
         elif msg.command == "tick":
@@ -106,7 +114,7 @@ class Observer:
             self.ended = True
             self.end_unix_ns = self.end_unix_ns or time.time_ns()
         elif msg.command in ("stop", "estop") and self.stopped_by is None:
-            # signed by a holder of the run's secret: the run ends early, and says so
+            # from the plant or the launcher (authenticated): the run ends early, and says so
             self.stopped_by = {"command": msg.command, "sender": msg.sender,
                                "k": self.progress_k, "t_s": self.run_time()}
 
@@ -118,9 +126,10 @@ class Observer:
             self.invalid += 1
             self.misfiled += 1
             return
-        if msg.role not in self._report_roles() or not report_is_genuine(self.secret, msg):
-            # only the run's roles (the table of reports stays bounded), signed with the
-            # run's secret (a report on report/plant with a fake contact is refused)
+        if msg.role not in self._report_roles():
+            # only the run's roles (the table of reports stays bounded); with keys, only
+            # the role itself can have tagged it (a report on report/plant with a fake
+            # contact is refused before it is decoded)
             self.invalid += 1
             self.forged_reports += 1
             return
@@ -161,9 +170,7 @@ class Observer:
 
     def refused(self) -> dict[str, int]:
         """What the listener refused, by reason (metrics.json ``messages.refused``)."""
-        out: dict[str, int] = {}
-        if self.control_refused:
-            out["launcher: forged control"] = self.control_refused
+        out = {f"launcher: {why}": n for why, n in self.unsigned.items()}
         if self.misfiled:
             out["launcher: report or state log on another node's key"] = self.misfiled
         if self.forged_reports:

@@ -145,6 +145,14 @@ def plan_run(sc: Scenario, a: LaunchOptions, launcher_endpoint: str,
     return RunPlan(plan, truth)
 
 
+def key_roles(sc: Scenario, plant: str) -> list[str]:
+    """Every role of a run that holds keys (deploy/contract/keyring.py): the leader, the
+    plant or a CAN bridge per robot, the agents, and the launcher."""
+    ids = sc.robot_ids
+    sources = [bridge_role(r) for r in ids] if plant == CAN_EMULATED else [PLANT_ROLE]
+    return [LEADER_ROLE, *sources, *(agent_role(r) for r in ids), LAUNCHER_ROLE]
+
+
 def expected_links(children: list[Child], role: str) -> set[str]:
     """The roles ``role`` has a link with (both directions), the launcher included."""
     out = {LAUNCHER_ROLE}

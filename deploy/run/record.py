@@ -17,11 +17,12 @@ import time
 from pathlib import Path
 from typing import Any
 
+from deploy.contract.keyring import Keyring, KeysError
 from deploy.contract.options import EXIT_BAD_INPUT, add_option
 from deploy.contract.output_paths import check_folder
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, run_roles
-from deploy.nodes.cli import run_scenario
+from deploy.nodes.cli import add_keys_options, keyring_of, run_scenario
 from deploy.run.launcher import Interrupted, LaunchOptions, make_observer, observing
 from deploy.run.run_figures import run_figures
 from deploy.runtime.node_runtime import StopFlag
@@ -34,12 +35,15 @@ class Recorder:
     zenoh configuration file (TLS and access control across hosts, deploy/fleet/)."""
 
     def __init__(self, sc: Scenario, opts: LaunchOptions, zenoh_file: str | None = None,
-                 listen: list[str] | None = None, connect: list[str] | None = None) -> None:
+                 listen: list[str] | None = None, connect: list[str] | None = None,
+                 keyring: Keyring | None = None) -> None:
         self.sc, self.opts = sc, opts
         self.zenoh_file, self.listen, self.connect = zenoh_file, listen, connect
-        # the nodes run elsewhere, started by hand or by systemd, with no run secret:
-        # across hosts the ACL says who may publish ctl/* (deploy/fleet/acl.py)
-        self.observer = make_observer(sc, opts, secret=None)
+        # the nodes run elsewhere, started by hand or by systemd: with the launcher's
+        # keyring of `omnifleet deploy certs` (--keys) what they tag for it is checked;
+        # without, the ACL alone says who may publish what (deploy/fleet/acl.py)
+        self.keyring = keyring
+        self.observer = make_observer(sc, opts, keyring)
         self.observer.on_report = self._on_report
         self.stop = StopFlag()
         self.reported_ns: dict[str, int] = {}  # role -> when its report arrived (wall, ns)
@@ -53,7 +57,8 @@ class Recorder:
         o, obs = self.opts, self.observer
         o.out.mkdir(parents=True, exist_ok=True)
         node = Node(LAUNCHER_ROLE, obs.keys, obs.codec,
-                    zenoh_config(self.zenoh_file, self.listen, self.connect))
+                    zenoh_config(self.zenoh_file, self.listen, self.connect),
+                    keyring=self.keyring)
         zid = node.zid
         roles = run_roles(self.sc.robot_ids)
         with observing(obs, o, node, self.stop):
@@ -64,12 +69,15 @@ class Recorder:
                 raise TimeoutError(f"not ready after {o.startup_timeout_s:.0f} s: "
                                    f"{', '.join(sorted(missing))}")
             start = time.perf_counter()
-            while not obs.ended:
+            # the run ends with the plant's ``end``, or early with a genuine stop or estop
+            # (no ``end`` follows one: the nodes leave, each sending its report)
+            while not obs.ended and obs.stopped_by is None:
                 if self.stop():
                     raise Interrupted(self.stop.reason)
                 if progress is not None:
                     progress(obs.progress_k + 1, obs.steps)
-                node.mailbox.wait_until(lambda: obs.ended or self.stop(), 0.1)
+                node.mailbox.wait_until(
+                    lambda: obs.ended or obs.stopped_by is not None or self.stop(), 0.1)
             wall = time.perf_counter() - start
             if progress is not None:  # the steps the plant says it simulated, no more
                 progress(obs.progress_k + 1, obs.steps)
@@ -142,6 +150,11 @@ def _cmd_record(args: argparse.Namespace) -> int:
     if removed:
         print(f"omnifleet record: --overwrite: removed the previous run's {', '.join(removed)}",
               file=sys.stderr)
+    try:
+        keyring = keyring_of(args, sc, LAUNCHER_ROLE)
+    except KeysError as exc:
+        print(f"omnifleet record: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     opts = LaunchOptions(scenario_arg=args.scenario, plant=plant, clock=args.clock,
                          out=Path(args.out), duration_s=args.duration,
                          control_rate_hz=args.control_rate,
@@ -155,7 +168,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
         recording = McapRecorder(Path(args.out) / "recording.mcap",
                                  sim_dt=sc.dt if args.clock == "lockstep" else None)
         opts.recorder = recording
-    rec = Recorder(sc, opts, args.zenoh_config, args.listen, args.connect)
+    rec = Recorder(sc, opts, args.zenoh_config, args.listen, args.connect, keyring)
     try:
         extra = rec.run(terminal_progress(f"{sc.name} ({plant}, {args.clock})")
                         or log_progress())
@@ -206,6 +219,7 @@ def add_record_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config file")
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT")
+    add_keys_options(p)
     add_option(p, "--duration", more_help="give the nodes the same")
     add_option(p, "--control-rate", more_help="give the nodes the same")
     add_option(p, "--startup-timeout", default=120.0)

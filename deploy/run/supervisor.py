@@ -8,6 +8,7 @@ which stops them in order) and get SIGTERM if the launcher itself dies
 
 from __future__ import annotations
 
+import fcntl
 import os
 import signal
 import subprocess
@@ -16,7 +17,6 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from deploy.contract.run_secret import RUN_SECRET_ENV
 from deploy.contract.wire import PLANT_ROLE
 from deploy.run.kill_schedule import PAUSE, RESUME, KillSchedule
 from deploy.run.plan import Child, restart_of
@@ -47,11 +47,26 @@ def _failure(c: Child, what: str) -> str:
     return f"{c.role} (pid {c.proc.pid}) {what}" + (f"; its last output:\n{tail}" if tail else "")
 
 
+def _keys_pipe(text: str) -> int:
+    """A pipe holding ``text``, its write end closed: the read end, for a child."""
+    r, w = os.pipe()
+    data = text.encode()
+    if len(data) > 60_000:  # beyond the default pipe (64 KiB): grow it, or the write blocks
+        fcntl.fcntl(w, fcntl.F_SETPIPE_SZ, len(data) + 4096)
+    with os.fdopen(w, "wb") as f:
+        f.write(data)
+    return r
+
+
 class Supervisor:
     """Owns the run's child processes (``children``, in start order)."""
 
-    def __init__(self, secret: str | None, run_dir: Path | None = None) -> None:
-        self.secret = secret  # handed to every child: it signs the run's control messages
+    def __init__(self, keyring_of: Callable[[str], str] | None,
+                 run_dir: Path | None = None) -> None:
+        # each zenoh node's keyring (deploy/contract/keyring.py), by role: handed to it on a
+        # pipe (--keys-fd), never in its environment (/proc/PID/environ shows that to the
+        # same user), on its command line or on disk
+        self.keyring_of = keyring_of
         self.run_dir = run_dir  # the run's sockets (a restarted node's old one is removed)
         self.children: list[Child] = []
 
@@ -63,13 +78,19 @@ class Supervisor:
         child.log_path.parent.mkdir(parents=True, exist_ok=True)
         child.log = open(child.log_path, "wb")  # noqa: SIM115 - closed in reap
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        if self.secret is not None:
-            env[RUN_SECRET_ENV] = self.secret  # signs the run's control messages (run_secret.py)
         env.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
-        child.proc = subprocess.Popen(
-            child.argv, stdout=child.log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-            env=env, start_new_session=True,
-        )
+        argv, fds = child.argv, ()
+        if child.zenoh and self.keyring_of is not None:
+            fd = _keys_pipe(self.keyring_of(child.role))
+            argv, fds = [*argv, "--keys-fd", str(fd)], (fd,)
+        try:
+            child.proc = subprocess.Popen(
+                argv, stdout=child.log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                env=env, start_new_session=True, pass_fds=fds,
+            )
+        finally:
+            for fd in fds:
+                os.close(fd)  # the child has its own copy
         self.children.append(child)
 
     def reap(self, child: Child, block: bool) -> bool:

@@ -30,12 +30,30 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from deploy.contract.wire import MAX_REPORT_KEYS, WIRE_VERSION, Codec, Keys, Message, encode
+from deploy.contract.keyring import Keyring
+from deploy.contract.wire import (
+    MAX_REPORT_KEYS,
+    WIRE_VERSION,
+    Codec,
+    Control,
+    Keys,
+    LeaderState,
+    Message,
+    NodeReport,
+    Reply,
+    Sample,
+    StateLog,
+    Telemetry,
+    encode,
+)
 
 MAX_PEER_EVENTS = 10_000
 # distinct keys counted in Node.received: a wildcard subscription (ctl/*) hears any key a
 # peer makes up, and a report with more than MAX_REPORT_KEYS entries does not decode
 MAX_RECEIVED_KEYS = MAX_REPORT_KEYS // 2
+# what a refused message was, in its reason ("reply: MAC does not check")
+WHAT = {Sample: "sample", Reply: "reply", LeaderState: "leader", Control: "control",
+        NodeReport: "report", Telemetry: "telemetry", StateLog: "state log"}
 
 
 class TransportError(RuntimeError):
@@ -173,7 +191,12 @@ class Node:
         config: Any,
         sender: int = 0,
         lossless: bool = True,
+        keyring: Keyring | None = None,
     ) -> None:
+        """``keyring``: this node's keys (deploy/contract/keyring.py): every message it
+        sends is sealed for its receivers, and every message it hears is refused and
+        counted unless a sender of its key tagged it for this node, before it is
+        decoded. None (a node started by hand without keys): neither."""
         import zenoh
 
         self._zenoh = zenoh
@@ -188,6 +211,7 @@ class Node:
         self._version_warned = False
         self.links_noted: list[str] | None = None
         self.refused: dict[str, int] = {}  # messages refused on arrival, by reason
+        self.keyring = keyring
         try:
             self.session = zenoh.open(config)
         except Exception as exc:
@@ -279,6 +303,8 @@ class Node:
             msg = msg_factory(seq, time.monotonic_ns())
             data = encode(msg)
             self.codec.check(type(msg), data)  # the receivers' schema: NaN never leaves
+            if self.keyring is not None:
+                data = self.keyring.seal(data, key)
             pub.put(data)
             self.counters.sent += 1
         except Exception as exc:
@@ -298,8 +324,15 @@ class Node:
         """Decoded and validated on the node's thread as it waits; ``on_message``
         runs there too. Valid messages are counted per key they came on."""
         codec, counters, received, post = self.codec, self.counters, self.received, self.mailbox.post
+        keyring, what = self.keyring, WHAT.get(kind, kind.__name__)
 
         def handle(data: bytes, on: str = key) -> None:  # the node's thread
+            if keyring is not None:  # before anything decodes it or looks at its step
+                payload, why = keyring.open(data, on)
+                if payload is None:
+                    self.refuse_unsigned(what, why, on)
+                    return
+                data = payload
             msg = codec.decode(kind, data, robot)
             if msg is None:
                 counters.invalid += 1
@@ -325,6 +358,16 @@ class Node:
         self.refused[why] = self.refused.get(why, 0) + 1
         if dropped:
             self.counters.dropped += 1
+
+    def refuse_unsigned(self, what: str, why: str, key: str) -> None:
+        """Count a message whose authentication failed (deploy/contract/keyring.py); say
+        so on stderr the first time for each reason."""
+        reason = f"{what}: {why}"
+        self.refuse(reason)
+        if self.refused[reason] == 1:
+            print(f"{self.role}: refused a {what} on {key} ({why}): forged, or from a node "
+                  "without this run's keys; every such message is counted in its report",
+                  file=sys.stderr, flush=True)
 
     def note_nonfinite(self, what: str) -> None:
         """Count a value this node computed that is not finite (a diverged law or

@@ -157,7 +157,7 @@ def assert_no_process_left(fleet: str) -> None:
     assert not pids_with(fleet), "orphans left behind"
 
 
-def test_garbage_on_every_key_is_counted_invalid_and_changes_no_torque(tmp_path):
+def test_garbage_on_every_key_is_refused_counted_and_changes_no_torque(tmp_path):
     from deploy.contract.wire import Keys
 
     out = tmp_path / "garbage"
@@ -175,14 +175,17 @@ def test_garbage_on_every_key_is_counted_invalid_and_changes_no_torque(tmp_path)
         rc, _, err = finish(proc)
     assert rc == 0, err
     m = json.loads((out / "metrics.json").read_text())
-    # every node counts what reached its subscriptions; the launcher hears all keys
-    assert m["messages"]["invalid"] >= 4 * len(targets)
+    # every node counts what reached its subscriptions; the launcher hears all keys. None of
+    # it is in an envelope of the run's keys: refused before decoding (docs/hardening.md)
+    unsigned = sum(n for why, n in m["messages"].get("refused", {}).items()
+                   if why.endswith(": unsigned"))
+    assert unsigned >= 4 * len(targets) and m["messages"]["invalid"] == 0
     rc, _, err = finish(start("run", "paper", "--in-process", "--duration", "1.0",
                               "--out", str(tmp_path / "ref"), "--no-figures"))
     assert rc == 0, err
     a = TimeSeries.load(out / "timeseries.npz")
     b = TimeSeries.load(tmp_path / "ref" / "timeseries.npz")
-    assert np.array_equal(a.torque, b.torque)
+    assert np.array_equal(a.torque, b.torque), m["messages"]
 
 
 def test_sigint_stops_every_process_of_the_run(tmp_path):
@@ -300,9 +303,9 @@ def test_each_node_links_only_to_the_nodes_it_talks_to(tmp_path, robots):
 def test_a_forged_stop_from_a_peer_on_the_fleet_neither_stops_nor_steers_the_run(tmp_path):
     """Found by probing (docs/hardening.md): a well-formed ``ctl/stop`` or ``ctl/estop`` from any
     process that reached the fleet ended the run early with exit 0, and ``--check``
-    passed it. Control messages are now signed with the run's secret (given to the
-    nodes in their environment, never on the wire): the forged ones are refused and
-    counted, the run goes to its end, equal to the reference."""
+    passed it. Control is now taken only from the plant or the launcher, authenticated
+    with the per-node keys (docs/hardening.md): the forged ones are refused and counted,
+    the run goes to its end, equal to the reference."""
     from deploy.contract.wire import WIRE_VERSION, Control, Keys, encode
 
     out = tmp_path / "forged-stop"
@@ -317,7 +320,7 @@ def test_a_forged_stop_from_a_peer_on_the_fleet_neither_stops_nor_steers_the_run
     m = json.loads((out / "metrics.json").read_text())
     assert m["steps"] == 1000 and m["verdict"]["pass"], m["verdict"]
     refused = m["messages"].get("refused", {})
-    assert sum(n for why, n in refused.items() if "forged control" in why) >= 4, refused
+    assert sum(n for why, n in refused.items() if why.endswith("control: unsigned")) >= 4, refused
     rc, _, err = finish(start("run", "paper", "--in-process", "--duration", "1.0",
                               "--out", str(tmp_path / "ref"), "--no-figures"))
     assert rc == 0, err

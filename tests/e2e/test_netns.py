@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import re
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -121,6 +122,54 @@ def test_lockstep_across_namespaces_equals_the_single_host_run(tmp_path, router)
              if p["role"] != "launcher"}
     assert set(heard) == {"plant", "leader", "agent-1", "agent-2", "agent-3"}
     assert heard["agent-2"] == {"robot/2/sample", "robot/1/cmd", "ctl/tick", "ctl/end"}
+
+
+@pytest.mark.parametrize("tls", [True, False], ids=["tls-acl", "plain-tcp"])
+def test_an_agent_with_valid_credentials_commands_no_other_robot(tmp_path, tls):
+    """Agent 3's machine is taken over: a rogue process there holds agent 3's keyring
+    (and, with TLS, its certificate), throws its own access control away and floods
+    robot 2's key with replies (tests/rogue_agent.py). With TLS the plant's ACL drops
+    them before anything sees them; over plain TCP the keys refuse them, counted. Either
+    way robot 2 moves as on one host, bit for bit."""
+    from deploy.fleet.certs import role_files
+    from deploy.fleet.zenoh_configs import node_config, write_config
+
+    rc, _, err = finish(start("run", "paper", "--plant", "model", "--duration", DURATION,
+                              "--out", str(tmp_path / "ref"), "--no-figures", "--no-record"))
+    assert rc == 0, err
+    out = tmp_path / "netns-run"
+    fleet = f"nsr{int(time.time()) % 100000}"
+    run = RunOptions("paper", duration_s=float(DURATION), plant_kind="model",
+                     record_out=str(out))
+    with machines(MACHINES) as ms:
+        procs, logs = _run_fleet(ms, tmp_path, fleet, run, tls=tls)
+        hosts = load_hosts(tmp_path / "hosts.toml", load_scenario("paper"))
+        d = tmp_path / "deploy" / "robot3"
+        cfg = write_config(tmp_path / "rogue.json5", node_config(
+            [], [hosts.hub.endpoint(tls)], role_files(d, "agent-3") if tls else None, None))
+        rogue = ms["robot3"].start(
+            [sys.executable, str(Path(__file__).resolve().parents[1] / "rogue_agent.py"),
+             "--scenario", "paper", "--fleet", fleet, "--keys", str(d / "agent-3.keys"),
+             "--role", "agent-3", "--zenoh-config", str(cfg), "--steps", "300",
+             "--seconds", "20"], logs / "rogue.log")
+        try:
+            codes = _wait_all(procs, 120)
+        finally:
+            stop([*procs.values(), rogue])
+    assert all(c == 0 for c in codes.values()), f"{codes}\n{_logs(logs)}"
+    assert_same_series(TimeSeries.load(out / "timeseries.npz"),
+                       TimeSeries.load(tmp_path / "ref" / "timeseries.npz"))
+    m = json.loads((out / "metrics.json").read_text())
+    plant = {why: n for why, n in m["messages"].get("refused", {}).items()
+             if why.startswith("plant: reply")}
+    # the rogue was in the fleet: linked with its nodes (its own certificate is valid)
+    assert int((logs / "rogue.log").read_text().split("peers ")[-1].split()[0]) > 0
+    if tls:  # the ACL refused them on the link: nothing reached the plant's handlers
+        assert plant == {}, plant
+    else:  # nothing but the keys: refused, counted
+        assert plant.get("plant: reply: not signed by a sender of this key", 0) > 0, plant
+        assert plant.get("plant: reply: MAC does not check", 0) > 0, plant
+    print(f"\n{'TLS + ACL' if tls else 'plain TCP'}: the plant refused {plant or 'nothing'}")
 
 
 def _wait_for_step(log: Path, k: int, proc: subprocess.Popen, timeout: float) -> None:

@@ -10,6 +10,7 @@ import pytest
 from procs import finish, start
 
 from deploy.contract.hosts import HostsError, load_hosts
+from deploy.contract.keyring import Keyring, read_file
 from deploy.contract.scenario import load_scenario
 from deploy.contract.wire import Keys
 from deploy.fleet.acl import access_control, fleet_roles, receives
@@ -39,6 +40,7 @@ def test_the_plan_gives_every_machine_its_exact_commands(paper):
     assert agent2[:2] == ["omnifleet", "agent"]
     assert agent2[agent2.index("--robot") + 1] == "2"
     assert agent2[agent2.index("--zenoh-config") + 1] == "/etc/omnifleet/lab1/agent-2.json5"
+    assert agent2[agent2.index("--keys") + 1] == "/etc/omnifleet/lab1/agent-2.keys"
     for cmds in sections.values():  # every node agrees on fleet, scenario and duration
         for c in cmds:
             assert c[c.index("--fleet") + 1] == "lab1" and c[c.index("--duration") + 1] == "5.0"
@@ -60,7 +62,16 @@ def test_configs_and_certificates_match_the_hosts_file(paper, tmp_path):
     assert agent["access_control"]["default_permission"] == "deny"
     # each machine gets the CA's certificate and its own roles' keys, nothing else
     assert sorted(p.name for p in (tmp_path / "robot2").iterdir()) == [
-        "agent-2.json5", "agent-2.key", "agent-2.pem", "ca.pem"]
+        "agent-2.json5", "agent-2.key", "agent-2.keys", "agent-2.pem", "ca.pem"]
+    # its keyring: a key with every other node (not the router, which forwards), only
+    # its owner may read it, and the master stays with the CA
+    keys = tmp_path / "robot2" / "agent-2.keys"
+    assert keys.stat().st_mode & 0o077 == 0
+    ring = Keyring.from_text(read_file(keys), str(keys), "agent-2", paper, Keys("lab1"))
+    assert sorted(ring._pair) == ["agent-1", "agent-2", "agent-3", "launcher", "leader",
+                                  "plant"]
+    assert (tmp_path / "ca" / "fleet.master").stat().st_mode & 0o077 == 0
+    assert not list(tmp_path.glob("robot*/fleet.master"))
     assert sorted(p.name for p in (tmp_path / "base").glob("*.key")) == [
         "launcher.key", "leader.key", "plant.key"]
     assert common_name(tmp_path / "robot2" / "agent-2.pem") == "agent-2"
@@ -120,3 +131,22 @@ def test_deploy_plan_exits_2_on_a_bad_hosts_file(tmp_path):
     assert rc == 2 and str(bad) in err and "fleet" in err
     rc, out, err = finish(start("deploy", "plan", str(EXAMPLE), "paper"), timeout=60)
     assert rc == 0 and "omnifleet agent" in out, err
+
+
+def test_a_node_refuses_a_keyring_others_may_read_or_another_roles(paper, tmp_path):
+    """Before opening a session: exit 2 naming the file and what is wrong with it."""
+    from deploy.contract.keyring import keyring_text, new_master, write_file
+
+    ring = write_file(tmp_path / "agent-2.keys",
+                      keyring_text(new_master(), "f", "agent-2", ["plant", "leader"]))
+    ring.chmod(0o644)
+    rc, _, err = finish(start("agent", "--scenario", "paper", "--fleet", "f", "--robot", "2",
+                              "--keys", str(ring)), timeout=60)
+    assert rc == 2 and f"{ring}: mode 0644: others may read its keys" in err, err
+    ring.chmod(0o600)
+    rc, _, err = finish(start("agent", "--scenario", "paper", "--fleet", "f", "--robot", "3",
+                              "--keys", str(ring)), timeout=60)
+    assert rc == 2 and "keys of agent-2, not of agent-3" in err, err
+    rc, _, err = finish(start("agent", "--scenario", "paper", "--fleet", "f", "--robot", "2",
+                              "--keys", str(tmp_path / "none.keys")), timeout=60)
+    assert rc == 2 and "none.keys: cannot read" in err and "deploy certs" in err, err

@@ -5,54 +5,72 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import msgspec
 import pytest
 
-from deploy.contract.run_secret import new_secret, report_is_genuine, sign_report
+from deploy.contract.keyring import Keyring, keyring_text, new_master
 from deploy.contract.scenario import load_scenario
-from deploy.contract.wire import WIRE_VERSION, Codec, ContactRecord, NodeReport, encode
+from deploy.contract.wire import WIRE_VERSION, Codec, ContactRecord, Keys, NodeReport, encode
 from deploy.run.launcher import LaunchOptions, make_observer
 
 
 def report(role: str, **extra) -> NodeReport:
-    return NodeReport(WIRE_VERSION, 0, 0, 0, role=role, robot=-1, sent=1, dropped=0, late=0,
-                      invalid=0, steps=1, **extra)
+    fields = {"sent": 1, "dropped": 0, "late": 0, "invalid": 0, "steps": 1} | extra
+    return NodeReport(WIRE_VERSION, 0, 0, 0, role=role, robot=-1, **fields)
+
+
+def _run_keys(sc, master: bytes) -> dict[str, Keyring]:
+    """The keyrings of a run of ``sc`` (fleet = its name), the launcher's included."""
+    roles = ["leader", "plant", *(f"agent-{r}" for r in sc.robot_ids), "launcher"]
+    return {r: Keyring.from_text(keyring_text(master, sc.name, r, roles), "test", r, sc,
+                                 Keys(sc.name)) for r in roles}
+
+
+def _listener(sc, tmp_path: Path, keys: dict[str, Keyring] | None):
+    return make_observer(sc, LaunchOptions("paper", "model", "lockstep", tmp_path, record=False),
+                         None if keys is None else keys["launcher"])
 
 
 def test_a_report_is_filed_under_the_key_it_came_on(tmp_path: Path):
     """Found by probing: a "plant" report sent on report/agent-2 put a fake contact
-    and invalid = -1000 into metrics.json."""
+    and invalid = -1000 into metrics.json. Without keys (a recorder across hosts given
+    none: the ACL's word) the key still decides."""
     sc = load_scenario("paper")
-    listener = make_observer(sc, LaunchOptions("paper", "model", "lockstep", tmp_path, record=False),
-                             new_secret())
+    listener = _listener(sc, tmp_path, None)
     fake = report("plant", contacts=[ContactRecord(0.1, 0.2, 1, 2, 0.5)], contacts_total=1)
     listener.on_sample((listener.keys.report("agent-2"), encode(fake)))
     assert "plant" not in listener.collector.reports and listener.invalid == 1
-    signed = sign_report(listener.secret, report("plant"))  # as the run's plant signs it
-    listener.on_sample((listener.keys.report("plant"), encode(signed)))
+    listener.on_sample((listener.keys.report("plant"), encode(report("plant"))))
     assert listener.collector.reports["plant"].contacts is None
 
 
-def test_a_report_not_signed_by_a_node_of_the_run_is_refused(tmp_path: Path):
+def test_a_report_not_tagged_by_its_node_is_refused_before_decoding(tmp_path: Path):
     """On its own key, a forged report still put a fake contact into metrics.json (and
-    a report under a made-up role grew the launcher's table): reports are signed with
-    the run's secret like control, and filed only for the run's roles."""
+    a report under a made-up role grew the launcher's table): only the report's own
+    node can tag it for the launcher."""
     sc = load_scenario("paper")
-    listener = make_observer(sc, LaunchOptions("paper", "model", "lockstep", tmp_path, record=False),
-                             new_secret())
+    keys = _run_keys(sc, new_master())
+    listener = _listener(sc, tmp_path, keys)
+    k = listener.keys
     fake = report("plant", contacts=[ContactRecord(0.1, 0.2, 1, 2, 0.5)], contacts_total=1)
-    listener.on_sample((listener.keys.report("plant"), encode(fake)))  # unsigned
-    listener.on_sample((listener.keys.report("plant"), encode(sign_report("guess", fake))))
-    for n in range(100):  # made-up roles, each on its own key, signed by nobody
-        listener.on_sample((listener.keys.report(f"x{n}"), encode(report(f"x{n}"))))
-    assert listener.collector.reports == {} and listener.forged_reports == 102
-    tampered = msgspec.structs.replace(sign_report(listener.secret, report("plant")), late=7)
-    listener.on_sample((listener.keys.report("plant"), encode(tampered)))
+    listener.on_sample((k.report("plant"), encode(fake)))  # no envelope
+    guessed = _run_keys(sc, new_master())  # another run's keys
+    listener.on_sample((k.report("plant"), guessed["plant"].seal(encode(fake), k.report("plant"))))
+    # agent 2's own keys, on the plant's key: it does not send that key
+    listener.on_sample((k.report("plant"), keys["agent-2"].seal(encode(fake), k.report("plant"))))
+    for n in range(100):  # made-up roles, each on its own key, sent by nobody
+        listener.on_sample((k.report(f"x{n}"), keys["plant"].seal(encode(report(f"x{n}")),
+                                                                 k.report(f"x{n}"))))
     assert listener.collector.reports == {}
-    signed = sign_report(listener.secret, report("plant", contacts_total=0))
-    listener.on_sample((listener.keys.report("plant"), encode(signed)))
-    assert listener.collector.reports["plant"] == signed
-    assert report_is_genuine(None, fake)  # a recorder across hosts: no secret, the ACL's word
+    assert listener.refused() == {"launcher: report: unsigned": 1,
+                                  "launcher: report: MAC does not check": 1,
+                                  "launcher: report: not signed by a sender of this key": 101}
+    sealed = bytearray(keys["plant"].seal(encode(report("plant", steps=5)), k.report("plant")))
+    sealed[10] ^= 1  # touched on the way
+    listener.on_sample((k.report("plant"), bytes(sealed)))
+    assert listener.collector.reports == {}
+    real = report("plant", contacts_total=0)
+    listener.on_sample((k.report("plant"), keys["plant"].seal(encode(real), k.report("plant"))))
+    assert listener.collector.reports["plant"] == real
 
 
 def test_a_report_with_a_negative_count_does_not_decode():

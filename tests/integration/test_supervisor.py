@@ -33,7 +33,7 @@ def _alive(pid: int) -> bool:
 
 
 def test_stop_all_ends_every_child_by_pid_even_one_that_ignores_sigterm(tmp_path):
-    sup = Supervisor(secret="s")
+    sup = Supervisor(None)
     try:
         polite = _started(sup, tmp_path, "polite", SLEEPER)
         stubborn = _started(sup, tmp_path, "stubborn", STUBBORN)
@@ -49,7 +49,7 @@ def test_stop_all_ends_every_child_by_pid_even_one_that_ignores_sigterm(tmp_path
 
 
 def test_a_child_that_died_fails_the_run_naming_it_and_its_last_output(tmp_path):
-    sup = Supervisor(secret="s")
+    sup = Supervisor(None)
     try:
         c = _started(sup, tmp_path, "agent-2", "import sys; print('boom'); sys.exit(3)")
         sup.reap(c, block=True)
@@ -62,9 +62,38 @@ def test_a_child_that_died_fails_the_run_naming_it_and_its_last_output(tmp_path)
 def test_the_plant_exiting_cleanly_ends_the_run():
     """The plant exits 0 only after publishing ``end``; a launcher behind on traffic
     may see the exit first: that is the end of the run, not a crash."""
-    sup = Supervisor(secret=None)
+    sup = Supervisor(None)
     done = types.SimpleNamespace(pid=4242)  # an exited process: only its pid is read
     sup.children = [Child("agent-1", 1, [], os.devnull, done, exit_code=0)]
     assert not sup.check(ended=False)
     sup.children.append(Child("plant", None, [], os.devnull, done, exit_code=0))
     assert sup.check(ended=False)
+
+
+KEYS_READER = ("import sys, hashlib, os; fd = int(sys.argv[sys.argv.index('--keys-fd') + 1]); "
+               "data = os.read(fd, 1 << 20); print('got', hashlib.sha256(data).hexdigest(), "
+               "flush=True); import time; time.sleep(60)")
+
+
+def test_a_child_gets_its_keys_on_a_pipe_never_in_its_environment_or_command_line(tmp_path):
+    """Every same-user process can read /proc/PID/environ and /proc/PID/cmdline: the
+    run's secret sat in every node's environment, and a stop signed with it was obeyed.
+    Each node's keyring now travels on a pipe the child reads once."""
+    import hashlib
+
+    texts = {"agent-2": "K" * 70_000 + "agent-2", "plant": "P" * 100 + "plant"}  # one > 64 KiB
+    sup = Supervisor(texts.__getitem__)
+    try:
+        children = [_started(sup, tmp_path, role, KEYS_READER) for role in texts]
+        for c in children:
+            while b"got" not in c.log_path.read_bytes():
+                assert c.proc.poll() is None, c.log_path.read_text()
+                time.sleep(0.01)  # polling its output, the readiness signal
+            want = hashlib.sha256(texts[c.role].encode()).hexdigest()
+            assert c.log_path.read_text().split()[1] == want  # the whole keyring, intact
+            for where in ("environ", "cmdline"):
+                seen = open(f"/proc/{c.proc.pid}/{where}", "rb").read()
+                assert texts[c.role][-8:].encode() not in seen and b"K" * 32 not in seen
+            assert "--keys-fd" not in c.argv  # a restart gets a new pipe, not this number
+    finally:
+        sup.stop_all()
