@@ -64,8 +64,11 @@ class LeaderGenerator:
         self.spec, self.dt, self.k = spec, dt, 0
         self._wp_t: float | None = None
         self._wp: tuple = ()
+        self._h_t: float | None = None
+        self._h: tuple = ()
+        # the leader's position and velocity, (x, y) floats
         self._pos = self._path_position(0.0)
-        self._vel = np.zeros(2) if spec.kind == "path_follower" else self._path_velocity(0.0)
+        self._vel = (0.0, 0.0) if spec.kind == "path_follower" else self._path_velocity(0.0)
         self._heading = self._raw_heading(0.0)
 
     def _theta(self, t: float) -> float:
@@ -77,23 +80,34 @@ class LeaderGenerator:
             self._wp_t, self._wp = t, self.spec.waypoints.state(t)
         return self._wp
 
-    def _path_position(self, t: float) -> np.ndarray:
-        if self.spec.waypoints is not None:
-            return self._waypoint_state(t)[0]
-        th = self._theta(t)
-        return np.array([self.spec.x.value(th), self.spec.y.value(th)])
+    def _harmonic(self, t: float) -> tuple[float, float, float, float, float, float]:
+        """The harmonic path at t as floats, computed once per t: (x, y, dx/dt, dy/dt,
+        d2x/dt2, d2y/dt2), theta = theta0 + rate t."""
+        if self._h_t != t:
+            th, r = self._theta(t), self.spec.theta_rate
+            x, y = self.spec.x, self.spec.y
+            self._h_t = t
+            self._h = (x.value(th), y.value(th), r * x.d1(th), r * y.d1(th),
+                       r * r * x.d2(th), r * r * y.d2(th))
+        return self._h
 
-    def _path_velocity(self, t: float) -> np.ndarray:
+    def _path_position(self, t: float) -> tuple[float, float]:
         if self.spec.waypoints is not None:
-            return self._waypoint_state(t)[1]
-        th, r = self._theta(t), self.spec.theta_rate
-        return r * np.array([self.spec.x.d1(th), self.spec.y.d1(th)])
+            p = self._waypoint_state(t)[0]
+            return float(p[0]), float(p[1])
+        return self._harmonic(t)[0:2]
 
-    def _path_acceleration(self, t: float) -> np.ndarray:
+    def _path_velocity(self, t: float) -> tuple[float, float]:
         if self.spec.waypoints is not None:
-            return self._waypoint_state(t)[2]
-        th, r = self._theta(t), self.spec.theta_rate
-        return r * r * np.array([self.spec.x.d2(th), self.spec.y.d2(th)])
+            v = self._waypoint_state(t)[1]
+            return float(v[0]), float(v[1])
+        return self._harmonic(t)[2:4]
+
+    def _path_acceleration(self, t: float) -> tuple[float, float]:
+        if self.spec.waypoints is not None:
+            a = self._waypoint_state(t)[2]
+            return float(a[0]), float(a[1])
+        return self._harmonic(t)[4:6]
 
     def _raw_heading(self, t: float) -> float:
         if self.spec.heading == "polar":
@@ -101,19 +115,19 @@ class LeaderGenerator:
             return atan2(p[1], p[0])
         if self.spec.waypoints is not None:  # the curve's tangent: defined at rest too
             return self._waypoint_state(t)[3]
-        v = self._path_velocity(t)
-        return atan2(v[1], v[0])
+        vx, vy = self._path_velocity(t)
+        return atan2(vy, vx)
 
     def _heading_rate(self, t: float) -> float:
         if self.spec.heading == "polar":
-            p, v = self._pos, self._vel
-            r2 = float(p @ p)
-            return 0.0 if r2 == 0.0 else float(p[0] * v[1] - p[1] * v[0]) / r2
+            (px, py), (vx, vy) = self._pos, self._vel
+            r2 = px * px + py * py
+            return 0.0 if r2 == 0.0 else (px * vy - py * vx) / r2
         if self.spec.waypoints is not None:
             return self._waypoint_state(t)[4]  # s_dot k, (W2)
-        v, a = self._path_velocity(t), self._path_acceleration(t)
-        n2 = float(v @ v)
-        return 0.0 if n2 == 0.0 else float(v[0] * a[1] - v[1] * a[0]) / n2
+        (vx, vy), (ax, ay) = self._path_velocity(t), self._path_acceleration(t)
+        n2 = vx * vx + vy * vy
+        return 0.0 if n2 == 0.0 else (vx * ay - vy * ax) / n2
 
     @property
     def t(self) -> float:
@@ -128,11 +142,12 @@ class LeaderGenerator:
 
     def advance(self) -> None:
         t_next = (self.k + 1) * self.dt
-        if self.spec.kind == "path_follower":
-            t = self.t
-            v = self._path_velocity(t) + self.spec.follow_gain * (self._path_position(t) - self._pos)
-            self._vel = v
-            self._pos = self._pos + self.dt * v
+        if self.spec.kind == "path_follower":  # v = v_path + k (x_path - x), explicit Euler
+            t, k, dt = self.t, self.spec.follow_gain, self.dt
+            (vx, vy), (px, py) = self._path_velocity(t), self._path_position(t)
+            x, y = self._pos
+            self._vel = v = (vx + k * (px - x), vy + k * (py - y))
+            self._pos = (x + dt * v[0], y + dt * v[1])
         else:
             self._pos = self._path_position(t_next)
             self._vel = self._path_velocity(t_next)

@@ -12,6 +12,7 @@ holds for any bytes that decode as a command, look-ahead torques included.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any, Literal
 
 from plant.limits import saturate_velocity_vec
@@ -52,25 +53,47 @@ def velocity_exceeds(v_cmd: Sequence[float], limits: Any) -> bool:
 def exceeds(torques: Sequence[float], plan: Sequence[Sequence[float]], bound: float) -> bool:
     """A command that asks for more than ``bound`` on some wheel, now or in its
     look-ahead plan (it is clipped to the bound, and counted)."""
-    return any(abs(x) > bound for x in torques) or any(abs(x) > bound for u in plan for x in u)
+    # plain loops: this runs for every command of every step (a NaN exceeds nothing
+    # here, as with abs(x) > bound; the plant refuses it)
+    for x in torques:
+        if x > bound or x < -bound:
+            return True
+    for u in plan:
+        for x in u:
+            if x > bound or x < -bound:
+                return True
+    return False
 
 
-def applied_command(torques: Sequence[float], v_cmd: Sequence[float],
-                    limits: Any) -> tuple[tuple[float, ...], tuple[float, float, float]]:
-    """(torques, v_cmd) to step the plant with; ``limits`` is the scenario's [limits]."""
-    vx, vy, w = (float(x) for x in v_cmd)
-    v = saturate_velocity_vec((vx, vy, w), *speed_bounds(limits))
-    return _clamped(torques, torque_bound(limits)), v
+@dataclass(frozen=True)
+class CommandBounds:
+    """The bounds a plant applies a command with, read once from the scenario's
+    ``[limits]``: the wheel torque (N m, :func:`torque_bound`), the planar speed
+    (m/s) and the yaw rate (rad/s, :func:`speed_bounds`)."""
 
+    torque: float
+    speed: float
+    yaw_rate: float
 
-def clamped_plan(plan: Sequence[Sequence[float]], limits: Any) -> list[tuple[float, ...]]:
-    """A command's look-ahead torques, each clamped as :func:`applied_command` clamps."""
-    return [_clamped(u, torque_bound(limits)) for u in plan]
+    @classmethod
+    def of(cls, limits: Any) -> CommandBounds:
+        return cls(torque_bound(limits), *speed_bounds(limits))
+
+    def applied(self, torques: Sequence[float], v_cmd: Sequence[float]
+                ) -> tuple[tuple[float, ...], tuple[float, float, float]]:
+        """(torques, v_cmd) to step the plant with."""
+        vx, vy, w = v_cmd
+        v = saturate_velocity_vec((float(vx), float(vy), float(w)), self.speed, self.yaw_rate)
+        return _clamped(torques, self.torque), v
+
+    def plan(self, plan: Sequence[Sequence[float]]) -> list[tuple[float, ...]]:
+        """A command's look-ahead torques, each clamped as :meth:`applied` clamps."""
+        return [_clamped(u, self.torque) for u in plan]
 
 
 def _clamped(torques: Sequence[float], lim: float) -> tuple[float, ...]:
     # written with comparisons so a NaN stays NaN (the plant refuses it; never on the wire)
-    return tuple(lim if x > lim else -lim if x < -lim else float(x) for x in torques)
+    return tuple([lim if x > lim else -lim if x < -lim else float(x) for x in torques])
 
 
 def command_for_step(k_cmd: int, torques: Sequence[float],

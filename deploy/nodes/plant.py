@@ -14,7 +14,7 @@ gets the look-ahead torques the newest command predicted for it
 (agents/look_ahead.py); past them the last torques are held (or zeroed, lockstep
 with ``plant.missed_command = "zero"``).
 
-A command is applied through :func:`plant.command.applied_command` (each wheel
+A command is applied through :class:`plant.command.CommandBounds` (each wheel
 torque clamped to the scenario's limit, v_cmd to the speed limits), whatever the
 bytes that decoded as a command.
 """
@@ -60,10 +60,9 @@ from deploy.runtime.plants import contact_log, make_plant, sensor_for
 from deploy.runtime.step_guard import SEQ_SLACK
 from deploy.runtime.transport import Node
 from plant.command import (
+    CommandBounds,
     ZeroTorqueSpans,
-    applied_command,
     exceeds,
-    torque_bound,
     torques_at,
     velocity_exceeds,
 )
@@ -114,7 +113,8 @@ class PlantNode:
         self.unpowered: set[int] = set()  # realtime: robots whose commands stopped coming
         # the largest wheel torque ever applied (plant/command.py), and per robot the
         # commands that asked for more (clipped to it; in metrics.json)
-        self.bound = torque_bound(sc.spec.limits)
+        self.bounds = CommandBounds.of(sc.spec.limits)
+        self.bound = self.bounds.torque
         self.clipped: dict[int, int] = {}
         self.command_stops: list[tuple[int, float, float]] = []  # (robot, command age, t)
         self.zero_torque = ZeroTorqueSpans()  # how long each stop lasted
@@ -257,8 +257,7 @@ class PlantNode:
                 if planned is None:  # "zero": past the newest command's plan
                     self.torques[i], self.v_cmd[i] = 0.0, 0.0
                 else:  # its own command, its look-ahead for step k, or held past it
-                    self.torques[i], self.v_cmd[i] = applied_command(planned, cmd.v_cmd,
-                                                                     self.sc.spec.limits)
+                    self.torques[i], self.v_cmd[i] = self.bounds.applied(planned, cmd.v_cmd)
             for rid in self.ids:
                 self.commands.pop((rid, k - self.keep_steps), None)
             if k % 256 == 0:  # and any that came in late for a step already forgotten
@@ -306,8 +305,7 @@ class PlantNode:
                               f"{age * 1e3:.1f} ms old: torques zeroed; the others now perceive "
                               f"robot {rid} as an obstacle", flush=True)
                 else:
-                    self.torques[i], self.v_cmd[i] = applied_command(cmd.torques, cmd.v_cmd,
-                                                                     self.sc.spec.limits)
+                    self.torques[i], self.v_cmd[i] = self.bounds.applied(cmd.torques, cmd.v_cmd)
                     if rid in self.unpowered:
                         self.unpowered.discard(rid)
                         self.zero_torque.end(rid, self.steps_done * self.sc.dt)
@@ -328,8 +326,7 @@ class PlantNode:
                 if cmd is None or rid in self.unpowered or cmd.k >= k:
                     continue
                 planned = torques_at(cmd.k, cmd.torques, cmd.plan, k)
-                self.torques[i], self.v_cmd[i] = applied_command(planned, cmd.v_cmd,
-                                                                 self.sc.spec.limits)
+                self.torques[i], self.v_cmd[i] = self.bounds.applied(planned, cmd.v_cmd)
 
     def finish(self, linger_s: float = 5.0) -> None:
         """Report, then stay until the other nodes have left after ``end``, so

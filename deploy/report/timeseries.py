@@ -38,6 +38,13 @@ COLUMNS = {
     "safety_dv": "(k,n) |v_d after the filter - v_d before it|, m/s (0 where it did not act)",
     "safety_infeasible": "(k,n) 1 where no command met every barrier within the limits",
 }
+# An agent's float columns of one step, in this order, are views of one block
+# (steps, n, AGENT_ROW_WIDTH) in an allocated series: a step's row is written in one
+# assignment (TimeSeries.record_agent_row) instead of one per column
+AGENT_FLOAT_COLUMNS = (("q_d", 3), ("e", 3), ("s", 3), ("v_cmd", 3), ("torque", 4),
+                       ("q0_hat", 3), ("q_fd", 3), ("fdb_error", 1), ("input_age", 1),
+                       ("speed_factor", 1), ("safety_dv", 1))
+AGENT_ROW_WIDTH = sum(w for _, w in AGENT_FLOAT_COLUMNS)
 # columns a series written before them lacks: loaded as "never happened"
 _ADDED_LATER = ("safety_active", "safety_dv", "safety_infeasible")
 
@@ -70,41 +77,55 @@ class TimeSeries:
     @classmethod
     def allocate(cls, steps: int, n: int) -> TimeSeries:
         z = np.zeros
-        return cls(
+        block = z((steps, n, AGENT_ROW_WIDTH))
+        views, j = {}, 0
+        for name, width in AGENT_FLOAT_COLUMNS:
+            views[name] = block[:, :, j] if width == 1 else block[:, :, j:j + width]
+            j += width
+        views["speed_factor"][:] = 1.0
+        series = cls(
             t=z(steps), leader_q=z((steps, 3)), leader_v=z((steps, 3)),
-            q=z((steps, n, 3)), q_dot=z((steps, n, 3)), q_d=z((steps, n, 3)),
-            e=z((steps, n, 3)), s=z((steps, n, 3)), v_cmd=z((steps, n, 3)),
-            torque=z((steps, n, 4)), q0_hat=z((steps, n, 3)), q_fd=z((steps, n, 3)),
-            target=z((steps, n, 2)), fdb_error=z((steps, n)),
+            q=z((steps, n, 3)), q_dot=z((steps, n, 3)), target=z((steps, n, 2)),
             active=z((steps, n), dtype=np.int8), order=np.full((steps, n), "", dtype="<U16"),
-            nonfinite=z((steps, n), dtype=np.int8), input_age=z((steps, n)),
-            speed_factor=np.ones((steps, n)), safety_active=z((steps, n), dtype=np.int8),
-            safety_dv=z((steps, n)), safety_infeasible=z((steps, n), dtype=np.int8),
+            nonfinite=z((steps, n), dtype=np.int8), safety_active=z((steps, n), dtype=np.int8),
+            safety_infeasible=z((steps, n), dtype=np.int8), **views,
         )
+        series._agent_rows = block
+        return series
 
     @property
     def steps(self) -> int:
         return len(self.t)
 
     def record_agent(self, k: int, i: int, out, agent) -> None:
-        self.q_d[k, i] = out.q_d
-        self.e[k, i] = out.tracking_error
-        self.s[k, i] = out.sliding
-        self.v_cmd[k, i] = out.v_cmd
-        self.torque[k, i] = out.torques
-        self.q0_hat[k, i] = out.share.q0_hat
-        self.q_fd[k, i] = out.q_fd
-        self.fdb_error[k, i] = out.task_errors.get("FDB", np.nan)
-        self.active[k, i] = sum(BEHAVIOR_BITS[b] for b in out.order)
-        self.order[k, i] = ">".join(out.order)
-        self.nonfinite[k, i] = int(out.nonfinite)
-        self.input_age[k, i] = out.input_age_s
-        self.speed_factor[k, i] = out.speed_factor
+        """Robot i's columns of step k from its agent's output (agents/core.py)."""
         f = out.safety
-        if f is not None and f.active:
-            self.safety_active[k, i] = 1
-            self.safety_dv[k, i] = f.dv
-            self.safety_infeasible[k, i] = int(f.infeasible)
+        acted = f is not None and f.active
+        self.record_agent_row(
+            k, i, (*out.q_d, *out.tracking_error, *out.sliding, *out.v_cmd.tolist(),
+                   *out.torques.tolist(),
+                   *out.share.q0_hat, *out.q_fd, out.task_errors.get("FDB", np.nan),
+                   out.input_age_s, out.speed_factor, f.dv if acted else 0.0),
+            out.order, out.nonfinite, acted, acted and f.infeasible)
+
+    def record_agent_row(self, k: int, i: int, floats: tuple, order: tuple[str, ...] | list[str],
+                         nonfinite: bool, safety_active: bool, safety_infeasible: bool) -> None:
+        """Robot i's columns of step k: ``floats`` the float columns in the order of
+        ``AGENT_FLOAT_COLUMNS`` (AGENT_ROW_WIDTH values), ``order`` the active behaviors,
+        highest priority first."""
+        rows = getattr(self, "_agent_rows", None)
+        if rows is not None:
+            rows[k, i] = floats
+        else:  # a series built from its columns (loaded, or cut short)
+            j = 0
+            for name, width in AGENT_FLOAT_COLUMNS:
+                getattr(self, name)[k, i] = floats[j] if width == 1 else floats[j:j + width]
+                j += width
+        self.active[k, i] = sum(BEHAVIOR_BITS.get(b, 0) for b in order)
+        self.order[k, i] = ">".join(order)
+        self.nonfinite[k, i] = nonfinite
+        self.safety_active[k, i] = safety_active
+        self.safety_infeasible[k, i] = safety_infeasible
 
     def record_world(self, k, t, q0, v0, q, q_dot, target=None) -> None:
         """Step k's world; the formation targets (deploy/report/targets.py) are filled in

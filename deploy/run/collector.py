@@ -23,7 +23,7 @@ import numpy as np
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LeaderState, NodeReport, StateLog, Telemetry, TelemetryRow
 from deploy.report.targets import FormationTargets
-from deploy.report.timeseries import BEHAVIOR_BITS, COLUMNS, TimeSeries
+from deploy.report.timeseries import COLUMNS, TimeSeries
 
 
 class Collector:
@@ -137,20 +137,9 @@ class Collector:
 
 def record_telemetry(ts: TimeSeries, k: int, i: int, m: TelemetryRow) -> None:
     """The same columns as TimeSeries.record_agent, from the wire."""
-    ts.q_d[k, i] = m.q_d
-    ts.e[k, i] = m.e
-    ts.s[k, i] = m.s
-    ts.v_cmd[k, i] = m.v_cmd
-    ts.torque[k, i] = m.torques
-    ts.q0_hat[k, i] = m.q0_hat
-    ts.q_fd[k, i] = m.q_fd
-    ts.fdb_error[k, i] = np.nan if m.fdb_error is None else m.fdb_error
-    names = m.order.split(">") if m.order else []
-    ts.active[k, i] = sum(BEHAVIOR_BITS.get(b, 0) for b in names)
-    ts.order[k, i] = m.order
-    ts.nonfinite[k, i] = int(m.nonfinite)
-    ts.input_age[k, i] = m.input_age_s
-    ts.speed_factor[k, i] = m.speed_factor
-    ts.safety_active[k, i] = int(m.safety_dv > 0.0 or m.safety_infeasible)
-    ts.safety_dv[k, i] = m.safety_dv
-    ts.safety_infeasible[k, i] = int(m.safety_infeasible)
+    ts.record_agent_row(
+        k, i, (*m.q_d, *m.e, *m.s, *m.v_cmd, *m.torques, *m.q0_hat, *m.q_fd,
+               np.nan if m.fdb_error is None else m.fdb_error, m.input_age_s, m.speed_factor,
+               m.safety_dv),
+        m.order.split(">") if m.order else (), m.nonfinite,
+        m.safety_dv > 0.0 or m.safety_infeasible, m.safety_infeasible)

@@ -25,13 +25,7 @@ from deploy.report.timeseries import COLUMNS, TimeSeries
 from deploy.runtime.fault_model import FaultModel
 from deploy.runtime.lockstep_inputs import AgentLinks, HeldInput
 from deploy.runtime.plants import contact_log, make_plant, sensor_for
-from plant.command import (
-    applied_command,
-    clamped_plan,
-    exceeds,
-    torque_bound,
-    torques_at,
-)
+from plant.command import CommandBounds, exceeds, torques_at
 
 __all__ = ["PLANT_KINDS", "RunResult", "contact_log", "make_plant", "run_in_process"]
 
@@ -124,7 +118,8 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     # once: the links' bookkeeping is skipped, with the same inputs (AgentLinks.take)
     fault_free = model.plan is None
 
-    bound, clipped = torque_bound(sc.spec.limits), dict.fromkeys(ids, 0)
+    bounds, clipped = CommandBounds.of(sc.spec.limits), dict.fromkeys(ids, 0)
+    bound = bounds.torque
     start = time.perf_counter()
     done, interrupted = 0, None
     try:  # Ctrl-C: what was measured so far is still the run's (deploy/cli.py)
@@ -155,8 +150,8 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                 tq = out.torques.tolist()
                 if exceeds(tq, plan, bound):
                     clipped[rid] += 1
-                commands_k[rid] = (*applied_command(tq, out.v_cmd.tolist(), sc.spec.limits),
-                                   clamped_plan(plan, sc.spec.limits))
+                commands_k[rid] = (*bounds.applied(tq, out.v_cmd.tolist()),
+                                   bounds.plan(plan) if plan else plan)
                 shares_k[rid] = out.share
                 law_resets[i] += bool(out.reset)
                 series.record_agent(k, i, out, agent)
