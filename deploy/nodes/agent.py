@@ -550,7 +550,7 @@ class AgentNode:
                 self.overloaded_steps += 1
                 if self.overloaded_steps == 1:
                     print(f"{self.node.role}: the loop cannot keep its period ({dt * 1e3:.2f} ms;"
-                          f" {pace.longest_s * 1e3:.2f} ms between steps): the robot is slowed"
+                          f" {pace.typical_s * 1e3:.2f} ms between steps, the median): the robot is slowed"
                           f" to {cap:.0%} of its speed while it lasts (counted: overloaded_steps)",
                           file=sys.stderr, flush=True)
             out, plan = self._compute(t, state, leader, h, ages, pace.horizon(t - state.t), cap)

@@ -19,17 +19,28 @@ def test_a_loop_that_keeps_its_period_changes_nothing():
     assert pace.horizon() == 0.005 and pace.speed_cap() == 1.0
 
 
-def test_a_late_loop_plans_over_its_longest_interval_and_the_sample_age():
+def test_a_late_wake_lengthens_the_horizon_but_does_not_slow_the_robot():
     pace = LoopPace(0.001, window=10)
     for interval in (0.001, 0.004, 0.001):
         pace.note(interval)
-    assert pace.horizon(0.002) == pytest.approx(0.006)
-    assert pace.speed_cap() == pytest.approx(1.5 / 4.0)  # 1.5 periods allowed, 4 taken
+    assert pace.horizon(0.002) == pytest.approx(0.006)  # the longest interval + the age
+    assert pace.speed_cap() == 1.0  # one hiccup: the loop still keeps its period
     for _ in range(10):  # the spike leaves the window
         pace.note(0.001)
     assert pace.horizon() == 0.001 and pace.speed_cap() == 1.0
     pace.note(10.0)  # a stall: the horizon stays bounded (the sample is stale anyway)
     assert pace.horizon(1.0) == MAX_HORIZON_S
+
+
+def test_a_loop_that_cannot_keep_its_period_slows_its_robot():
+    pace = LoopPace(0.001, window=10)
+    for interval in (0.004, 0.001, 0.004, 0.004, 0.001):  # median 4 periods
+        pace.note(interval)
+    assert pace.speed_cap() == pytest.approx(1.5 / 4.0)  # 1.5 periods allowed, 4 taken
+    assert pace.horizon() == pytest.approx(0.004)
+    for _ in range(6):  # back on its period: the median returns to it
+        pace.note(0.001)
+    assert pace.speed_cap() == 1.0
 
 
 def test_bad_settings_are_refused():
