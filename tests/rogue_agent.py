@@ -72,6 +72,14 @@ def main() -> int:
     sent = linked = 0
     until = time.monotonic() + args.seconds
     try:
+        # said once it is in the fleet, before the flood (a flood of blocking puts can
+        # outlast the run, and a test may end the rogue any time)
+        while not linked and time.monotonic() < until:
+            linked = len(session.info.peers_zid())
+            if not linked:
+                time.sleep(0.01)  # polling the session's links, with the deadline above
+        if linked:
+            print(f"peers {linked}", flush=True)
         while time.monotonic() < until:
             if args.stop:
                 stop = encode(Control(WIRE_VERSION, 0, sent, 0, command="stop"))
@@ -87,10 +95,6 @@ def main() -> int:
                         session.put(keys.cmd(args.victim), data, congestion_control=block)
                         sent += 1
             time.sleep(0.05)  # a pace, not a synchronisation: the rogue floods for its time
-            if not linked:  # said once it is in the fleet (a test may end it any time)
-                linked = len(session.info.peers_zid())
-                if linked:
-                    print(f"peers {linked}", flush=True)
     finally:
         session.close()
     print(f"sent {sent}", flush=True)

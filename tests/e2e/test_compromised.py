@@ -165,8 +165,11 @@ def test_agent_3s_own_keys_command_no_other_robot(tmp_path: Path):
     m = f.metrics()
     plant = refused(m, "plant")
     # both kinds of forgery reached the plant in equal numbers, and all were refused
-    assert plant.get("reply: " + NOT_ITS, 0) > 0 and plant == {
-        "reply: " + NOT_ITS: plant["reply: " + NOT_ITS], "reply: " + BAD: plant["reply: " + NOT_ITS]}
+    # (a pair of forgeries can be cut by the plant's start or end of listening: one apart
+    # at each end at most)
+    assert set(plant) == {"reply: " + NOT_ITS, "reply: " + BAD}, plant
+    assert plant["reply: " + NOT_ITS] > 0 and abs(
+        plant["reply: " + NOT_ITS] - plant["reply: " + BAD]) <= 2, plant
     assert 2 * plant["reply: " + NOT_ITS] <= sent
     assert set(refused(m, "agent-3")) == {"reply: " + NOT_ITS, "reply: " + BAD}
     assert m["messages"]["late"] == 0
