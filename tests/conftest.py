@@ -60,7 +60,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.root)
 
 
-CLOCK_JUDGES = {"judged", "judge_clock"}
+# the judge, and the helpers that call it for a test (tests/can_fleet_runs.py)
+CLOCK_JUDGES = {"judged", "judge_clock", "clean_fleet_run", "killed_fleet_run"}
 
 
 def _judges_the_clock(item: pytest.Item) -> bool:

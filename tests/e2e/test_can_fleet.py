@@ -15,60 +15,27 @@ measured on a quiet machine are in the comments (docs/hardware.md has the runs).
 
 from __future__ import annotations
 
-import json
-import os
-
 import numpy as np
 import pytest
 
 from deploy.report.timeseries import TimeSeries
-from tests.procs import finish, pids_with, start
-from tests.realtime_clock import judged
-
-DURATION_S = 10.0
-KILL_AT, RESTART_AFTER = 4.0, 2.0
-COMMAND_TIMEOUT_S = 0.1  # the bridge's default
-# eight processes (leader, 3 agents, 3 bridges, the emulator) and the launcher at lab's
-# 200 Hz took both cores of a quiet 2-core machine: before the compiled kernels loop jitter
-# p99 9.1 ms against 5 ms, after them still 1.6 of the 2 cores and p99 6.0 ms (it passed
-# once, failed once). At 100 Hz: p99 2.7-4.6 ms against 10 ms, no contact, odometry within
-# 1 cm (3 killed-agent runs, quiet). The launcher's recording is left out (nothing here
-# reads it)
-RATE_HZ = "100"
-
-
-def _run(out, fleet, *extra):
-    code, stdout, err = finish(start("run", "lab", "--plant", "can-emulated", "--duration",
-                                     repr(DURATION_S), "--fleet", fleet, "--out", str(out),
-                                     "--control-rate", RATE_HZ, "--no-record", "--no-figures",
-                                     *extra), timeout=300)
-    assert code == 0, err[-3000:]
-    left = pids_with(fleet) | pids_with(str(out))
-    assert not left, f"processes of the run still alive: {left}"
-    return stdout, json.loads((out / "metrics.json").read_text())
+from tests.can_fleet_runs import (
+    COMMAND_TIMEOUT_S,
+    KILL_AT,
+    RESTART_AFTER,
+    clean_fleet_run,
+    killed_fleet_run,
+)
 
 
 @pytest.fixture(scope="module")
 def clean_run(tmp_path_factory):
-    def run():
-        out = tmp_path_factory.mktemp("can") / "run"
-        stdout, m = _run(out, f"t-canfleet-{os.getpid()}")
-        return out, stdout, m
-    return judged(run, lambda r: r[2], "lab on emulated CAN")
+    return clean_fleet_run(tmp_path_factory, "odrive-cansimple", "lab on emulated CAN")
 
 
 @pytest.fixture(scope="module")
 def killed_run(tmp_path_factory):
-    d = tmp_path_factory.mktemp("cankill")
-    plan = d / "kill.toml"
-    plan.write_text(f"seed = 1\n[[kill]]\nprocess = 'agent-2'\nat_s = {KILL_AT}\n"
-                    f"restart_after_s = {RESTART_AFTER}\n")
-
-    def run():
-        out = tmp_path_factory.mktemp("cankill") / "run"
-        _, m = _run(out, f"t-cankill-{os.getpid()}", "--faults", str(plan))
-        return out, m
-    return judged(run, lambda r: r[1], "lab on emulated CAN, agent 2 killed")
+    return killed_fleet_run(tmp_path_factory, "odrive-cansimple", "lab on emulated CAN, agent 2 killed")
 
 
 def test_every_robot_settles_within_the_bound_without_contact(clean_run):

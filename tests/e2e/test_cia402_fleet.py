@@ -22,52 +22,25 @@ in docs/hardware.md.
 
 from __future__ import annotations
 
-import json
-import os
-
 import pytest
 
-from tests.procs import finish, pids_with, start
-from tests.realtime_clock import judged
-
-DURATION_S = 10.0
-RATE_HZ = "100"
-KILL_AT, RESTART_AFTER = 4.0, 2.0
-COMMAND_TIMEOUT_S = 0.1  # the bridge's default
-
-
-def _run(out, fleet, *extra):
-    code, stdout, err = finish(start("run", "lab", "--plant", "can-emulated", "--driver", "cia402",
-                                     "--duration", repr(DURATION_S), "--fleet", fleet, "--out",
-                                     str(out), "--control-rate", RATE_HZ, "--no-figures", *extra),
-                             timeout=300)
-    assert code == 0, err[-3000:]
-    left = pids_with(fleet) | pids_with(str(out))
-    assert not left, f"processes of the run still alive: {left}"
-    return stdout, json.loads((out / "metrics.json").read_text())
+from tests.can_fleet_runs import (
+    COMMAND_TIMEOUT_S,
+    KILL_AT,
+    RATE_HZ,
+    clean_fleet_run,
+    killed_fleet_run,
+)
 
 
 @pytest.fixture(scope="module")
 def clean_run(tmp_path_factory):
-    def run():
-        out = tmp_path_factory.mktemp("cia") / "run"
-        stdout, m = _run(out, f"t-ciafleet-{os.getpid()}")
-        return out, stdout, m
-    return judged(run, lambda r: r[2], "lab on emulated CiA 402 drives")
+    return clean_fleet_run(tmp_path_factory, "cia402", "lab on emulated CiA 402 drives")
 
 
 @pytest.fixture(scope="module")
 def killed_run(tmp_path_factory):
-    d = tmp_path_factory.mktemp("ciakill")
-    plan = d / "kill.toml"
-    plan.write_text(f"seed = 1\n[[kill]]\nprocess = 'agent-2'\nat_s = {KILL_AT}\n"
-                    f"restart_after_s = {RESTART_AFTER}\n")
-
-    def run():
-        out = tmp_path_factory.mktemp("ciakill") / "run"
-        _, m = _run(out, f"t-ciakill-{os.getpid()}", "--faults", str(plan))
-        return out, m
-    return judged(run, lambda r: r[1], "lab on emulated CiA 402 drives, agent 2 killed")
+    return killed_fleet_run(tmp_path_factory, "cia402", "lab on emulated CiA 402 drives, agent 2 killed")
 
 
 def test_every_robot_settles_within_the_bound_without_contact(clean_run):
