@@ -58,6 +58,9 @@ class FakeNode:
             out = msg
         return out
 
+    def wait_filed(self, timeout_s: float) -> bool:  # as Node.wait_filed without a launcher
+        return True
+
     def refuse(self, why: str, dropped: bool = True) -> None:  # as Node.refuse
         self.refused[why] = self.refused.get(why, 0) + 1
         if dropped:

@@ -474,6 +474,10 @@ class Keys:
     def ready(self, role: str) -> str:
         return f"{self.root}/ready/{role}"
 
+    def filed(self, role: str) -> str:
+        """The launcher's liveliness token: it holds ``role``'s report."""
+        return f"{self.root}/filed/{role}"
+
     @property
     def alive_all(self) -> str:
         return f"{self.root}/alive/*"

@@ -112,6 +112,7 @@ class Launcher:
             shutil.rmtree(run_dir, ignore_errors=True)
             raise
         zid = node.zid
+        obs.on_report = node.declare_filed  # its node may close: the report is in hand
         try:
             with observing(obs, o, node, self.stop):
                 try:

@@ -8,6 +8,7 @@ import ctypes
 import heapq
 import itertools
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -248,9 +249,16 @@ def peak_rss_kb() -> int:
     return 0
 
 
+# how long a node stays after its report for the launcher to say it holds it (within
+# the launcher's wait for its nodes to exit, deploy/run/supervisor.py, 20 s, after the
+# plant's linger of up to 5 s)
+REPORT_FILED_TIMEOUT_S = 12.0
+
+
 def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = None,
                    **extra: Any) -> None:
-    """The node's :class:`NodeReport`; ``extra``: further NodeReport fields."""
+    """The node's :class:`NodeReport`, then wait until the launcher holds it (see
+    ``Node.wait_filed``); ``extra``: further NodeReport fields."""
     c = node.counters
     timing = timing or Timing()
     node.publish(node.keys.report(node.role), lambda seq, stamp: NodeReport(
@@ -262,3 +270,6 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
         received=dict(node.received), refused=dict(node.refused), zid=node.zid,
         peers=node.linked_peers(), **extra,
     ))
+    if not node.wait_filed(REPORT_FILED_TIMEOUT_S):
+        print(f"{node.role}: the launcher did not say it holds this node's report within "
+              f"{REPORT_FILED_TIMEOUT_S:.0f} s", file=sys.stderr, flush=True)

@@ -32,6 +32,7 @@ from typing import Any
 
 from deploy.contract.keyring import Keyring
 from deploy.contract.wire import (
+    LAUNCHER_ROLE,
     MAX_REPORT_KEYS,
     WIRE_VERSION,
     Codec,
@@ -265,6 +266,25 @@ class Node:
 
     def declare_ready(self) -> None:
         self._tokens.append(self.session.liveliness().declare_token(self.keys.ready(self.role)))
+
+    def declare_filed(self, role: str) -> None:
+        """The launcher: ``role``'s report is in hand (its node may close now)."""
+        self._tokens.append(self.session.liveliness().declare_token(self.keys.filed(role)))
+
+    def wait_filed(self, timeout_s: float) -> bool:
+        """After this node's report: stay until the launcher says it holds it, at most
+        ``timeout_s``; at once when no launcher is in the run (a fleet started by hand or
+        by ``deploy plan``). zenoh drops what a closing session still has queued for a
+        peer: a report queued behind the traffic of a launcher that records (and reads
+        seconds behind at 500 Hz) was lost when its node closed right after the put."""
+        if LAUNCHER_ROLE not in self.peers_alive:
+            return True
+        filed: list[bool] = []
+        self._subs.append(self.session.liveliness().declare_subscriber(
+            self.keys.filed(self.role),
+            self._direct(lambda s: self.mailbox.post(filed.append, True)), history=True))
+        return self.mailbox.wait_until(
+            lambda: bool(filed) or LAUNCHER_ROLE not in self.peers_alive, timeout_s)
 
     def wait_for_roles(self, roles: Iterable[str], bag: str, timeout_s: float,
                        should_stop: Callable[[], bool] = lambda: False) -> set[str]:
