@@ -8,9 +8,10 @@ realtime run may miss some, which are filled forward from the previous step
 (and counted).
 
 Every cell is written once: the first row for a (step, robot) stays, a second one
-(forged or replayed) is refused and counted; and a row for a step the run cannot
-have reached yet on the launcher's clock (``horizon``) is refused and counted, so a
-forged message costs at most its own cells.
+(forged or replayed) is refused and counted; and, without keys, a row for a step the
+run cannot have reached yet on the launcher's clock (``horizon``) is refused and
+counted, so a forged message costs at most its own cells (with keys only each row's own
+node can have sent it: deploy/run/observer.py).
 """
 
 from __future__ import annotations

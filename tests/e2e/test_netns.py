@@ -85,6 +85,9 @@ def _logs(logs: Path) -> str:
 
 
 DURATION = "0.3"
+# the rogue starts once the fleet is up and must be linked while it runs: 0.3 s of paper
+# ended before a rogue had linked in one suite run (its log empty), 3 s leaves it seconds
+ROGUE_DURATION = "3"
 
 
 @pytest.mark.parametrize("router", [False, True], ids=["peers", "router"])
@@ -134,12 +137,12 @@ def test_an_agent_with_valid_credentials_commands_no_other_robot(tmp_path, tls):
     from deploy.fleet.certs import role_files
     from deploy.fleet.zenoh_configs import node_config, write_config
 
-    rc, _, err = finish(start("run", "paper", "--plant", "model", "--duration", DURATION,
+    rc, _, err = finish(start("run", "paper", "--plant", "model", "--duration", ROGUE_DURATION,
                               "--out", str(tmp_path / "ref"), "--no-figures", "--no-record"))
     assert rc == 0, err
     out = tmp_path / "netns-run"
     fleet = f"nsr{int(time.time()) % 100000}"
-    run = RunOptions("paper", duration_s=float(DURATION), plant_kind="model",
+    run = RunOptions("paper", duration_s=float(ROGUE_DURATION), plant_kind="model",
                      record_out=str(out))
     with machines(MACHINES) as ms:
         procs, logs = _run_fleet(ms, tmp_path, fleet, run, tls=tls)
