@@ -114,7 +114,6 @@ class PlantNode:
         # the largest wheel torque ever applied (plant/command.py), and per robot the
         # commands that asked for more (clipped to it; in metrics.json)
         self.bounds = CommandBounds.of(sc.spec.limits)
-        self.bound = self.bounds.torque
         self.clipped: dict[int, int] = {}
         self.command_stops: list[tuple[int, float, float]] = []  # (robot, command age, t)
         self.zero_torque = ZeroTorqueSpans()  # how long each stop lasted
@@ -148,7 +147,7 @@ class PlantNode:
             # can no longer replace it: it costs only itself)
             self.node.refuse("second command for a step")
             return
-        if exceeds(m.torques, m.plan, self.bound):
+        if exceeds(m.torques, m.plan, self.bounds.torque):
             self.clipped[m.robot] = self.clipped.get(m.robot, 0) + 1
             self.node.refuse("torque beyond the bound (clipped)", dropped=False)
         if velocity_exceeds(m.v_cmd, self.sc.spec.limits):  # what a kinematic plant moves at

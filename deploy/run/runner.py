@@ -119,7 +119,6 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     fault_free = model.plan is None
 
     bounds, clipped = CommandBounds.of(sc.spec.limits), dict.fromkeys(ids, 0)
-    bound = bounds.torque
     start = time.perf_counter()
     done, interrupted = 0, None
     try:  # Ctrl-C: what was measured so far is still the run's (deploy/cli.py)
@@ -148,7 +147,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                 plan = [] if look_ahead is None else look_ahead[i].plan(
                     agent, out, t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
                 tq = out.torques.tolist()
-                if exceeds(tq, plan, bound):
+                if exceeds(tq, plan, bounds.torque):
                     clipped[rid] += 1
                 commands_k[rid] = (*bounds.applied(tq, out.v_cmd.tolist()),
                                    bounds.plan(plan) if plan else plan)
