@@ -80,6 +80,12 @@ def build_parser() -> argparse.ArgumentParser:
                      "or lowlatency (a put is written by the publishing thread: a hop ~20 %% "
                      "faster here, but zenoh 1.10.2 lost 1 in 24 messages over 64 kB on it, "
                      "e.g. a node's final report; docs/distributed.md) (default: default)")
+    run.add_argument("--data-path", choices=("datagram", "zenoh"), default="datagram",
+                     help="how the per-step data (samples, replies, leader, telemetry, state "
+                     "logs) travels between the run's processes: unix datagrams in the run's "
+                     "private directory, ~5x cheaper than a zenoh hop on one host, with "
+                     "control, liveliness and reports on zenoh; or all of it on zenoh, as "
+                     "across hosts (docs/distributed.md) (default: datagram)")
     run.add_argument("--no-record", action="store_true",
                      help="do not write recording.mcap (the scene, plot signals and, for one "
                      "process per node, every wire message, in Foxglove's schemas; docs/foxglove.md)")

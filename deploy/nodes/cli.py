@@ -19,6 +19,7 @@ from deploy.contract.keyring import Keyring, KeysError, read_fd, read_file
 from deploy.contract.options import EXIT_BAD_INPUT, add_option, check_duration
 from deploy.contract.scenario import PLANT_KINDS, Scenario, load_scenario
 from deploy.contract.wire import LEADER_ROLE, PLANT_ROLE, Codec, Keys, agent_role
+from deploy.runtime.datagrams import DatagramError, DatagramPath
 from deploy.runtime.node_runtime import (
     CLOCKS,
     StopFlag,
@@ -75,8 +76,11 @@ def _open(args: argparse.Namespace, sc: Scenario, role: str, sender: int,
             sys.exit(EXIT_PEER_LOST)
     cfg = zenoh_config(args.zenoh_config, args.listen, args.connect, gossip=not args.no_gossip,
                        lowlatency=args.lowlatency)
+    lossless = args.clock == "lockstep"
+    datagrams = None if args.datagrams is None else DatagramPath(
+        args.datagrams, role, lossless, lossless_wait_s=args.step_deadline)
     return Node(role, Keys(args.fleet or sc.name), Codec(sc.robot_ids), cfg, sender,
-                lossless=args.clock == "lockstep", keyring=keyring)
+                lossless=lossless, keyring=keyring, datagrams=datagrams)
 
 
 def _exit_code(stop: StopFlag) -> int:
@@ -106,7 +110,11 @@ def run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, 
     stop = StopFlag()
     if args.priority:
         print(f"omnifleet {role}: {raise_priority(args.priority)}", file=sys.stderr, flush=True)
-    node = _open(args, sc, role, sender, keyring)
+    try:
+        node = _open(args, sc, role, sender, keyring)
+    except DatagramError as exc:
+        print(f"omnifleet {role}: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     install_signal_handlers(stop, node)
     try:
         obj = build(sc, node, stop)
@@ -234,6 +242,11 @@ def add_node_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-gossip", action="store_true",
                    help="link only to the --connect endpoints (no peer discovery through "
                    "them): `omnifleet run` gives each node the nodes it talks to")
+    p.add_argument("--datagrams", metavar="DIR",
+                   help="send and hear the per-step data (samples, replies, leader, telemetry, "
+                   "state logs) as unix datagrams with the nodes of DIR on this host; zenoh "
+                   "carries the rest. `omnifleet run` gives every node its private run "
+                   "directory (docs/distributed.md)")
     p.add_argument("--lowlatency", action="store_true",
                    help="zenoh's low-latency transport (no transmit task, no QoS); every node "
                    "of a run must use it (`omnifleet run` does; docs/distributed.md)")

@@ -34,6 +34,7 @@ from deploy.run.observer import Observer
 from deploy.run.plan import LaunchOptions, endpoint_of, key_roles, plan_run
 from deploy.run.run_figures import run_figures
 from deploy.run.supervisor import Interrupted, RunFailed, Supervisor
+from deploy.runtime.datagrams import DatagramPath
 from deploy.runtime.node_runtime import START_LEAD_S, StopFlag
 from deploy.runtime.plants import CAN_EMULATED
 from deploy.runtime.transport import Node, zenoh_config
@@ -105,9 +106,12 @@ class Launcher:
         sup.run_dir = run_dir
         endpoint = o.endpoint or endpoint_of(run_dir, LAUNCHER_ROLE)
         try:
+            lossless = o.clock == "lockstep"
+            datagrams = DatagramPath(run_dir, LAUNCHER_ROLE, lossless,
+                                     o.step_deadline_s) if o.datagrams else None
             node = Node(LAUNCHER_ROLE, obs.keys, obs.codec,
                         zenoh_config(listen=[endpoint], gossip=False, lowlatency=o.lowlatency),
-                        keyring=self.keyring)
+                        keyring=self.keyring, datagrams=datagrams)
         except BaseException:
             shutil.rmtree(run_dir, ignore_errors=True)
             raise

@@ -84,6 +84,9 @@ class LaunchOptions:
     # zenoh's low-latency transport on every link: off, it lost 1 in 24 messages over 64 kB
     # (a node's end-of-run report) in zenoh 1.10.2 (docs/distributed.md)
     lowlatency: bool = False
+    # the per-step data as unix datagrams between the nodes of the run's directory
+    # (deploy/runtime/datagrams.py); off: everything on zenoh
+    datagrams: bool = True
     # a McapRecorder made (and closed) by the caller, who adds the run's scene to it at
     # the end; None: the launcher makes its own and closes it
     recorder: Any = None
@@ -110,10 +113,15 @@ def free_tcp_port() -> int:
         return s.getsockname()[1]
 
 
+def _unstarted() -> Path:
+    """The run directory of a plan drawn before the directory exists (a placeholder)."""
+    return Path(tempfile.gettempdir()) / "omnifleet-unstarted"
+
+
 def endpoint_of(run_dir: Path | None, role: str) -> str:
     """Where ``role`` listens: a unix socket in the run's private directory (a plan
     drawn before the directory exists names a placeholder)."""
-    where = run_dir or Path(tempfile.gettempdir()) / "omnifleet-unstarted"
+    where = run_dir or _unstarted()
     return f"unixsock-stream/{where / f'{role}.sock'}"
 
 
@@ -141,7 +149,7 @@ def plan_run(sc: Scenario, a: LaunchOptions, launcher_endpoint: str,
         plan.append(Child(agent_role(r), r, [*cmd, "agent", *common, "--robot", str(r),
                                              *source, *a.extra_agent_args],
                           logs / f"{agent_role(r)}.log"))
-    _links(sc, plan, on_can, run_dir)
+    _links(sc, plan, on_can, run_dir, a.datagrams)
     return RunPlan(plan, truth)
 
 
@@ -196,7 +204,8 @@ def _common_args(sc: Scenario, a: LaunchOptions, endpoint: str) -> list[str]:
     return args
 
 
-def _links(sc: Scenario, plan: list[Child], on_can: bool, run_dir: Path | None) -> None:
+def _links(sc: Scenario, plan: list[Child], on_can: bool, run_dir: Path | None,
+           datagrams: bool) -> None:
     """Who connects to whom (beside the launcher): one link per pair of nodes that
     talk, opened by the later one in ``plan`` order."""
     talk: dict[str, set[str]] = {c.role: set() for c in plan if c.zenoh}
@@ -226,6 +235,8 @@ def _links(sc: Scenario, plan: list[Child], on_can: bool, run_dir: Path | None) 
                              key=order.get)
             c.talks_with = sorted(talk[c.role], key=order.get)
             c.argv += ["--listen", endpoint_of(run_dir, c.role)]
+            if datagrams:
+                c.argv += ["--datagrams", str(run_dir or _unstarted())]
             for other in c.links:
                 c.argv += ["--connect", endpoint_of(run_dir, other)]
 

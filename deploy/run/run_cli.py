@@ -193,7 +193,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         step_deadline_s=args.step_deadline, startup_timeout_s=args.startup_timeout,
         record=not args.no_record, fleet=args.fleet, endpoint=args.endpoint, gui=args.gui,
         faults=fault_plan(args, sc), realtime_priority=args.priority, recorder=recorder,
-        lowlatency=args.zenoh_transport == "lowlatency",
+        lowlatency=args.zenoh_transport == "lowlatency", datagrams=args.data_path == "datagram",
         **({} if args.driver is None else {"driver": args.driver}),
     )
     launcher = Launcher(sc, opts)

@@ -47,6 +47,7 @@ from deploy.contract.wire import (
     Telemetry,
     encode,
 )
+from deploy.runtime.datagrams import DATA_KINDS, DatagramPath, Dispatch
 
 MAX_PEER_EVENTS = 10_000
 # distinct keys counted in Node.received: a wildcard subscription (ctl/*) hears any key a
@@ -120,20 +121,28 @@ class Mailbox:
     items and runs their handlers on the waiting thread until ``ready()`` holds or
     the timeout passes. ``lock`` is held while a handler runs: a helper thread that
     reads what handlers write takes it too (the node's own thread never waits for it).
+
+    With a datagram path (deploy/runtime/datagrams.py) the waiting thread blocks on the
+    node's socket instead: datagrams are handled as they are read (``on_datagram``),
+    and a ``post`` from another thread wakes it with an empty datagram.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, datagrams: DatagramPath | None = None) -> None:
         self.lock = threading.RLock()
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._dgram = datagrams
+        self.on_datagram: Callable[[bytes], None] = lambda frame: None
 
     def post(self, handler: Callable[[Any], None], item: Any = None) -> None:
         """From any thread (a signal handler too): run ``handler(item)`` on the
         node's thread at its next wait."""
         self._queue.put((handler, item))
+        if self._dgram is not None:
+            self._dgram.wake()
 
     def wake(self) -> None:
         """Make a waiter re-check its condition (the stop flag)."""
-        self._queue.put((_nothing, None))
+        self.post(_nothing, None)
 
     def _run(self, entry: tuple[Callable[[Any], None], Any]) -> None:
         handler, item = entry
@@ -143,13 +152,29 @@ class Mailbox:
     def drain(self, until: float | None = None) -> None:
         """Handle everything already arrived, without waiting; with ``until`` (a
         time.monotonic()), stop there even if more keeps arriving."""
-        q = self._queue
+        q, dgram = self._queue, self._dgram
         n = 0
-        while not q.empty():
-            self._run(q.get_nowait())  # one consumer: what empty() saw is still there
-            n += 1
-            if until is not None and n % 32 == 0 and time.monotonic() >= until:
+        while True:
+            while not q.empty():
+                self._run(q.get_nowait())  # one consumer: what empty() saw is still there
+                n += 1
+                if until is not None and n % 32 == 0 and time.monotonic() >= until:
+                    return
+            if dgram is None:
                 return
+            on = self.on_datagram
+            while True:
+                frame = dgram.recv()
+                if frame is None:
+                    return
+                if frame:
+                    with self.lock:
+                        on(frame)
+                elif not q.empty():  # a wake-up: take what was posted first
+                    break
+                n += 1
+                if until is not None and n % 32 == 0 and time.monotonic() >= until:
+                    return
 
     def wait_until(self, ready: Callable[[], bool], timeout_s: float, bounded: bool = False) -> bool:
         """Handle arrivals until ``ready()`` holds (True) or ``timeout_s`` passes
@@ -162,6 +187,16 @@ class Mailbox:
         self.drain(deadline if bounded else None)
         if ready():
             return True
+        if self._dgram is not None:
+            wait = self._dgram.wait
+            while True:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return ready()
+                wait(left)
+                self.drain(deadline if bounded else None)
+                if ready():
+                    return True
         get = self._queue.get
         while True:
             left = deadline - time.monotonic()
@@ -193,11 +228,15 @@ class Node:
         sender: int = 0,
         lossless: bool = True,
         keyring: Keyring | None = None,
+        datagrams: DatagramPath | None = None,
     ) -> None:
         """``keyring``: this node's keys (deploy/contract/keyring.py): every message it
         sends is sealed for its receivers, and every message it hears is refused and
         counted unless a sender of its key tagged it for this node, before it is
-        decoded. None (a node started by hand without keys): neither."""
+        decoded. None (a node started by hand without keys): neither.
+        ``datagrams``: the run's datagram path on this host (deploy/runtime/datagrams.py):
+        the data keys go there to the nodes of the run's directory, zenoh carries the
+        rest (and still hears the data keys, from anyone else)."""
         import zenoh
 
         self._zenoh = zenoh
@@ -207,7 +246,11 @@ class Node:
         self.sender = sender
         self.counters = Counters()
         self.received: dict[str, int] = {}  # valid messages per key (what we really heard)
-        self.mailbox = Mailbox()
+        self.datagrams = datagrams
+        self.mailbox = Mailbox(datagrams)
+        self._dispatch = Dispatch()
+        self.mailbox.on_datagram = self._dispatch
+        self._by_datagram: dict[str, bool] = {}  # key -> sent on the datagram path
         self.lossless = lossless
         self._version_warned = False
         self.links_noted: list[str] | None = None
@@ -239,6 +282,8 @@ class Node:
             role, alive, at_ns, bag = event
             if bag is self.peers_alive and len(self.peer_events) < MAX_PEER_EVENTS:
                 self.peer_events.append((at_ns, role, alive))
+            if self.datagrams is not None and bag is self.peers_alive:
+                self.datagrams.refresh()  # who hears what here: a peer came or went
             if alive:
                 bag.add(role)
             else:
@@ -305,8 +350,11 @@ class Node:
     def publish(self, key: str, msg_factory: Callable[[int, int], Message]) -> Message | None:
         """Build the message with (seq, stamp_ns) and put it on ``key``. A message
         that fails its own validation (a NaN) is not sent: counted as dropped."""
-        pub = self._pubs.get(key)
-        if pub is None:
+        by_datagram = self._by_datagram.get(key)
+        if by_datagram is None:
+            by_datagram = self._by_datagram[key] = self._is_data(key)
+        pub = None if by_datagram else self._pubs.get(key)
+        if pub is None and not by_datagram:
             cc = self._zenoh.CongestionControl
             # data in realtime may be dropped under congestion (newest wins);
             # control and reports never are
@@ -316,8 +364,7 @@ class Node:
                 congestion_control=cc.BLOCK if must_arrive else cc.DROP,
             )
             self._pubs[key] = pub
-            self._seq[key] = 0
-        seq = self._seq[key]
+        seq = self._seq.get(key, 0)
         self._seq[key] = seq + 1
         try:
             msg = msg_factory(seq, time.monotonic_ns())
@@ -325,7 +372,10 @@ class Node:
             self.codec.check(type(msg), data)  # the receivers' schema: NaN never leaves
             if self.keyring is not None:
                 data = self.keyring.seal(data, key)
-            pub.put(data)
+            if by_datagram:
+                self.counters.dropped += self.datagrams.send(key, data)  # type: ignore[union-attr]
+            else:
+                pub.put(data)
             self.counters.sent += 1
         except Exception as exc:
             self.counters.dropped += 1
@@ -333,6 +383,28 @@ class Node:
                 print(f"{self.role}: not sent on {key}: {exc}", file=sys.stderr)
             return None
         return msg
+
+    def _is_data(self, key: str) -> bool:
+        """A data key of the run, sent on the datagram path when this node has one."""
+        if self.datagrams is None:
+            return False
+        found = self.keys.kind_of(key)
+        return found is not None and found[0] in DATA_KINDS
+
+    def _hear_by_datagram(self, key: str, handler: Callable[[bytes, str], None],
+                          kind: type[Message] | None = None) -> None:
+        """Also hear ``key`` (a data key, or a wildcard over some) on the datagram path;
+        ``kind``: the message type the key carries (None: any)."""
+        if self.datagrams is None:
+            return
+        if kind is not None and kind not in DATA_KINDS:
+            return
+        if "*" not in key and not self._is_data(key):
+            return
+        if "/ctl/" in key or "/report/" in key:  # never on the datagram path
+            return
+        self._dispatch.add(key, handler)
+        self.datagrams.hear([key])
 
     def subscribe(
         self,
@@ -370,6 +442,7 @@ class Node:
             def arrived(s: Any) -> None:
                 post(handle, s.payload.to_bytes())
         self._subs.append(self.session.declare_subscriber(key, self._direct(arrived)))
+        self._hear_by_datagram(key, handle, kind)
 
     def refuse(self, why: str, dropped: bool = True) -> None:
         """Count a message refused on arrival (a forged step, a bad signature), by
@@ -412,6 +485,7 @@ class Node:
         post = self.mailbox.post
         self._subs.append(self.session.declare_subscriber(key, self._direct(
             lambda s: post(callback, (str(s.key_expr), s.payload.to_bytes())))))
+        self._hear_by_datagram(key, lambda data, on: callback((on, data)))
 
     def linked_peers(self) -> list[str]:
         """The zenoh ids of the peers this session had a link with (zenoh's own
@@ -435,3 +509,5 @@ class Node:
             self.session.close()
         except Exception:
             pass
+        if self.datagrams is not None:
+            self.datagrams.close()

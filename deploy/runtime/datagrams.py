@@ -1,0 +1,323 @@
+"""The per-step messages of a run on one host, as unix datagrams beside zenoh.
+
+Why (measured on the 2-core machine, docs/bench.md "The local data path"): a zenoh
+delivery between two Python processes wakes three to four threads (the sender's
+transmit task, the receiver's receive task, then the thread that works), about 20
+system calls; a lockstep step of ``paper`` (3 samples, 3 replies, 3 shares) cost
+~430 µs of wall time and ~700 µs of CPU in messaging alone, with no work at all.
+The same pattern over unix datagram sockets, one system call each way and the
+waiting thread woken directly: ~80 µs and ~110 µs.
+
+What travels here: the data keys of a run whose nodes share a directory
+(``--datagrams DIR``; ``omnifleet run`` gives every node its private run directory):
+samples, replies, leader batches, telemetry and state logs (:data:`DATA_KINDS`).
+What stays on zenoh: liveliness, control, reports (large, once), and every message
+between hosts. A node with a datagram path still subscribes to its data keys on
+zenoh too: a message put there (another host, an outside peer) is heard, checked and
+counted as before.
+
+How:
+
+- each node binds ``DIR/<role>.dgram`` and writes ``DIR/<role>.hears``, the key
+  expressions it subscribed to, before it declares itself alive;
+- a sender sends a message on key K to every node of DIR whose ``.hears`` matches K
+  (read again whenever a peer's liveliness changes), over one connected socket per
+  receiver: ``frame = len(K) (1 byte) | K | payload`` where the payload is the
+  message as zenoh would carry it (sealed for its receivers: deploy/contract/mac.py);
+- the kernel queues at most ``net.unix.max_dgram_qlen`` (10 by default) datagrams
+  for a receiver: when its queue is full, a lossless sender (lockstep) waits until it
+  has room (at most ``lossless_wait_s``), a lossy one (realtime: the newest wins)
+  drops the message and counts it;
+- a receiver that is gone (its process ended, or restarted on a new socket): the
+  socket is dialled again once, else the message is dropped and counted.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import select
+import socket
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+from deploy.contract.wire import LeaderState, Reply, Sample, StateLog, Telemetry
+
+# the message kinds of the control path and of its observers' series
+DATA_KINDS = (Sample, Reply, LeaderState, Telemetry, StateLog)
+SOCKET_SUFFIX = ".dgram"
+HEARS_SUFFIX = ".hears"
+MAX_DATAGRAM = 1 << 16  # every data message is far smaller (a batch of telemetry ~2 kB)
+MAX_KEY_BYTES = 255
+MAX_MATCHED_KEYS = 1024  # distinct keys whose wildcard match is remembered
+# unix socket paths are at most 107 bytes (sun_path): long run directories are refused
+MAX_SOCKET_PATH = 107
+
+
+class DatagramError(OSError):
+    """A datagram path that cannot be opened (a directory too deep, not writable)."""
+
+
+def key_matches(pattern: str, key: str) -> bool:
+    """Whether zenoh key expression ``pattern`` (``*`` one chunk, ``**`` any number of
+    chunks) matches the concrete ``key``."""
+    return _match(pattern.split("/"), key.split("/"))
+
+
+def _match(p: list[str], k: list[str]) -> bool:
+    if not p:
+        return not k
+    if p[0] == "**":
+        return any(_match(p[1:], k[i:]) for i in range(len(k) + 1))
+    return bool(k) and (p[0] == "*" or p[0] == k[0]) and _match(p[1:], k[1:])
+
+
+class _Peer:
+    """One receiver: its socket path, what it hears, and our socket connected to it."""
+
+    def __init__(self, role: str, path: str, hears: list[str]) -> None:
+        self.role, self.path, self.hears = role, path, hears
+        self.sock: socket.socket | None = None
+
+    def connect(self) -> socket.socket:
+        s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        s.setblocking(False)
+        try:
+            s.connect(self.path)
+        except OSError:
+            s.close()
+            raise
+        self.sock = s
+        return s
+
+    def close(self) -> None:
+        if self.sock is not None:
+            self.sock.close()
+            self.sock = None
+
+
+class DatagramPath:
+    """One node's end of the run's datagram path: its socket (what it hears), the
+    peers it sends to, and the counts of what could not be delivered."""
+
+    def __init__(self, directory: str | Path, role: str, lossless: bool,
+                 lossless_wait_s: float = 2.0) -> None:
+        self.dir, self.role, self.lossless = Path(directory), role, lossless
+        self.lossless_wait_s = lossless_wait_s
+        path = str(self.dir / f"{role}{SOCKET_SUFFIX}")
+        if len(path.encode()) > MAX_SOCKET_PATH:
+            raise DatagramError(f"--datagrams {directory}: the socket path {path} is longer "
+                                f"than the {MAX_SOCKET_PATH} bytes a unix socket may have")
+        try:
+            if os.path.exists(path):  # a restarted node's own, left by its dead process
+                os.unlink(path)
+            self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+            self.sock.bind(path)
+        except OSError as exc:
+            raise DatagramError(f"--datagrams {directory}: cannot bind {path}: "
+                                f"{exc.strerror}") from exc
+        self.sock.setblocking(False)
+        self.path = path
+        self._wake = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self._wake.setblocking(False)
+        self._wake.connect(path)
+        self._poll = select.poll()
+        self._poll.register(self.sock, select.POLLIN)
+        self._hears: list[str] = []
+        self._peers: dict[str, _Peer] = {}
+        self._routes: dict[str, list[_Peer]] = {}
+        self._headers: dict[str, bytes] = {}
+        self.dropped: dict[str, int] = {}  # receiver role -> messages it did not get
+        self.waited = 0  # lossless sends that waited for room in a receiver's queue
+        self.closed = False
+
+    # -- what this node hears -----------------------------------------------------
+    def hear(self, patterns: Iterable[str]) -> None:
+        """Add key expressions this node hears here, and say so in its ``.hears`` file
+        (written whole, then renamed: a reader never sees half of it)."""
+        self._hears += [p for p in patterns if p not in self._hears]
+        final = self.dir / f"{self.role}{HEARS_SUFFIX}"
+        tmp = final.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"role": self.role, "socket": self.path,
+                                   "hears": self._hears}))
+        os.replace(tmp, final)
+
+    def fileno(self) -> int:
+        return self.sock.fileno()
+
+    def recv(self) -> bytes | None:
+        """The next datagram (b"" is a wake-up), or None when none is waiting."""
+        try:
+            return self.sock.recv(MAX_DATAGRAM)
+        except BlockingIOError:
+            return None
+        except InterruptedError:
+            return None
+
+    def wait(self, timeout_s: float) -> bool:
+        """Block until a datagram waits (True) or ``timeout_s`` passes (False)."""
+        try:
+            return bool(self._poll.poll(max(0, int(timeout_s * 1000.0 + 0.999))))
+        except InterruptedError:
+            return True
+
+    def wake(self) -> None:
+        """From any thread: make the waiting thread return from :meth:`wait`. A full
+        queue already wakes it."""
+        try:
+            self._wake.send(b"")
+        except OSError:
+            pass
+
+    # -- where a key goes ---------------------------------------------------------
+    def refresh(self) -> None:
+        """Read who hears what in the directory again (a peer came, went, restarted)."""
+        seen: dict[str, _Peer] = {}
+        for f in self.dir.glob(f"*{HEARS_SUFFIX}"):
+            try:
+                raw = json.loads(f.read_text())
+                role, path = str(raw["role"]), str(raw["socket"])
+                hears = [str(p) for p in raw["hears"]]
+            except (OSError, ValueError, KeyError, TypeError):
+                continue  # being written, or not ours
+            if role == self.role or Path(path).parent != self.dir:
+                continue
+            old = self._peers.get(role)
+            if old is not None and old.path == path and old.hears == hears:
+                seen[role] = old
+            else:
+                if old is not None:
+                    old.close()
+                seen[role] = _Peer(role, path, hears)
+        for role, old in self._peers.items():
+            if role not in seen:
+                old.close()
+        self._peers = seen
+        self._routes.clear()
+
+    def receivers(self, key: str) -> list[str]:
+        return [p.role for p in self._route(key)]
+
+    def _route(self, key: str) -> list[_Peer]:
+        peers = self._routes.get(key)
+        if peers is None:
+            peers = [p for p in self._peers.values()
+                     if any(key_matches(h, key) for h in p.hears)]
+            self._routes[key] = peers
+        return peers
+
+    # -- sending ------------------------------------------------------------------
+    def send(self, key: str, payload: bytes) -> int:
+        """``payload`` on ``key`` to every local node that hears it; returns how many
+        receivers did not get it (counted in ``dropped`` by receiver)."""
+        peers = self._routes.get(key)
+        if peers is None:
+            peers = self._route(key)
+        if not peers:
+            return 0
+        head = self._headers.get(key)
+        if head is None:
+            raw = key.encode()
+            if len(raw) > MAX_KEY_BYTES:
+                raise ValueError(f"key expression longer than {MAX_KEY_BYTES} bytes: {key}")
+            head = self._headers[key] = bytes((len(raw),)) + raw
+        frame = head + payload
+        lost = 0
+        for p in peers:
+            if not self._send_to(p, frame):
+                lost += 1
+                self.dropped[p.role] = self.dropped.get(p.role, 0) + 1
+        return lost
+
+    def _send_to(self, p: _Peer, frame: bytes) -> bool:
+        for attempt in (0, 1):
+            try:
+                s = p.sock or p.connect()
+                s.send(frame)
+                return True
+            except BlockingIOError:  # the receiver's queue is full
+                return self.lossless and self._send_when_room(p, frame)
+            except OSError as exc:
+                p.close()  # gone (ECONNREFUSED, ENOENT): dial again once (a restart)
+                if attempt or exc.errno not in (errno.ECONNREFUSED, errno.ENOENT,
+                                                errno.ENOTCONN):
+                    return False
+        return False
+
+    def _send_when_room(self, p: _Peer, frame: bytes) -> bool:
+        """Lossless: wait until the receiver's queue has room (its reader is behind),
+        at most ``lossless_wait_s``."""
+        self.waited += 1
+        assert p.sock is not None
+        poller = select.poll()
+        poller.register(p.sock, select.POLLOUT)
+        left_ms = int(self.lossless_wait_s * 1000)
+        while left_ms > 0:
+            step = min(left_ms, 100)
+            poller.poll(step)
+            try:
+                p.sock.send(frame)
+                return True
+            except BlockingIOError:
+                left_ms -= step
+            except OSError:
+                p.close()
+                return False
+        return False
+
+    # -- ending -------------------------------------------------------------------
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        for p in self._peers.values():
+            p.close()
+        self._wake.close()
+        self.sock.close()
+        for suffix in (HEARS_SUFFIX, SOCKET_SUFFIX):
+            try:
+                os.unlink(self.dir / f"{self.role}{suffix}")
+            except OSError:
+                pass
+
+
+class Dispatch:
+    """Which handler takes a datagram's payload, by its key: exact keys at once,
+    wildcard subscriptions matched once per key and remembered."""
+
+    def __init__(self) -> None:
+        self._exact: dict[bytes, list[Callable[[bytes, str], None]]] = {}
+        self._patterns: list[tuple[str, Callable[[bytes, str], None]]] = []
+        self._matched: dict[bytes, list[Callable[[bytes, str], None]]] = {}
+        self.unheard = 0  # datagrams on a key nobody here hears (counted, dropped)
+
+    def add(self, pattern: str, handler: Callable[[bytes, str], None]) -> None:
+        if "*" in pattern:
+            self._patterns.append((pattern, handler))
+        else:
+            self._exact.setdefault(pattern.encode(), []).append(handler)
+        self._matched.clear()
+
+    def __call__(self, frame: bytes) -> None:
+        n = frame[0] if frame else 0
+        raw = frame[1:1 + n]
+        handlers = self._exact.get(raw)
+        if handlers is None:
+            handlers = self._matched.get(raw)
+            if handlers is None:
+                try:
+                    key = raw.decode()
+                except UnicodeDecodeError:
+                    self.unheard += 1
+                    return
+                handlers = [h for p, h in self._patterns if key_matches(p, key)]
+                if len(self._matched) < MAX_MATCHED_KEYS:
+                    self._matched[raw] = handlers
+        if not handlers:
+            self.unheard += 1
+            return
+        payload = frame[1 + n:]
+        key = raw.decode()
+        for h in handlers:
+            h(payload, key)
