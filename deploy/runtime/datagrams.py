@@ -39,6 +39,7 @@ import json
 import os
 import select
 import socket
+import struct
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -117,13 +118,11 @@ class DatagramPath:
         except OSError as exc:
             raise DatagramError(f"--datagrams {directory}: cannot bind {path}: "
                                 f"{exc.strerror}") from exc
-        self.sock.setblocking(False)
         self.path = path
+        self._timeout_set: float | None = None  # the receive timeout the socket holds
         self._wake = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         self._wake.setblocking(False)
         self._wake.connect(path)
-        self._poll = select.poll()
-        self._poll.register(self.sock, select.POLLIN)
         self._hears: list[str] = []
         self._peers: dict[str, _Peer] = {}
         self._routes: dict[str, list[_Peer]] = {}
@@ -149,18 +148,24 @@ class DatagramPath:
     def recv(self) -> bytes | None:
         """The next datagram (b"" is a wake-up), or None when none is waiting."""
         try:
-            return self.sock.recv(MAX_DATAGRAM)
-        except BlockingIOError:
-            return None
-        except InterruptedError:
+            return self.sock.recv(MAX_DATAGRAM, socket.MSG_DONTWAIT)
+        except (BlockingIOError, InterruptedError):
             return None
 
-    def wait(self, timeout_s: float) -> bool:
-        """Block until a datagram waits (True) or ``timeout_s`` passes (False)."""
+    def recv_wait(self, timeout_s: float) -> bytes | None:
+        """The next datagram, waiting for it at most ``timeout_s`` (None: none came).
+        One system call: the socket blocks with a kernel timeout (SO_RCVTIMEO), set
+        again only when it changes (a lockstep wait keeps the step deadline)."""
+        t = max(timeout_s, 1e-6)
+        if self._timeout_set is None or abs(t - self._timeout_set) > 1e-4 * t:
+            sec = int(t)
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO,
+                                 struct.pack("ll", sec, int((t - sec) * 1e6)))
+            self._timeout_set = t
         try:
-            return bool(self._poll.poll(max(0, int(timeout_s * 1000.0 + 0.999))))
-        except InterruptedError:
-            return True
+            return self.sock.recv(MAX_DATAGRAM)
+        except (BlockingIOError, InterruptedError):
+            return None
 
     def wake(self) -> None:
         """From any thread: make the waiting thread return from :meth:`wait`. A full

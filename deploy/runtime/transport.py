@@ -188,13 +188,17 @@ class Mailbox:
         if ready():
             return True
         if self._dgram is not None:
-            wait = self._dgram.wait
+            recv_wait, on, q = self._dgram.recv_wait, self.on_datagram, self._queue
             while True:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return ready()
-                wait(left)
-                self.drain(deadline if bounded else None)
+                frame = recv_wait(left)
+                if frame:
+                    with self.lock:
+                        on(frame)
+                while not q.empty():  # posted by another thread (its wake-up: b"")
+                    self._run(q.get_nowait())
                 if ready():
                     return True
         get = self._queue.get
