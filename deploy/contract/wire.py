@@ -34,8 +34,8 @@ from agents.degradation import MAX_COMMAND_HORIZON
 
 # 2: Sample, Reply, batched LeaderState/Telemetry, StateLog; 3: safety in Telemetry; 4: no MAC
 # fields in Control and NodeReport (every message of a keyed node is authenticated by its
-# envelope, deploy/contract/mac.py)
-WIRE_VERSION = 4
+# envelope, deploy/contract/mac.py); 5: a node's CPU time in NodeReport
+WIRE_VERSION = 5
 MAX_BODIES = 256  # bodies per perception message
 MAX_ORDER_CHARS = 32
 MAX_ROLE_CHARS = 32
@@ -318,6 +318,10 @@ class NodeReport(Message, frozen=True):
     # plant (realtime): per robot, in the scenario's order, the steps at which the newest
     # command did not answer the newest state (the agent late or silent)
     unanswered: list[int] = []
+    # CPU time of the node's process (every thread, user + system) over its run loop, s, and
+    # that loop's wall time, s
+    cpu_s: Finite = 0.0
+    loop_s: Finite = 0.0
 
     def __post_init__(self) -> None:
         if min(self.sent, self.dropped, self.late, self.invalid, self.steps, self.nonfinite,

@@ -22,6 +22,7 @@ from deploy.contract.wire import LEADER_ROLE, PLANT_ROLE, Codec, Keys, agent_rol
 from deploy.runtime.datagrams import DatagramError, DatagramPath
 from deploy.runtime.node_runtime import (
     CLOCKS,
+    LOOP,
     StopFlag,
     die_with_parent,
     install_signal_handlers,
@@ -124,10 +125,11 @@ def run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, 
             print(f"omnifleet {role}: {exc}", file=sys.stderr)
             return EXIT_STARTUP
         node.note_links()  # the links of the run (at its end, peers leave one by one)
-        if args.clock == "lockstep":
-            lockstep(obj, sc)
-        else:
-            realtime(obj, sc)
+        with LOOP:
+            if args.clock == "lockstep":
+                lockstep(obj, sc)
+            else:
+                realtime(obj, sc)
         obj.finish()
     finally:
         node.close()

@@ -91,6 +91,8 @@ def process_rows(children: list[Child], reports: dict[str, NodeReport],
                      "peak_rss_mb": None if c.peak_rss_mb is None else round(c.peak_rss_mb, 1),
                      "exit_code": c.exit_code, "killed": c.killed, "reported": r is not None,
                      "received": dict(r.received) if r is not None else {},
+                     "cpu_s": round(r.cpu_s, 3) if r is not None else None,
+                     "loop_s": round(r.loop_s, 3) if r is not None else None,
                      "links": sorted(role_of.get(z, z) for z in r.peers) if r is not None
                      else None})
     rows.append({"role": LAUNCHER_ROLE, "robot": None, "pid": os.getpid(),

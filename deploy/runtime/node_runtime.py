@@ -7,6 +7,7 @@ from __future__ import annotations
 import ctypes
 import heapq
 import itertools
+import resource
 import signal
 import sys
 import threading
@@ -255,6 +256,30 @@ def peak_rss_kb() -> int:
 REPORT_FILED_TIMEOUT_S = 12.0
 
 
+class LoopClock:
+    """The CPU (every thread of the process) and wall time a node's run loop took."""
+
+    def __init__(self) -> None:
+        self.cpu_s = self.loop_s = 0.0
+        self._cpu0 = self._wall0 = 0.0
+
+    def __enter__(self) -> LoopClock:
+        self._cpu0, self._wall0 = _process_cpu_s(), time.perf_counter()
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.cpu_s = _process_cpu_s() - self._cpu0
+        self.loop_s = time.perf_counter() - self._wall0
+
+
+def _process_cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+LOOP = LoopClock()  # this process's run loop (a node process runs one)
+
+
 def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = None,
                    **extra: Any) -> None:
     """The node's :class:`NodeReport`, then wait until the launcher holds it (see
@@ -268,7 +293,7 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
         deadline_misses=timing.deadline_misses, peak_rss_kb=peak_rss_kb(),
         longest_late_ns=timing.longest_late_ns, longest_late_k=timing.longest_late_k,
         received=dict(node.received), refused=dict(node.refused), zid=node.zid,
-        peers=node.linked_peers(), **extra,
+        peers=node.linked_peers(), cpu_s=LOOP.cpu_s, loop_s=LOOP.loop_s, **extra,
     ))
     if not node.wait_filed(REPORT_FILED_TIMEOUT_S):
         print(f"{node.role}: the launcher did not say it holds this node's report within "
