@@ -25,7 +25,7 @@ from agents.formation import ScaleChange
 from agents.fusion import DEFAULT_PRIORITY
 from agents.law_kernel import Law
 from agents.safety_filter import SafetyResult
-from agents.signals import Vec3
+from agents.signals import Vec3, Vec4
 from plant.bodies import Body, body_rows
 from plant.mecanum import MecanumModel
 
@@ -86,8 +86,10 @@ class AgentConfig:
 
 @dataclass(slots=True)
 class AgentOutput:
-    torques: np.ndarray  # (4,) wheel torques, N m, finite and within limits
-    v_cmd: np.ndarray  # (3,) fused velocity command v_d (what a kinematic plant takes)
+    # floats as the compiled law gives them (every consumer sends or stores floats: a
+    # numpy round trip cost two array builds and two tolist calls a step)
+    torques: Vec4  # wheel torques, N m, finite and within limits
+    v_cmd: Vec3  # fused velocity command v_d (what a kinematic plant takes)
     share: Share
     # telemetry
     tracking_error: Vec3  # e = q - q_d
@@ -214,7 +216,7 @@ class AgentCore:
         (torques, v_cmd, e, s, q_d, q_fd, zeta, zeta_dot, q0h, v0h, z2, order, errors,
          nonfinite, info_age, input_age, speed, left_out, safety) = raw
         out = AgentOutput(
-            torques=np.array(torques), v_cmd=np.array(v_cmd),
+            torques=torques, v_cmd=v_cmd,
             share=Share(q0h, v0h, qv, qdv, zeta, zeta_dot, info_age),
             tracking_error=e, sliding=s, q_d=q_d, q_fd=q_fd, order=order, task_errors=errors,
             z2_hat=z2, nonfinite=nonfinite, input_age_s=input_age, speed_factor=speed,
@@ -227,8 +229,8 @@ class AgentCore:
             # paused realtime agent sent zero torques for the rest of its run); the next
             # step starts from the measurement, and the share carries the restarted estimate
             out.nonfinite = True
-            out.torques[:] = 0.0
-            out.v_cmd[:] = 0.0
+            out.torques = (0.0, 0.0, 0.0, 0.0)
+            out.v_cmd = (0.0, 0.0, 0.0)
             out.reset = self.recover(q, q_dot, shares, leader)
             st = self._law.state()
             out.share = Share(st["q0_hat"], st["v0_hat"], qv, qdv, zeta, zeta_dot, info_age)
@@ -240,7 +242,7 @@ class AgentCore:
         """The look-ahead torques after ``out`` (agents/look_ahead.py)."""
         nbr, kernel_ages = self.kernel_inputs(shares, ages)
         lead = None if leader is None else (_vec3(leader[0]), _vec3(leader[1]))
-        return self._law.plan(tuple(out.torques.tolist()), t, _vec3(q), _vec3(q_dot), nbr,
+        return self._law.plan(out.torques, t, _vec3(q), _vec3(q_dot), nbr,
                               kernel_ages, lead, body_rows(obstacles), body_rows(robots),
                               horizon)
 

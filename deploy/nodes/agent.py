@@ -83,12 +83,10 @@ def leader_points(m: LeaderState, dt: float) -> list[LeaderPoint]:
             for i, (q, qd) in enumerate(zip(m.q, m.q_dot, strict=True))]
 
 
-def share_from_msg(m: Reply) -> Share:
-    """The share as the core takes it: the wire's float tuples as they are (the
-    core works on floats; a numpy round trip cost ~3 µs per neighbour and step)."""
-    s = m.share
-    return Share(s.q0_hat, s.v0_hat, s.q, s.q_dot, s.zeta, s.zeta_dot,  # type: ignore[arg-type]
-                 s.info_age_s)
+def share_from_msg(m: Reply) -> ShareData:
+    """The share as the core takes it: the wire's :class:`ShareData` as it is (it has
+    every field of :class:`agents.core.Share`, as float tuples; the core reads fields)."""
+    return m.share
 
 
 def body_rows_of(bodies: list[SensedBody]) -> np.ndarray:
@@ -106,14 +104,6 @@ def realtime_ages(state: Sample, leader: LeaderPoint | None,
     leader_s = 0.0 if leader is None else max(0.0, state.t - leader.t - dt)
     return InputAges(0.0, leader_s, {j: max(0.0, (state.k - 1 - m.k) * dt)
                                      for j, m in shares.items()})
-
-
-def _safety_fields(out: AgentOutput) -> dict[str, float | bool]:
-    """The safety filter's telemetry (zero where it did not act)."""
-    f = out.safety
-    if f is None or not f.active:
-        return {}
-    return {"safety_dv": f.dv, "safety_infeasible": f.infeasible}
 
 
 def _no_clock() -> float:
@@ -186,7 +176,7 @@ class AgentNode:
         self.neighbours = [j for j, _ in self.core.cfg.neighbours]
         self.hears_leader = self.core.cfg.leader_weight != 0.0
         self.inputs = AgentInputs.empty()
-        self.last_shares: dict[int, Share] = {}
+        self.last_shares: dict[int, Share | ShareData] = {}
         self.faults = FaultModel(faults, sc.dt)
         self.links: AgentLinks = AgentLinks(self.faults, robot_id, self.neighbours,
                                             self.hears_leader)
@@ -329,8 +319,9 @@ class AgentNode:
         """The step's one message: command (none before the first step: k = -1,
         zero torques) and share."""
         rid = self.rid
-        torques = (0.0, 0.0, 0.0, 0.0) if out is None else tuple(out.torques.tolist())
-        v_cmd = (0.0, 0.0, 0.0) if out is None else _t3(out.v_cmd)
+        torques = (0.0, 0.0, 0.0, 0.0) if out is None else out.torques
+        v_cmd = (0.0, 0.0, 0.0) if out is None else out.v_cmd
+        # the core's share holds float tuples (the initial one may hold arrays: _t3)
         share = ShareData(_t3(s.q0_hat), _t3(s.v0_hat), _t3(s.q), _t3(s.q_dot), _t3(s.zeta),
                           _t3(s.zeta_dot), s.info_age_s)
         self.clock.answer(k, time.monotonic())  # lockstep: the plant can be one step past it
@@ -355,14 +346,14 @@ class AgentNode:
         if k % self.telemetry_every:
             return
         fdb = out.task_errors.get("FDB")
+        f = out.safety
+        acted = f is not None and f.active
+        # every vector of the output is a float tuple from the compiled law
         self._rows.append(TelemetryRow(
-            k=k, t=t, q_d=_t3(out.q_d), e=_t3(out.tracking_error), s=_t3(out.sliding),
-            v_cmd=_t3(out.v_cmd), torques=tuple(out.torques.tolist()),
-            q0_hat=_t3(out.share.q0_hat), q_fd=_t3(out.q_fd),
-            fdb_error=None if fdb is None else float(fdb), order=">".join(out.order),
-            nonfinite=out.nonfinite, stale_inputs=stale, input_age_s=out.input_age_s,
-            speed_factor=out.speed_factor, left_out=out.left_out,
-            **_safety_fields(out)))
+            k, t, out.q_d, out.tracking_error, out.sliding, out.v_cmd, out.torques,
+            out.share.q0_hat, out.q_fd, None if fdb is None else float(fdb), ">".join(out.order),
+            out.nonfinite, stale, out.input_age_s, out.speed_factor, out.left_out,
+            f.dv if acted else 0.0, f.infeasible if acted else False))
         if len(self._rows) >= self.telemetry_batch:
             self.flush_telemetry()
 
@@ -392,8 +383,8 @@ class AgentNode:
         obstacles = body_rows_of(state.obstacles)
         lead = (leader.q, leader.q_dot) if leader is not None else None
         if self.hears_leader and lead is None:  # never heard it yet: use own estimate
-            lead = (self.core.q0_hat.copy(), self.core.v0_hat.copy())
-        q, q_dot = np.array(state.q), np.array(state.q_dot)
+            lead = (self.core.q0_hat_vec, self.core.v0_hat_vec)
+        q, q_dot = state.q, state.q_dot
         out = self.core.step(t, q, q_dot, self.last_shares, lead, obstacles, robots, dt, ages,
                              horizon, speed_cap)
         plan = [] if self.look_ahead is None else self.look_ahead.plan(
@@ -410,48 +401,68 @@ class AgentNode:
         ))
 
     def run_lockstep(self, step_deadline_s: float) -> None:
-        inp, box = self.inputs, self.node.mailbox
+        inp, box, stop, counters = self.inputs, self.node.mailbox, self.stop, self.node.counters
+        states, leaders, shares_in = inp.states, inp.leaders, inp.shares
+        neighbours, hears_leader, dt = self.neighbours, self.hears_leader, self.sc.dt
         k = 0
-        while not self.stop():
-            # wait for the plant's step k or a later one (with no deadline: the plant
-            # may be slow to start or to step; it ends the run with ``end``). A later
-            # one: step k's state was lost (a cut link): catch up, counted late.
-            box.wait_until(lambda k=k: self.stop() or (
-                inp.newest_state is not None and inp.newest_state.k >= k), 3600.0)
-            if self.stop():
-                break
+
+        def newest() -> int:  # the plant's newest step heard (the sample guard's)
+            return k if inp.newest_state is None else inp.newest_state.k
+
+        def has_sample() -> bool:  # the plant's step k, or a later one, is in
+            return stop() or (inp.newest_state is not None and inp.newest_state.k >= k)
+
+        def ready() -> bool:  # everything step k uses is in
+            if stop():
+                return True
+            if k not in states or (hears_leader and k not in leaders):
+                return False
+            for j in neighbours:
+                if (j, k - 1) not in shares_in:
+                    return False
+            return True
+
+        heard_all = not neighbours
+        while not stop():
+            if not ready():
+                # wait for the plant's step k or a later one (with no deadline: the plant
+                # may be slow to start or to step; it ends the run with ``end``). A later
+                # one: step k's state was lost (a cut link): catch up, counted late.
+                box.wait_until(has_sample, 3600.0, ready_first=True)
+                if stop():
+                    break
+                if newest() > k:
+                    counters.late += newest() - k
+                    k = newest()
+                box.wait_until(ready, step_deadline_s, ready_first=True)
             with box.lock:
-                newest = max(inp.states, default=k)
-            if newest > k:
-                self.node.counters.late += newest - k
-                k = newest
-            box.wait_until(lambda k=k: self._lockstep_ready(k), step_deadline_s)
-            with box.lock:
-                newest = max(inp.states)
-                if newest > k:  # we fell behind the plant: skip to its newest step
-                    self.node.counters.late += newest - k
-                    k = newest
+                if newest() > k:  # we fell behind the plant: skip to its newest step
+                    counters.late += newest() - k
+                    k = newest()
                 # the arrival of step k's messages is the clock; the links pick
                 # the samples a faulty edge lets through (deploy/runtime/lockstep_inputs.py)
                 state, leader, shares, ages = self.links.take(
-                    k, inp.states.get, inp.leaders.get, lambda j, idx: inp.shares.get((j, idx)),
-                    self.sc.dt)
-                missing = int(
-                    self.hears_leader and k not in inp.leaders) + sum(
-                    (j, k - 1) not in inp.shares for j in self.neighbours)
+                    k, states.get, leaders.get, shares_in.get, dt)
+                missing = int(hears_leader and k not in leaders)
+                for j in neighbours:
+                    missing += (j, k - 1) not in shares_in
                 if k % FORGET_EVERY == 0:
                     self._forget_before(k - self.keep_steps)
-            self.node.counters.late += missing
+            counters.late += missing
             for j, msg in shares.items():
                 if msg is not None:
                     self.last_shares[j] = share_from_msg(msg)
-            unheard = [j for j in self.neighbours if j not in self.last_shares]
-            if unheard:  # never heard from a neighbour: cannot compute eq. (16)
-                print(f"{self.node.role}: no share ever received from {unheard}", file=sys.stderr)
-                continue
-            t = k * self.sc.dt
+            if not heard_all:
+                unheard = [j for j in neighbours if j not in self.last_shares]
+                if unheard:  # never heard from a neighbour: cannot compute eq. (16)
+                    print(f"{self.node.role}: no share ever received from {unheard}",
+                          file=sys.stderr)
+                    continue
+                heard_all = True
+            t = k * dt
             out, plan = self._compute(t, state, leader, ages=ages)
-            self._publish_step(k, t, state, out, plan, missing + _stale(ages))
+            self._publish_step(k, t, state, out, plan, missing if ages is None
+                               else missing + _stale(ages))
             self.steps_done += 1
             k += 1
 

@@ -102,8 +102,7 @@ class TimeSeries:
         f = out.safety
         acted = f is not None and f.active
         self.record_agent_row(
-            k, i, (*out.q_d, *out.tracking_error, *out.sliding, *out.v_cmd.tolist(),
-                   *out.torques.tolist(),
+            k, i, (*out.q_d, *out.tracking_error, *out.sliding, *out.v_cmd, *out.torques,
                    *out.share.q0_hat, *out.q_fd, out.task_errors.get("FDB", np.nan),
                    out.input_age_s, out.speed_factor, f.dv if acted else 0.0),
             out.order, out.nonfinite, acted, acted and f.infeasible)

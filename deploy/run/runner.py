@@ -141,15 +141,15 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                 else:
                     world, lead, shs, ages = links[i].take(
                         k, lambda idx, i=i: worlds[idx][i] if idx in worlds else None,
-                        leaders.get, lambda j, idx: shares.get(idx, {}).get(j), dt)
+                        leaders.get, lambda jk: shares.get(jk[1], {}).get(jk[0]), dt)
                 q, q_dot, robots_seen, obstacles_seen = world
                 out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
                 plan = [] if look_ahead is None else look_ahead[i].plan(
                     agent, out, t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
-                tq = out.torques.tolist()
+                tq = out.torques
                 if exceeds(tq, plan, bounds.torque):
                     clipped[rid] += 1
-                commands_k[rid] = (*bounds.applied(tq, out.v_cmd.tolist()),
+                commands_k[rid] = (*bounds.applied(tq, out.v_cmd),
                                    bounds.plan(plan) if plan else plan)
                 shares_k[rid] = out.share
                 law_resets[i] += bool(out.reset)

@@ -79,16 +79,17 @@ class AgentLinks(Generic[W, L, S]):
             j: HeldInput(model, model.edge(agent_role(j), me), first_k=-1) for j in neighbours}
 
     def take(self, k: int, world: Callable[[int], W | None], leader: Callable[[int], L | None],
-             share: Callable[[int, int], S | None], dt: float,
+             share: Callable[[tuple[int, int]], S | None], dt: float,
              ) -> tuple[W | None, L | None, dict[int, S | None], InputAges | None]:
         """Step k's inputs and their ages (None when the run has no fault plan:
-        the agent then runs exactly the fault-free law)."""
+        the agent then runs exactly the fault-free law). ``share``: a neighbour's share
+        by (robot, step)."""
         w, w_age = self.world.take(k, world)
         ld, l_age = self.leader.take(k, leader) if self.leader is not None else (None, 0)
         shares: dict[int, S | None] = {}
         share_ages: dict[int, float] = {}
         for j, held in self.shares.items():
-            shares[j], age = held.take(k - 1, lambda idx, j=j: share(j, idx))
+            shares[j], age = held.take(k - 1, lambda idx, j=j: share((j, idx)))
             share_ages[j] = age * dt
         if self.model.plan is None:
             return w, ld, shares, None

@@ -176,13 +176,18 @@ class Mailbox:
                 if until is not None and n % 32 == 0 and time.monotonic() >= until:
                     return
 
-    def wait_until(self, ready: Callable[[], bool], timeout_s: float, bounded: bool = False) -> bool:
+    def wait_until(self, ready: Callable[[], bool], timeout_s: float, bounded: bool = False,
+                   ready_first: bool = False) -> bool:
         """Handle arrivals until ``ready()`` holds (True) or ``timeout_s`` passes
         (False). Everything already arrived is handled before the first check,
         unless ``bounded``: then the wait returns by its timeout even when messages
         arrive faster than their handlers run (the launcher, recording a loaded fleet:
         its kill schedule waited for the traffic to stop, and an agent planned to be
-        killed at 4 s was killed after the run had ended)."""
+        killed at 4 s was killed after the run had ended). ``ready_first``: return at
+        once if ``ready()`` already holds (a lockstep step's inputs: what arrived for
+        later steps can wait; saves a system call)."""
+        if ready_first and ready():
+            return True
         deadline = time.monotonic() + timeout_s
         self.drain(deadline if bounded else None)
         if ready():

@@ -60,7 +60,7 @@ def held_robot_errors(sc: Scenario) -> tuple[np.ndarray, np.ndarray]:
         if HOLD[0] <= t[k] < HOLD[1]:
             plant.q_dot[:] = 0.0  # held still
         else:
-            plant.step(t[k], dt, out.torques[None, :], out.v_cmd[None, :])
+            plant.step(t[k], dt, np.array([out.torques]), np.array([out.v_cmd]))
         leader.advance()
     return t, err
 

@@ -72,7 +72,7 @@ def test_a_longer_horizon_holds_the_robot_back_where_one_period_would_not():
     sc, core, q, lead = _lab_agent(enabled=frozenset({"FDB"}))
     cfg = core.cfg
     qd = np.zeros(3)
-    v = core.fork().step(0.0, q, qd, {}, lead).v_cmd
+    v = np.array(core.fork().step(0.0, q, qd, {}, lead).v_cmd)
     speed = float(np.hypot(*v[:2]))
     assert speed > 0.05
     brake = cfg.max_accel_mps2
