@@ -31,6 +31,9 @@ from deploy.runtime.step_guard import CLOCK_SKEW_S
 from deploy.runtime.transport import WHAT
 
 
+MAX_KINDS_KEPT = 4096  # keys whose message type is remembered
+
+
 class Observer:
     """What the run's listener knows: the series and reports (``collector``), the run's
     clock (``run_t0`` realtime, ``t0_mono`` when the launcher keeps the time, ``tick_k``
@@ -61,6 +64,7 @@ class Observer:
         self.misfiled = 0  # reports and state logs whose key is not their sender's
         self.forged_reports = 0  # reports of no role of the run, or not signed by its nodes
         self.on_report: Callable[[str], None] = lambda role: None  # a report was filed
+        self._kinds: dict[str, tuple[type, int | None]] = {}  # key -> Keys.kind_of(key)
 
     def listened_keys(self) -> list[str]:
         """Recording: every key of the fleet. Otherwise only what the series and
@@ -73,9 +77,13 @@ class Observer:
 
     def on_sample(self, arrived: tuple[str, bytes]) -> None:
         key, data = arrived
-        found = self.keys.kind_of(key)
+        found = self._kinds.get(key)
         if found is None:
-            return
+            found = self.keys.kind_of(key)
+            if found is None:
+                return
+            if len(self._kinds) < MAX_KINDS_KEPT:  # a forger's made-up keys stay bounded
+                self._kinds[key] = found
         kind, robot = found
         if self.keyring is not None:  # before anything decodes or files it
             payload, why = self.keyring.open(data, key)

@@ -76,6 +76,26 @@ def test_every_wire_type_has_a_schema_foxglove_reads_and_its_messages_validate(k
     assert isinstance(value, dict) and value["seq"] == 2**40 + 3
 
 
+@pytest.mark.parametrize("kind", wire.MESSAGE_TYPES, ids=lambda k: k.__name__)
+def test_the_json_from_msgspec_equals_the_field_walk(kind):
+    """Where msgspec writes a type's JSON in C (a mirror type, foxglove_json.py), the
+    bytes say what the Python walk says, with and without entries in the lists the walk
+    wraps (a Reply's look-ahead plan)."""
+    codec = StructJson(kind)
+    full = _example(mi.type_info(kind))
+    walk = msgspec.json.Encoder()
+    msgs = [full]
+    for f in codec._empty:
+        try:
+            msgs.append(msgspec.structs.replace(full, **{f: []}))
+        except ValueError:  # a batch is never empty (a leader batch)
+            pass
+    for msg in msgs:
+        assert json.loads(codec.encode(msg)) == json.loads(walk.encode(codec.as_object(msg)))
+    mirrored = {"LeaderState", "Sample", "Reply", "Telemetry", "Control"}
+    assert (codec._mirror is not None) == (kind.__name__ in mirrored)
+
+
 class Inner(msgspec.Struct):
     a: float
 
