@@ -30,7 +30,6 @@ from deploy.runtime.plants import CAN_EMULATED
 from deploy.runtime.step_guard import CLOCK_SKEW_S
 from deploy.runtime.transport import WHAT
 
-
 MAX_KINDS_KEPT = 4096  # keys whose message type is remembered
 
 
