@@ -78,8 +78,7 @@ def _open(args: argparse.Namespace, sc: Scenario, role: str, sender: int,
     cfg = zenoh_config(args.zenoh_config, args.listen, args.connect, gossip=not args.no_gossip,
                        lowlatency=args.lowlatency)
     lossless = args.clock == "lockstep"
-    datagrams = None if args.datagrams is None else DatagramPath(
-        args.datagrams, role, lossless, lossless_wait_s=args.step_deadline)
+    datagrams = None if args.datagrams is None else DatagramPath(args.datagrams, role, lossless)
     return Node(role, Keys(args.fleet or sc.name), Codec(sc.robot_ids), cfg, sender,
                 lossless=lossless, keyring=keyring, datagrams=datagrams)
 

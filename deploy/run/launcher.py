@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import shutil
 import signal
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator
@@ -42,6 +43,7 @@ from deploy.runtime.transport import Node, zenoh_config
 __all__ = ["Interrupted", "LaunchOptions", "Launcher", "RunFailed", "observing"]
 
 Progress = Callable[[int, int], None] | None
+HEAR_SWITCH_INTERVAL_S = 2e-4
 
 
 def make_observer(sc: Scenario, opts: LaunchOptions, keyring: Keyring | None) -> Observer:
@@ -100,6 +102,18 @@ class Launcher:
     def run(self, progress: Progress = None) -> dict[str, Any]:
         """Run to the end; returns the figures the launcher adds to metrics.json.
         Raises RunFailed; Interrupted (a KeyboardInterrupt) after stopping every child."""
+        # this thread hears the fleet while the recorder's thread encodes: every receive
+        # gives the interpreter up, and getting it back took up to the default switch
+        # interval (5 ms) while the encoder ran: ~200 messages a second, where a
+        # recorded lockstep run sends thousands (the fleet's frames for it piled up)
+        switch = sys.getswitchinterval()
+        sys.setswitchinterval(HEAR_SWITCH_INTERVAL_S)
+        try:
+            return self._run(progress)
+        finally:
+            sys.setswitchinterval(switch)
+
+    def _run(self, progress: Progress) -> dict[str, Any]:
         o, obs, sup = self.opts, self.observer, self.supervisor
         o.out.mkdir(parents=True, exist_ok=True)
         run_dir = Path(tempfile.mkdtemp(prefix="omnifleet-"))  # 0700: ours alone
@@ -107,8 +121,7 @@ class Launcher:
         endpoint = o.endpoint or endpoint_of(run_dir, LAUNCHER_ROLE)
         try:
             lossless = o.clock == "lockstep"
-            datagrams = DatagramPath(run_dir, LAUNCHER_ROLE, lossless,
-                                     o.step_deadline_s) if o.datagrams else None
+            datagrams = DatagramPath(run_dir, LAUNCHER_ROLE, lossless) if o.datagrams else None
             node = Node(LAUNCHER_ROLE, obs.keys, obs.codec,
                         zenoh_config(listen=[endpoint], gossip=False, lowlatency=o.lowlatency),
                         keyring=self.keyring, datagrams=datagrams)

@@ -284,6 +284,9 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
                    **extra: Any) -> None:
     """The node's :class:`NodeReport`, then wait until the launcher holds it (see
     ``Node.wait_filed``); ``extra``: further NodeReport fields."""
+    # every data frame out first (held for a receiver that reads behind): the report must
+    # not reach the launcher before the telemetry and state rows it follows
+    node.flush_data()
     c = node.counters
     timing = timing or Timing()
     node.publish(node.keys.report(node.role), lambda seq, stamp: NodeReport(

@@ -113,6 +113,9 @@ class Counters:
     nonfinite: int = 0  # values this node computed that were NaN or Inf (note_nonfinite)
 
 
+BEHIND_RETRY_S = 0.002  # a waiting node with frames held for a slow receiver retries this often
+
+
 class Mailbox:
     """Everything that arrives for a node, handled on the node's working thread.
 
@@ -193,11 +196,16 @@ class Mailbox:
         if ready():
             return True
         if self._dgram is not None:
-            recv_wait, on, q = self._dgram.recv_wait, self.on_datagram, self._queue
+            dgram = self._dgram
+            recv_wait, on, q = dgram.recv_wait, self.on_datagram, self._queue
             while True:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return ready()
+                if dgram.behind:  # frames held for a slow receiver: send them first,
+                    dgram.flush()  # and look again soon if it is still behind
+                    if dgram.behind:
+                        left = min(left, BEHIND_RETRY_S)
                 frame = recv_wait(left)
                 if frame:
                     with self.lock:
@@ -509,6 +517,18 @@ class Node:
     @property
     def zid(self) -> str:
         return str(self.session.info.zid())
+
+    def flush_data(self) -> None:
+        """Send what the datagram path holds for receivers that read behind, waiting for
+        them (up to its lossless wait); what they still do not take is counted dropped."""
+        if self.datagrams is None or not self.datagrams.behind:
+            return
+        self.datagrams.flush(wait_s=self.datagrams.lossless_wait_s)
+        left = sum(len(p.backlog) for p in self.datagrams.behind_peers())
+        if left:
+            self.counters.dropped += left
+            print(f"{self.role}: {left} data message(s) not taken by a receiver within "
+                  f"{self.datagrams.lossless_wait_s:g} s", file=sys.stderr, flush=True)
 
     def close(self) -> None:
         for t in self._tokens:
