@@ -2,12 +2,17 @@
 
 What a hostile or faulty local process can do: read the run's
 ``logs/endpoints.json``, connect a zenoh peer of its own to the nodes' endpoints,
-listen to the fleet's traffic and publish well-formed messages with the project's
-own wire codec, plain or in an envelope (deploy/contract/mac.py) tagged under keys
-it made up (a guessed keyring: the run's keys travel on pipes, it holds none of
-them), answering each sample of a robot within a hop (:meth:`Attacker.race`). The
-tests of tests/e2e/test_forged.py use it to probe a run from outside and judge what
-the run did about each message.
+join the run's datagram path (deploy/runtime/datagrams.py: the nodes' sockets are
+beside their zenoh sockets; it binds one of its own there, says what it hears and
+declares itself alive, so the nodes send it what it asked for), listen to the
+fleet's traffic and send well-formed messages with the project's own wire codec,
+plain or in an envelope (deploy/contract/mac.py) tagged under keys it made up (a
+guessed keyring: the run's keys travel on pipes, it holds none of them), answering
+each sample of a robot within a hop (:meth:`Attacker.race`). A data message goes
+the way the nodes send it (datagrams to those that hear its key, when the run has
+them; zenoh otherwise), everything else on zenoh. The tests of
+tests/e2e/test_forged.py use it to probe a run from outside and judge what the run
+did about each message.
 
 :func:`fleet_under_attack` starts ``omnifleet run`` and yields once every node is
 ready; every process it started is ended by pid on the way out.
@@ -48,6 +53,7 @@ from deploy.contract.wire import (
     encode,
     run_roles,
 )
+from deploy.runtime.datagrams import DATA_KINDS, SOCKET_SUFFIX, DatagramPath
 
 ZERO3 = (0.0, 0.0, 0.0)
 READY_TIMEOUT_S = 60.0
@@ -76,6 +82,7 @@ class Attacker:
     newest_sample: dict[int, Sample] = field(default_factory=dict)
     endpoints: dict[str, str] = field(default_factory=dict)  # role -> where it listens
     as_role: dict[str, Keyring] = field(default_factory=dict)
+    datagrams: DatagramPath | None = None  # its end of the run's datagram path, if any
 
     def __post_init__(self) -> None:
         self.keys = Keys(self.fleet)
@@ -83,8 +90,15 @@ class Attacker:
         self._subs: list[object] = []
         self._watched: set[int] = set()
         self._racers: dict[int, Callable[[Sample], None]] = {}
+        self._closed = threading.Event()
+        self._token = None
         if not self.as_role:
             self.as_role = guessed_keys(self.sc, self.fleet)
+        self._listener: threading.Thread | None = None
+        if self.datagrams is not None:
+            self._listener = threading.Thread(target=self._listen, daemon=True,
+                                              name="prober-dgram")
+            self._listener.start()
 
     # -- listening: what step the fleet is at --------------------------------------
     def watch_samples(self, robot: int) -> None:
@@ -93,17 +107,36 @@ class Attacker:
             return
         self._watched.add(robot)
 
-        def arrived(s) -> None:  # zenoh's thread
-            data = s.payload.to_bytes()
-            m = self.codec.decode(Sample, _payload_of(data), robot)
-            if m is not None:
-                racer = self._racers.get(robot)
-                if racer is not None:
-                    racer(m)
-                old = self.newest_sample.get(robot)
-                if old is None or m.k > old.k:
-                    self.newest_sample[robot] = m
-        self._subs.append(self.session.declare_subscriber(self.keys.sample(robot), arrived))
+        self._subs.append(self.session.declare_subscriber(
+            self.keys.sample(robot), lambda s: self._heard(robot, s.payload.to_bytes())))
+        if self.datagrams is not None:
+            self.datagrams.hear([self.keys.sample(robot)])
+            if self._token is None:  # the nodes read who hears what when a peer appears
+                self._token = self.session.liveliness().declare_token(
+                    self.keys.alive(self.datagrams.role))
+
+    def _heard(self, robot: int, data: bytes) -> None:  # zenoh's or the listener's thread
+        m = self.codec.decode(Sample, _payload_of(data), robot)
+        if m is not None:
+            racer = self._racers.get(robot)
+            if racer is not None:
+                racer(m)
+            old = self.newest_sample.get(robot)
+            if old is None or m.k > old.k:
+                self.newest_sample[robot] = m
+
+    def _listen(self) -> None:
+        """The samples the nodes send its datagram socket."""
+        assert self.datagrams is not None
+        while not self._closed.is_set():
+            frame = self.datagrams.recv_wait(0.1)
+            if not frame:
+                continue
+            n = frame[0]
+            key = frame[1:1 + n].decode(errors="replace")
+            parts = key.split("/")
+            if key.endswith("/sample") and parts[-2].isdigit():
+                self._heard(int(parts[-2]), frame[1 + n:])
 
     def step_of(self, robot: int, after: int = 0, timeout_s: float = 30.0) -> int:
         """The newest step of ``robot``'s samples, once it is past ``after``."""
@@ -203,17 +236,32 @@ class Attacker:
                                                        rows=rows), as_)
 
     def raw(self, key: str, data: bytes) -> None:
-        """Put ``data`` on ``key``, blocking rather than dropping when a link is busy
-        (zenoh's default drops: a flood would lose the forgeries sent after it)."""
+        """Send ``data`` on ``key`` as the nodes would: a data key as datagrams to the
+        nodes that hear it (when the run has a datagram path), anything else on zenoh,
+        blocking rather than dropping when a link is busy (zenoh's default drops: a flood
+        would lose the forgeries sent after it)."""
         import zenoh
 
+        found = self.keys.kind_of(key)
+        if self.datagrams is not None and found is not None and found[0] in DATA_KINDS:
+            self.datagrams.refresh()  # who hears what now
+            self.datagrams.send(key, data)
+            self.datagrams.flush(wait_s=5.0)
+            return
         self.session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK)
 
     def close(self) -> None:
         self._racers.clear()
+        self._closed.set()
+        if self._token is not None:
+            self._token.undeclare()
         for s in self._subs:
             s.undeclare()
         self.session.close()
+        if self._listener is not None:
+            self._listener.join(5.0)  # it looks at the flag every 0.1 s
+        if self.datagrams is not None:
+            self.datagrams.close()
 
 
 def environments(fleet: str) -> dict[int, dict[str, str]]:
@@ -283,7 +331,11 @@ def fleet_under_attack(scenario: str, out: Path, *args: str, robots: int = 3
                and proc.poll() is None):
             time.sleep(0.02)  # polling for files other processes create
         session = zenoh.open(zenoh_config(connect=list(endpoints.values()), gossip=False))
-        attacker = Attacker(fleet, session, load_scenario(scenario), endpoints=endpoints)
+        run_dir = socks[0].parent if socks else None
+        dgram = (DatagramPath(run_dir, f"prober-{os.getpid()}", lossless=False)
+                 if run_dir is not None and any(run_dir.glob("*" + SOCKET_SUFFIX)) else None)
+        attacker = Attacker(fleet, session, load_scenario(scenario), endpoints=endpoints,
+                            datagrams=dgram)
         for r in range(1, robots + 1):  # declared before the fleet starts stepping
             attacker.watch_samples(r)
         roles = {"plant", "leader", *(f"agent-{r}" for r in range(1, robots + 1))}

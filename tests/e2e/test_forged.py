@@ -1,9 +1,10 @@
 """Forged messages from an outside peer cannot win a step, lock an agent out, hang,
 stop or steer a run (docs/hardening.md), probed from outside: a zenoh peer of its own
-(tests/attacker.py) that reached the run's endpoints, reads its traffic to learn the
-step, answers each of robot 2's samples within a hop, and publishes well-formed
-messages with the project's codec, plain or in envelopes under keys it made up or
-read from the nodes' environments (the run's keys travel on pipes: it holds none).
+that also joins the run's datagram path (tests/attacker.py), reached the run's
+endpoints, reads its traffic to learn the step, answers each of robot 2's samples within
+a hop, and sends well-formed messages with the project's codec, plain or in envelopes
+under keys it made up or read from the nodes' environments (the run's keys travel on
+pipes: it holds none).
 
 Each probe is judged by what the run wrote: it went to its end, no deadline was
 waited (a hang, or an agent refused for being "behind" a plant that ran on forged
@@ -173,12 +174,14 @@ def test_a_fling_of_future_step_replies_at_1e30_is_refused_and_nothing_hangs(
     """Before (lockstep paper, no torque limit): replies for steps k+1..k+3 at 1e30 N m,
     arriving after the plant sent that step, counted as current: clipped to the 1e7 N m
     bound, robot 2 passed 1000 m/s at 0.32 s and ended 1.6e4 m away; the run then hung
-    (528 of 8000 steps in 120 s)."""
+    (528 of 8000 steps in 120 s). The fleet's data on zenoh here (``--data-path zenoh``,
+    as between hosts): the other probes go the datagram path, this one zenoh's."""
     want, _ = reference(tmp_path_factory, "paper", PAPER_S)
     out = tmp_path / "fling"
     fling = 300  # samples of robot 2 answered, each with replies for the next 3 steps
-    with fleet_under_attack("paper", out, "--plant", "model", "--duration", PAPER_S) as (
-            proc, a):
+    with fleet_under_attack("paper", out, "--plant", "model", "--duration", PAPER_S,
+                            "--data-path", "zenoh") as (proc, a):
+        assert a.datagrams is None  # nothing but zenoh to probe
         raced = a.race(2, fling, lambda m: [a.cmd(2, m.k + d, seq=m.seq + d, torque=1e30,
                                                   plan_steps=16, as_="agent-2")
                                             for d in (1, 2, 3)])
