@@ -29,6 +29,7 @@ PLAUSIBLE_TORQUE_NM = 1.0e7
 # process), so 1e4 m/s and 1e3 rad/s never touch it, while 1e30 m/s no longer flings.
 PLAUSIBLE_SPEED_MPS = 1.0e4
 PLAUSIBLE_YAW_RATE_RADPS = 1.0e3
+_PLAUSIBLE_SPEED2 = PLAUSIBLE_SPEED_MPS ** 2
 
 
 def torque_bound(limits: Any) -> float:
@@ -44,10 +45,10 @@ def speed_bounds(limits: Any) -> tuple[float, float]:
             min(float(limits.max_yaw_rate_radps), PLAUSIBLE_YAW_RATE_RADPS))
 
 
-def velocity_exceeds(v_cmd: Sequence[float], limits: Any) -> bool:
+def velocity_exceeds(v_cmd: Sequence[float]) -> bool:
     """A velocity command beyond the plausibility bounds (clipped to them, counted)."""
-    vx, vy, w = (float(x) for x in v_cmd)
-    return vx * vx + vy * vy > PLAUSIBLE_SPEED_MPS ** 2 or abs(w) > PLAUSIBLE_YAW_RATE_RADPS
+    vx, vy, w = v_cmd
+    return vx * vx + vy * vy > _PLAUSIBLE_SPEED2 or abs(w) > PLAUSIBLE_YAW_RATE_RADPS
 
 
 def exceeds(torques: Sequence[float], plan: Sequence[Sequence[float]], bound: float) -> bool:

@@ -252,6 +252,33 @@ cdef class FleetDynamics:
                                        &stage_disturbance[2 * k + 2, i, 0], h)
 
 
+cdef (int, int) _sense(int i, const double[:, ::1] positions, const double[:, ::1] velocities,
+                       const double[::1] radii, const long[::1] ids,
+                       const double[:, ::1] obstacles, const long[::1] obstacle_ids,
+                       double detection_range_m, double[:, ::1] r, double[:, ::1] o) noexcept:
+    """Robot ``i``'s discs into the rows of ``r`` (robots) and ``o`` (obstacles); returns
+    how many of each (see :func:`sense_discs`)."""
+    cdef int n = positions.shape[0], m = obstacles.shape[0], j, nr = 0, no = 0
+    cdef double mx = positions[i, 0], my = positions[i, 1]
+    for j in range(n):
+        if j == i:
+            continue
+        if hypot(positions[j, 0] - mx, positions[j, 1] - my) - radii[j] <= detection_range_m:
+            r[nr, 0] = ids[j]
+            r[nr, 1], r[nr, 2] = positions[j, 0], positions[j, 1]
+            r[nr, 3], r[nr, 4] = velocities[j, 0], velocities[j, 1]
+            r[nr, 5] = radii[j]
+            nr += 1
+    for j in range(m):
+        if hypot(obstacles[j, 0] - mx, obstacles[j, 1] - my) - obstacles[j, 4] <= detection_range_m:
+            o[no, 0] = obstacle_ids[j]
+            o[no, 1], o[no, 2] = obstacles[j, 0], obstacles[j, 1]
+            o[no, 3], o[no, 4] = obstacles[j, 2], obstacles[j, 3]
+            o[no, 5] = obstacles[j, 4]
+            no += 1
+    return nr, no
+
+
 def sense_discs(int i, const double[:, ::1] positions, const double[:, ::1] velocities,
                 const double[::1] radii, const long[::1] ids, const double[:, ::1] obstacles,
                 const long[::1] obstacle_ids, double detection_range_m):
@@ -259,37 +286,26 @@ def sense_discs(int i, const double[:, ::1] positions, const double[:, ::1] velo
     obstacles whose surface is within r_det of its centre, each as (ident, x, y, vx, vy,
     radius); ``obstacles`` rows are (x, y, vx, vy, radius). Returns (robots, obstacles),
     two (k, 6) arrays in the order of their inputs."""
-    cdef int n = positions.shape[0], m = obstacles.shape[0], j, cnt
-    cdef double mx = positions[i, 0], my = positions[i, 1]
-    robots = np.empty((max(n - 1, 0), 6))
-    cdef double[:, ::1] r = robots
-    cnt = 0
-    for j in range(n):
-        if j == i:
-            continue
-        if hypot(positions[j, 0] - mx, positions[j, 1] - my) - radii[j] <= detection_range_m:
-            r[cnt, 0] = ids[j]
-            r[cnt, 1], r[cnt, 2] = positions[j, 0], positions[j, 1]
-            r[cnt, 3], r[cnt, 4] = velocities[j, 0], velocities[j, 1]
-            r[cnt, 5] = radii[j]
-            cnt += 1
-    robots_seen = robots[:cnt]
-    seen = np.empty((m, 6))
-    cdef double[:, ::1] o = seen
-    cnt = 0
-    for j in range(m):
-        if hypot(obstacles[j, 0] - mx, obstacles[j, 1] - my) - obstacles[j, 4] <= detection_range_m:
-            o[cnt, 0] = obstacle_ids[j]
-            o[cnt, 1], o[cnt, 2] = obstacles[j, 0], obstacles[j, 1]
-            o[cnt, 3], o[cnt, 4] = obstacles[j, 2], obstacles[j, 3]
-            o[cnt, 5] = obstacles[j, 4]
-            cnt += 1
-    return robots_seen, seen[:cnt]
+    robots = np.empty((max(positions.shape[0] - 1, 0), 6))
+    seen = np.empty((obstacles.shape[0], 6))
+    nr, no = _sense(i, positions, velocities, radii, ids, obstacles, obstacle_ids,
+                    detection_range_m, robots, seen)
+    return robots[:nr], seen[:no]
 
 
 def sense_fleet(const double[:, ::1] positions, const double[:, ::1] velocities,
                 const double[::1] radii, const long[::1] ids, const double[:, ::1] obstacles,
                 const long[::1] obstacle_ids, double detection_range_m):
-    """:func:`sense_discs` for every robot in one pass: a list of (robots, obstacles)."""
-    return [sense_discs(i, positions, velocities, radii, ids, obstacles, obstacle_ids,
-                        detection_range_m) for i in range(positions.shape[0])]
+    """:func:`sense_discs` for every robot in one pass: a list of (robots, obstacles),
+    views into two arrays filled at once (one allocation each, the inputs read once)."""
+    cdef int n = positions.shape[0], m = obstacles.shape[0], i, nr, no
+    robots = np.empty((n, max(n - 1, 0), 6))
+    seen = np.empty((n, m, 6))
+    cdef double[:, :, ::1] r = robots
+    cdef double[:, :, ::1] o = seen
+    out = []
+    for i in range(n):
+        nr, no = _sense(i, positions, velocities, radii, ids, obstacles, obstacle_ids,
+                        detection_range_m, r[i], o[i])
+        out.append((robots[i, :nr], seen[i, :no]))
+    return out

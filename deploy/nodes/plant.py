@@ -43,6 +43,7 @@ from deploy.contract.wire import (
     log_rows_per_batch,
     run_roles,
     sensed_bodies,
+    within_wire_bound,
 )
 from deploy.nodes.leader import TICK_EVERY
 from deploy.runtime.fault_model import FaultModel
@@ -80,6 +81,7 @@ class PlantNode:
         self.plant = make_plant(sc, kind, gui=gui)
         self.sense = sensor_for(self.plant, sc)
         self.ids = sc.robot_ids
+        self.sample_keys = [node.keys.sample(rid) for rid in self.ids]
         self.torques = np.zeros((sc.n, 4))
         self.v_cmd = np.zeros((sc.n, 3))
         self.commands: dict[tuple[int, int], Reply] = {}
@@ -150,7 +152,7 @@ class PlantNode:
         if exceeds(m.torques, m.plan, self.bounds.torque):
             self.clipped[m.robot] = self.clipped.get(m.robot, 0) + 1
             self.node.refuse("torque beyond the bound (clipped)", dropped=False)
-        if velocity_exceeds(m.v_cmd, self.sc.spec.limits):  # what a kinematic plant moves at
+        if velocity_exceeds(m.v_cmd):  # what a kinematic plant moves at
             self.node.refuse("velocity beyond the bound (clipped)", dropped=False)
         self.commands[(m.robot, m.k)] = m
         old = self.newest.get(m.robot)
@@ -180,29 +182,34 @@ class PlantNode:
                                f"after {timeout_s:.0f} s")
 
     def _publish_world(self, k: int, t: float) -> None:
-        node, keys = self.node, self.node.keys
-        q, qd = self.plant.q.tolist(), self.plant.q_dot.tolist()
-        for i, (rid, (robots, obstacles)) in enumerate(zip(self.ids, self.sense(), strict=True)):
+        node = self.node
+        plant_q, plant_qd = self.plant.q, self.plant.q_dot
+        # the whole state within the wire's bound, checked once: every float of the
+        # samples comes from it (perception: positions, velocities, the scenario's radii)
+        checked = within_wire_bound(plant_q, plant_qd)
+        q, qd = plant_q.tolist(), plant_qd.tolist()
+        stamps_of, last_seq = self.sent_stamps, self.last_state_seq
+        for i, (rid, key, (robots, obstacles)) in enumerate(
+                zip(self.ids, self.sample_keys, self.sense(), strict=True)):
             if self.unpowered:  # a robot nobody drives is an obstacle to the others
                 off = np.isin(robots[:, 0], list(self.unpowered))
                 obstacles = np.concatenate([obstacles, robots[off]])
                 robots = robots[~off]
-            msg = node.publish(keys.sample(rid), lambda seq, stamp, i=i, rid=rid, r=robots,
-                               o=obstacles: Sample(
-                WIRE_VERSION, 0, seq, stamp, robot=rid, k=k, t=t, q=tuple(q[i]),
-                q_dot=tuple(qd[i]), robots=sensed_bodies(r), obstacles=sensed_bodies(o)))
+            msg = node.publish(key, lambda seq, stamp, i=i, rid=rid, r=robots, o=obstacles: Sample(
+                WIRE_VERSION, 0, seq, stamp, rid, k, t, tuple(q[i]), tuple(qd[i]),
+                sensed_bodies(r), sensed_bodies(o)), checked)
             if msg is None and not np.isfinite(q[i] + qd[i]).all():
                 node.note_nonfinite(f"state of robot {rid} at t = {t:.3f} s (the plant "
                                     "diverged; its sample is not sent)")
             if msg is not None:
-                self.last_state_seq[rid] = msg.seq
-                stamps = self.sent_stamps[rid]
+                last_seq[rid] = msg.seq
+                stamps = stamps_of[rid]
                 stamps[msg.seq] = msg.stamp_ns
                 if len(stamps) > SENT_STAMPS_KEPT:
                     del stamps[next(iter(stamps))]  # the oldest (dicts keep insertion order)
         self.published_k = k
-        self.log_rows.append(StateRow(k, t, [tuple(x) for x in q], [tuple(x) for x in qd],
-                                      [False] * len(self.ids)))
+        # lists of 3 floats as they come (the wire writes a list as it writes a tuple)
+        self.log_rows.append(StateRow(k, t, q, qd, [False] * len(self.ids)))
         if len(self.log_rows) >= self.log_every:
             self.flush_log()
 
@@ -219,17 +226,25 @@ class PlantNode:
 
     # -- lockstep -------------------------------------------------------------------
     def run_lockstep(self, steps: int, step_deadline_s: float) -> None:
-        box, dt = self.node.mailbox, self.sc.dt
+        box, dt, stop, commands, ids = self.node.mailbox, self.sc.dt, self.stop, self.commands, self.ids
+        k = 0
+
+        def answered() -> bool:  # every robot's command of step k is in (or we stop)
+            if stop():
+                return True
+            for r in ids:
+                if (r, k) not in commands:
+                    return False
+            return True
+
         for k in range(steps):
-            if self.stop():
+            if stop():
                 return
             t = k * dt
             if k % TICK_EVERY == 0:  # paces the leader's batches (deploy/nodes/leader.py)
                 self._control("tick", k, t)
             self._publish_world(k, t)
-            box.wait_until(
-                lambda k=k: self.stop() or all((r, k) in self.commands for r in self.ids),
-                step_deadline_s)
+            box.wait_until(answered, step_deadline_s, ready_first=True)
             self._take_lockstep_commands(k)
             self.plant.step(t, dt, self.torques, self.v_cmd)
             self.steps_done += 1
@@ -242,12 +257,17 @@ class PlantNode:
         of the newest command (agents/look_ahead.py); past its plan, that command's
         last torques are held, or zero torque with ``plant.missed_command = "zero"``."""
         zero_missed = self.sc.spec.plant.missed_command == "zero"
+        commands, links = self.commands, self.command_links
         with self.node.mailbox.lock:
             for i, rid in enumerate(self.ids):
-                if (rid, k) not in self.commands:
+                cmd = commands.get((rid, k))
+                if cmd is not None and links[i].edge is None:  # in, and no fault on its link
+                    links[i].value, links[i].k_value = cmd, k
+                    self.torques[i], self.v_cmd[i] = self.bounds.applied(cmd.torques, cmd.v_cmd)
+                    continue
+                if cmd is None:
                     self.node.counters.late += 1
-                cmd, age = self.command_links[i].take(
-                    k, lambda idx, rid=rid: self.commands.get((rid, idx)))
+                cmd, age = links[i].take(k, lambda idx, rid=rid: commands.get((rid, idx)))
                 if cmd is None:
                     continue
                 k_cmd = k - age

@@ -382,22 +382,22 @@ class Dispatch:
     def __call__(self, frame: bytes) -> None:
         n = frame[0] if frame else 0
         raw = frame[1:1 + n]
-        handlers = self._exact.get(raw)
-        if handlers is None:
-            handlers = self._matched.get(raw)
-            if handlers is None:
-                try:
-                    key = raw.decode()
-                except UnicodeDecodeError:
-                    self.unheard += 1
-                    return
-                handlers = [h for p, h in self._patterns if key_matches(p, key)]
-                if len(self._matched) < MAX_MATCHED_KEYS:
-                    self._matched[raw] = handlers
+        found = self._matched.get(raw)
+        if found is None:
+            try:
+                key = raw.decode()
+            except UnicodeDecodeError:
+                self.unheard += 1
+                return
+            handlers = [*self._exact.get(raw, ()),
+                        *(h for p, h in self._patterns if key_matches(p, key))]
+            found = (key, handlers)
+            if len(self._matched) < MAX_MATCHED_KEYS:
+                self._matched[raw] = found
+        key, handlers = found
         if not handlers:
             self.unheard += 1
             return
         payload = frame[1 + n:]
-        key = raw.decode()
         for h in handlers:
             h(payload, key)

@@ -364,9 +364,13 @@ class Node:
         return wanted - seen
 
     # -- data -------------------------------------------------------------------------
-    def publish(self, key: str, msg_factory: Callable[[int, int], Message]) -> Message | None:
+    def publish(self, key: str, msg_factory: Callable[[int, int], Message],
+                checked: bool = False) -> Message | None:
         """Build the message with (seq, stamp_ns) and put it on ``key``. A message
-        that fails its own validation (a NaN) is not sent: counted as dropped."""
+        that fails its own validation (a NaN) is not sent: counted as dropped.
+        ``checked``: the caller has checked every float of the message against the
+        wire's bound (:data:`deploy.contract.wire.FLOAT_LIMIT`, NaN refused) in bulk
+        (a plant, its whole state once a step): the message is not decoded again here."""
         by_datagram = self._by_datagram.get(key)
         if by_datagram is None:
             by_datagram = self._by_datagram[key] = self._is_data(key)
@@ -386,7 +390,8 @@ class Node:
         try:
             msg = msg_factory(seq, time.monotonic_ns())
             data = encode(msg)
-            self.codec.check(type(msg), data)  # the receivers' schema: NaN never leaves
+            if not checked:
+                self.codec.check(type(msg), data)  # the receivers' schema: NaN never leaves
             if self.keyring is not None:
                 data = self.keyring.seal(data, key)
             if by_datagram:
@@ -432,17 +437,19 @@ class Node:
     ) -> None:
         """Decoded and validated on the node's thread as it waits; ``on_message``
         runs there too. Valid messages are counted per key they came on."""
-        codec, counters, received, post = self.codec, self.counters, self.received, self.mailbox.post
+        counters, received, post = self.counters, self.received, self.mailbox.post
         keyring, what = self.keyring, WHAT.get(kind, kind.__name__)
+        decode = self.codec.decoder_for(kind, robot)
+        open_ = keyring.open if keyring is not None else None
 
         def handle(data: bytes, on: str = key) -> None:  # the node's thread
-            if keyring is not None:  # before anything decodes it or looks at its step
-                payload, why = keyring.open(data, on)
+            if open_ is not None:  # before anything decodes it or looks at its step
+                payload, why = open_(data, on)
                 if payload is None:
                     self.refuse_unsigned(what, why, on)
                     return
                 data = payload
-            msg = codec.decode(kind, data, robot)
+            msg = decode(data)
             if msg is None:
                 counters.invalid += 1
                 self._warn_version()
