@@ -66,7 +66,8 @@ class FakeNode:
         if dropped:
             self.counters.dropped += 1
 
-    def publish(self, key: str, factory: Callable[[int, int], Message]) -> Message | None:
+    def publish(self, key: str, factory: Callable[[int, int], Message],
+                checked: bool = False) -> Message | None:
         try:
             msg = factory(len(self.published), 0)
         except Exception:  # as Node.publish: a message failing validation is not sent

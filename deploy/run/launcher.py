@@ -161,6 +161,9 @@ class Launcher:
         # reports travel before the session closes; wait for stragglers (a launcher
         # behind on a large fleet's traffic reads them late)
         node.mailbox.wait_until(lambda: len(self.observer.collector.reports) >= len(roles), 10.0)
+        # a node sends its data before its report, but on another socket than zenoh's:
+        # what it sent is in our connections now, read it all
+        node.mailbox.drain()
         return wall
 
     def _wait_ready(self, node: Node, roles: list[str]) -> None:

@@ -1,37 +1,41 @@
-"""The per-step messages of a run on one host, as unix datagrams beside zenoh.
+"""The per-step messages of a run on one host, over unix sockets beside zenoh.
 
 Why (measured on the 2-core machine, docs/bench.md "The local data path"): a zenoh
 delivery between two Python processes wakes three to four threads (the sender's
 transmit task, the receiver's receive task, then the thread that works), about 20
 system calls; a lockstep step of ``paper`` (3 samples, 3 replies, 3 shares) cost
 ~430 µs of wall time and ~700 µs of CPU in messaging alone, with no work at all.
-The same pattern over unix datagram sockets, one system call each way and the
-waiting thread woken directly: ~80 µs and ~110 µs.
+The same pattern over unix sockets, a system call or two each way and the waiting
+thread woken directly: ~80-100 µs and ~100 µs.
 
 What travels here: the data keys of a run whose nodes share a directory
 (``--datagrams DIR``; ``omnifleet run`` gives every node its private run directory):
 samples, replies, leader batches, telemetry and state logs (:data:`DATA_KINDS`).
 What stays on zenoh: liveliness, control, reports (large, once), and every message
-between hosts. A node with a datagram path still subscribes to its data keys on
-zenoh too: a message put there (another host, an outside peer) is heard, checked and
+between hosts. A node with this path still subscribes to its data keys on zenoh
+too: a message put there (another host, an outside peer) is heard, checked and
 counted as before.
 
 How:
 
-- each node binds ``DIR/<role>.dgram`` and writes ``DIR/<role>.hears``, the key
+- each node listens on ``DIR/<role>.dgram`` and writes ``DIR/<role>.hears``, the key
   expressions it subscribed to, before it declares itself alive;
 - a sender sends a message on key K to every node of DIR whose ``.hears`` matches K
-  (read again whenever a peer's liveliness changes), over one connected socket per
-  receiver: ``frame = len(K) (1 byte) | K | payload`` where the payload is the
+  (read again whenever a peer's liveliness changes), over one connection per
+  receiver: ``frame = len(K) (1 byte) | K | payload``, where the payload is the
   message as zenoh would carry it (sealed for its receivers: deploy/contract/mac.py);
-- the kernel queues at most ``net.unix.max_dgram_qlen`` (10 by default, and only root
-  may raise it) datagrams for a receiver: when its queue is full the sender holds the
-  frame in a backlog of its own for that receiver and sends it, in order, as the
-  receiver catches up (before its next frame to it, and before the sender waits);
-  only a backlog of ``MAX_BACKLOG`` frames makes a lossless sender (lockstep) wait and a
-  lossy one (realtime) drop its oldest. Waiting at once on a full queue made a
-  recording launcher (reading every sample and reply) pace the fleet: ``paper`` 8 s,
-  model plant, took 8.2 s recorded against 3.7 s not (4.9 s with a queue of 512);
+- the sockets are ``SOCK_SEQPACKET``: a connection per sender and receiver, each
+  frame delivered whole and in order, a receiver waits on all of its connections at
+  once (epoll). First built on ``SOCK_DGRAM`` (one socket a node, one system call a
+  message), but the kernel queues at most ``net.unix.max_dgram_qlen`` datagrams for a
+  receiver (10 by default; only root may raise it): 30 agents answering one plant at
+  100 Hz overflowed it every period, their replies waited in the senders and reached
+  the plant stale (30,899 refused in 20 s). A connection holds what its socket buffer
+  holds (~170 frames) instead;
+- when a connection is full the sender holds the frame in a backlog of its own for
+  that receiver and sends it, in order, as the receiver catches up (before its next
+  frame to it, and before the sender waits); only a backlog of ``MAX_BACKLOG`` frames
+  makes a lossless sender (lockstep) wait and a lossy one (realtime) drop its oldest;
 - a receiver that is gone (its process ended, or restarted on a new socket): the
   socket is dialled again once, else the message is dropped and counted.
 """
@@ -43,7 +47,6 @@ import json
 import os
 import select
 import socket
-import struct
 from collections import deque
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -56,11 +59,15 @@ SOCKET_SUFFIX = ".dgram"
 HEARS_SUFFIX = ".hears"
 MAX_DATAGRAM = 1 << 16  # every data message is far smaller (a batch of telemetry ~2 kB)
 MAX_KEY_BYTES = 255
+CONNECT_TIMEOUT_S = 1.0
+LISTEN_BACKLOG = 512  # connections a listener holds before it accepts them
+# a receiver gone: its process ended (EPIPE, ECONNRESET), or restarted on a new socket
+_GONE = (errno.EPIPE, errno.ECONNRESET, errno.ECONNREFUSED, errno.ENOENT, errno.ENOTCONN)
 # how long a lossless sender waits for a receiver that reads behind before it gives up on
 # a message (counted): a receiver alive but stalled that long (a lockstep run stalls with
 # it anyway); one that is gone refuses at once
 LOSSLESS_WAIT_S = 30.0
-LONG_WAIT_S = 0.25  # a wait this long or longer blocks in recv (see recv_wait)
+LONG_WAIT_S = 0.25  # a wait this long or longer is one epoll_wait (see recv_wait)
 MAX_MATCHED_KEYS = 1024  # distinct keys whose wildcard match is remembered
 # frames held for one receiver whose queue is full (an observer that reads behind): past
 # it a lossless sender waits, a lossy one drops the oldest (~2 s of a lockstep paper run)
@@ -70,7 +77,7 @@ MAX_SOCKET_PATH = 107
 
 
 class DatagramError(OSError):
-    """A datagram path that cannot be opened (a directory too deep, not writable)."""
+    """A local data path that cannot be opened (a directory too deep, not writable)."""
 
 
 def key_matches(pattern: str, key: str) -> bool:
@@ -88,18 +95,20 @@ def _match(p: list[str], k: list[str]) -> bool:
 
 
 class _Peer:
-    """One receiver: its socket path, what it hears, and our socket connected to it."""
+    """One receiver: its socket path, what it hears, and our connection to it."""
 
     def __init__(self, role: str, path: str, hears: list[str]) -> None:
         self.role, self.path, self.hears = role, path, hears
         self.sock: socket.socket | None = None
-        self.backlog: deque[bytes] = deque()  # frames its full queue did not take yet
+        self.backlog: deque[bytes] = deque()  # frames its full connection did not take yet
+        self.stalled = False  # a lossless wait for it timed out (no more waits until it reads)
 
     def connect(self) -> socket.socket:
-        s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        s.setblocking(False)
+        s = socket.socket(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
+            s.settimeout(CONNECT_TIMEOUT_S)  # a listener accepts at once; never hang on it
             s.connect(self.path)
+            s.setblocking(False)
         except OSError:
             s.close()
             raise
@@ -113,8 +122,9 @@ class _Peer:
 
 
 class DatagramPath:
-    """One node's end of the run's datagram path: its socket (what it hears), the
-    peers it sends to, and the counts of what could not be delivered."""
+    """One node's end of the run's local data path: its listening socket and the
+    connections of its senders (what it hears), the peers it sends to, and the counts
+    of what could not be delivered."""
 
     def __init__(self, directory: str | Path, role: str, lossless: bool,
                  lossless_wait_s: float = LOSSLESS_WAIT_S, max_backlog: int = MAX_BACKLOG) -> None:
@@ -127,22 +137,30 @@ class DatagramPath:
         try:
             if os.path.exists(path):  # a restarted node's own, left by its dead process
                 os.unlink(path)
-            self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+            self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_SEQPACKET)
             self.sock.bind(path)
+            self.sock.listen(LISTEN_BACKLOG)
+            self.sock.setblocking(False)
         except OSError as exc:
-            raise DatagramError(f"--datagrams {directory}: cannot bind {path}: "
+            raise DatagramError(f"--datagrams {directory}: cannot listen on {path}: "
                                 f"{exc.strerror}") from exc
         self.path = path
-        self._timeout_set: float | None = None  # the receive timeout the socket holds
-        self._wake = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        self._wake.setblocking(False)
-        self._wake.connect(path)
+        # another thread (zenoh's, a signal handler) wakes the waiting one through this pair
+        self._wake_r, self._wake_w = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
+        self._ep = select.epoll()
+        self._lfd, self._wfd = self.sock.fileno(), self._wake_r.fileno()
+        self._ep.register(self._lfd, select.EPOLLIN)
+        self._ep.register(self._wfd, select.EPOLLIN)
+        self._conns: dict[int, socket.socket] = {}  # fd -> a sender's connection
+        self._ready: list[int] = []  # fds epoll said were readable, not yet read
         self._hears: list[str] = []
         self._peers: dict[str, _Peer] = {}
         self._routes: dict[str, list[_Peer]] = {}
         self._headers: dict[str, bytes] = {}
         self.dropped: dict[str, int] = {}  # receiver role -> messages it did not get
-        self.deferred = 0  # frames held because their receiver's queue was full
+        self.deferred = 0  # frames held because their receiver's connection was full
         self.max_backlog = max_backlog
         self._behind: set[_Peer] = set()  # receivers with held frames
         self.closed = False
@@ -158,49 +176,100 @@ class DatagramPath:
                                    "hears": self._hears}))
         os.replace(tmp, final)
 
-    def fileno(self) -> int:
-        return self.sock.fileno()
-
     def recv(self) -> bytes | None:
-        """The next datagram (b"" is a wake-up), or None when none is waiting."""
-        try:
-            return self.sock.recv(MAX_DATAGRAM, socket.MSG_DONTWAIT)
-        except (BlockingIOError, InterruptedError):
-            return None
+        """The next frame (b"" is a wake-up), or None when none is waiting."""
+        return self._next(0.0)
 
     def recv_wait(self, timeout_s: float) -> bytes | None:
-        """The next datagram, waiting for it at most ``timeout_s`` (None: none came).
+        """The next frame (b"" is a wake-up), waiting for one at most ``timeout_s``
+        (None: none came). A long wait (a lockstep step's inputs, seconds) is one
+        epoll_wait, to the millisecond; a short one (a realtime loop's next period) a
+        select() on the epoll, to the microsecond (a millisecond is a whole period at
+        1 kHz)."""
+        return self._next(timeout_s)
 
-        A long wait (a lockstep step's inputs, seconds) is one system call: the socket
-        blocks with a kernel timeout (SO_RCVTIMEO), set again only when it changes. The
-        kernel keeps that timeout in scheduler ticks (4 ms at 250 Hz), so a short wait
-        (a realtime loop's next period) is a select() instead, to the microsecond: on
-        SO_RCVTIMEO alone, lab at 200 Hz realtime missed 8-47 % of its deadlines."""
-        if timeout_s < LONG_WAIT_S:
-            frame = self.recv()
-            if frame is not None:
-                return frame
-            try:
-                readable, _, _ = select.select((self.sock,), (), (), max(timeout_s, 0.0))
-            except InterruptedError:
+    def _next(self, timeout_s: float) -> bytes | None:
+        polled = False
+        conns, ready = self._conns, self._ready
+        while True:
+            while ready:
+                fd = ready.pop()
+                c = conns.get(fd)
+                if c is not None:
+                    try:
+                        frame = c.recv(MAX_DATAGRAM)
+                    except (BlockingIOError, InterruptedError):
+                        continue
+                    except OSError:
+                        self._forget(fd)
+                        continue
+                    if frame:
+                        return frame
+                    self._forget(fd)  # the sender closed its end
+                elif fd == self._lfd:
+                    self._accept()
+                elif fd == self._wfd:
+                    self._drain_wake()
+                    return b""
+            if polled:
                 return None
-            return self.recv() if readable else None
-        t = timeout_s
-        if self._timeout_set is None or abs(t - self._timeout_set) > 1e-4 * t:
-            sec = int(t)
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO,
-                                 struct.pack("ll", sec, int((t - sec) * 1e6)))
-            self._timeout_set = t
+            self._poll(timeout_s)
+            polled = True
+
+    def _poll(self, timeout_s: float) -> None:
+        """What is readable now (or once something is, within ``timeout_s``); the
+        connections last in the list, so they are read before the listener and the
+        wake-up (a report's wake-up never overtakes the frames sent before it)."""
+        ep = self._ep
         try:
-            return self.sock.recv(MAX_DATAGRAM)
-        except (BlockingIOError, InterruptedError):
-            return None
+            if timeout_s <= 0.0:
+                events = ep.poll(0)
+            elif timeout_s < LONG_WAIT_S:
+                readable, _, _ = select.select((ep,), (), (), timeout_s)
+                events = ep.poll(0) if readable else []
+            else:
+                events = ep.poll(timeout_s)
+        except InterruptedError:
+            events = []
+        lfd, wfd = self._lfd, self._wfd
+        ready = self._ready  # in place: the reader holds this list
+        ready[:] = [fd for fd, _ in events if fd == wfd or fd == lfd]
+        ready += [fd for fd, _ in events if fd != wfd and fd != lfd]
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                c, _ = self.sock.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            c.setblocking(False)
+            fd = c.fileno()
+            self._conns[fd] = c
+            self._ep.register(fd, select.EPOLLIN)
+
+    def _forget(self, fd: int) -> None:
+        c = self._conns.pop(fd, None)
+        if c is not None:
+            try:
+                self._ep.unregister(fd)
+            except OSError:
+                pass
+            c.close()
+
+    def _drain_wake(self) -> None:
+        try:
+            while self._wake_r.recv(64):
+                pass
+        except (BlockingIOError, InterruptedError, OSError):
+            pass
 
     def wake(self) -> None:
-        """From any thread: make the waiting thread return from :meth:`wait`. A full
-        queue already wakes it."""
+        """From any thread: make the waiting thread return from :meth:`recv_wait`. A
+        full wake-up queue already wakes it."""
         try:
-            self._wake.send(b"")
+            self._wake_w.send(b"w")
         except OSError:
             pass
 
@@ -223,10 +292,12 @@ class DatagramPath:
             else:
                 if old is not None:
                     old.close()
+                    self._behind.discard(old)
                 seen[role] = _Peer(role, path, hears)
         for role, old in self._peers.items():
             if role not in seen:
                 old.close()
+                self._behind.discard(old)
         self._peers = seen
         self._routes.clear()
 
@@ -275,12 +346,11 @@ class DatagramPath:
                 s = p.sock or p.connect()
                 s.send(frame)
                 return True
-            except BlockingIOError:  # the receiver's queue is full: hold it for later
+            except BlockingIOError:  # the connection is full: hold it for later
                 return self._defer(p, frame)
             except OSError as exc:
-                p.close()  # gone (ECONNREFUSED, ENOENT): dial again once (a restart)
-                if attempt or exc.errno not in (errno.ECONNREFUSED, errno.ENOENT,
-                                                errno.ENOTCONN):
+                p.close()  # gone (EPIPE, ECONNREFUSED, ENOENT): dial again once (a restart)
+                if attempt or exc.errno not in _GONE:
                     return False
         return False
 
@@ -290,8 +360,11 @@ class DatagramPath:
         waits for room, a lossy one drops the oldest held frame (counted)."""
         if len(p.backlog) >= self.max_backlog:
             if self.lossless:
-                self._flush_peer(p, wait_s=self.lossless_wait_s)
+                # wait for it once; a receiver that took nothing meanwhile is stalled: its
+                # frames are dropped at once from then on, until it takes one again
+                self._flush_peer(p, wait_s=0.0 if p.stalled else self.lossless_wait_s)
                 if len(p.backlog) >= self.max_backlog:
+                    p.stalled = True
                     return False
             else:
                 p.backlog.popleft()
@@ -315,6 +388,7 @@ class DatagramPath:
             try:
                 s.send(q[0])
                 q.popleft()
+                p.stalled = False
             except BlockingIOError:
                 if left_ms <= 0:
                     return
@@ -353,7 +427,11 @@ class DatagramPath:
         self.closed = True
         for p in self._peers.values():
             p.close()
-        self._wake.close()
+        for fd in list(self._conns):
+            self._forget(fd)
+        self._ep.close()
+        self._wake_r.close()
+        self._wake_w.close()
         self.sock.close()
         for suffix in (HEARS_SUFFIX, SOCKET_SUFFIX):
             try:

@@ -1,0 +1,217 @@
+"""The local data path (deploy/runtime/datagrams.py): who gets a key, in order, whole;
+what a receiver that reads behind, restarts or is gone costs its sender; and, on real
+nodes, that a frame on it is opened, decoded and counted as one from zenoh is."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from deploy.contract.keyring import Keyring, keyring_text, new_master
+from deploy.contract.scenario import load_scenario
+from deploy.contract.wire import (
+    WIRE_VERSION,
+    Codec,
+    Control,
+    Keys,
+    Reply,
+    ShareData,
+    encode,
+    run_roles,
+)
+from deploy.runtime.datagrams import DatagramPath, Dispatch, key_matches
+
+KEY = "omr/t/robot/1/cmd"
+
+
+@pytest.fixture()
+def run_dir(tmp_path_factory) -> Path:
+    # a short path: a unix socket's path is at most 107 bytes
+    import tempfile
+
+    return Path(tempfile.mkdtemp(prefix="omf-"))
+
+
+def _pair(run_dir: Path, lossless: bool = True, **kw) -> tuple[DatagramPath, DatagramPath]:
+    rx = DatagramPath(run_dir, "rx", lossless)
+    rx.hear(["omr/t/robot/*/cmd"])
+    tx = DatagramPath(run_dir, "tx", lossless, **kw)
+    tx.refresh()
+    return tx, rx
+
+
+def _frames(rx: DatagramPath, n: int, timeout_s: float = 5.0,
+            tx: DatagramPath | None = None) -> list[bytes]:
+    """Up to ``n`` frames ``rx`` receives; ``tx``: a sender that sends what it holds as
+    the receiver catches up (a node does so before it waits)."""
+    out: list[bytes] = []
+    deadline = time.monotonic() + timeout_s
+    while len(out) < n and time.monotonic() < deadline:
+        if tx is not None:
+            tx.flush()
+        f = rx.recv_wait(0.1)
+        if f:
+            out.append(f)
+    return out
+
+
+def test_key_expressions_match_as_zenoh_matches_them():
+    assert key_matches("a/b/c", "a/b/c") and not key_matches("a/b/c", "a/b/d")
+    assert key_matches("a/*/c", "a/x/c") and not key_matches("a/*/c", "a/x/y/c")
+    assert key_matches("a/**", "a/x/y/c") and key_matches("a/**/c", "a/c")
+    assert not key_matches("a/*", "a")
+
+
+def test_a_key_reaches_whoever_hears_it_whole_and_in_order(run_dir):
+    tx, rx = _pair(run_dir)
+    other = DatagramPath(run_dir, "other", True)
+    other.hear(["omr/t/robot/2/cmd"])
+    tx.refresh()
+    assert tx.receivers(KEY) == ["rx"]
+    payloads = [bytes([i % 251]) * (100 + i) for i in range(300)]
+    for p in payloads:
+        assert tx.send(KEY, p) == 0
+    got = _frames(rx, len(payloads), tx=tx)
+    head = bytes((len(KEY),)) + KEY.encode()
+    assert got == [head + p for p in payloads]
+    assert other.recv() is None  # robot 1's key is not robot 2's
+    for d in (tx, rx, other):
+        d.close()
+    assert not list(run_dir.glob("*.dgram")) and not list(run_dir.glob("*.hears"))
+
+
+def test_a_receiver_that_reads_behind_holds_its_sender_only_past_the_backlog(run_dir):
+    tx, rx = _pair(run_dir, max_backlog=100_000)
+    n = 3000  # far more than a connection holds (~170 frames of 400 bytes)
+    for i in range(n):
+        assert tx.send(KEY, i.to_bytes(4, "big") * 100) == 0
+    assert tx.behind and tx.deferred > 0  # held, not lost, and the sender went on
+    got: list[bytes] = []
+    deadline = time.monotonic() + 10
+    while len(got) < n and time.monotonic() < deadline:
+        tx.flush()
+        f = rx.recv_wait(0.01)
+        if f:
+            got.append(f)
+    assert [int.from_bytes(f[-4:], "big") for f in got] == list(range(n))  # all, in order
+    assert not tx.behind and not tx.dropped
+
+
+def test_a_lossy_sender_drops_its_oldest_held_frame_and_counts_it(run_dir):
+    tx, rx = _pair(run_dir, lossless=False, max_backlog=10)
+    for i in range(2000):
+        tx.send(KEY, i.to_bytes(4, "big") * 100)
+    assert tx.dropped["rx"] > 0
+    got = _frames(rx, 10_000, timeout_s=1.0, tx=tx)
+    # whatever was kept is in order, and the newest frame made it
+    ks = [int.from_bytes(f[-4:], "big") for f in got]
+    assert ks == sorted(ks) and ks[-1] == 1999
+
+
+def test_a_lossless_sender_gives_up_on_a_stalled_receiver_after_its_wait(run_dir):
+    tx, _rx = _pair(run_dir, max_backlog=5, lossless_wait_s=0.2)
+    t0 = time.monotonic()
+    lost = sum(tx.send(KEY, b"x" * 4000) for _ in range(400))
+    assert lost > 0 and tx.dropped["rx"] == lost
+    assert time.monotonic() - t0 < 0.2 * (lost + 2) + 5
+
+
+def test_a_restarted_receiver_is_dialled_again_and_a_gone_one_costs_a_count(run_dir):
+    tx, rx = _pair(run_dir)
+    assert tx.send(KEY, b"first") == 0 and _frames(rx, 1)
+    rx.close()
+    assert tx.send(KEY, b"to nobody") == 1  # gone: counted, never raised
+    again = DatagramPath(run_dir, "rx", True)
+    again.hear(["omr/t/robot/*/cmd"])
+    tx.refresh()
+    assert tx.send(KEY, b"second") == 0
+    assert _frames(again, 1)[0].endswith(b"second")
+
+
+def test_another_thread_wakes_the_waiting_one(run_dir):
+    rx = DatagramPath(run_dir, "rx", True)
+    threading.Timer(0.05, rx.wake).start()
+    t0 = time.monotonic()
+    assert rx.recv_wait(5.0) == b""
+    assert time.monotonic() - t0 < 2.0
+
+
+def test_a_short_wait_keeps_its_time_below_a_scheduler_tick(run_dir):
+    """A realtime loop's wait of a fraction of a millisecond: a kernel receive timeout
+    would round it up to a scheduler tick (4 ms at 250 Hz). The shortest of 20 waits
+    (a loaded machine can only make one longer, never shorter)."""
+    rx = DatagramPath(run_dir, "rx", True)
+    for want in (0.0003, 0.002):
+        took = []
+        for _ in range(20):
+            t0 = time.perf_counter()
+            assert rx.recv_wait(want) is None
+            took.append(time.perf_counter() - t0)
+        assert want <= min(took) < want + 0.0015, (want, sorted(took)[:3])
+
+
+def test_dispatch_by_exact_key_and_wildcard_and_counts_what_nobody_hears():
+    d = Dispatch()
+    heard: list[tuple[str, bytes, str]] = []
+    d.add(KEY, lambda p, k: heard.append(("exact", p, k)))
+    d.add("omr/t/**", lambda p, k: heard.append(("all", p, k)))
+    head = bytes((len(KEY),)) + KEY.encode()
+    d(head + b"abc")
+    assert heard == [("exact", b"abc", KEY), ("all", b"abc", KEY)]
+    d(bytes((5,)) + b"other" + b"x")
+    d(b"\x03\xff\xfe\xfdx")  # a key that is not text
+    assert d.unheard == 2
+
+
+def _reply(robot: int) -> bytes:
+    z = (0.0, 0.0, 0.0)
+    return encode(Reply(WIRE_VERSION, robot, 1, 0, robot=robot, k=0, t=0.0,
+                        torques=(1.0,) * 4, v_cmd=z, state_seq=0, state_stamp_ns=0,
+                        share=ShareData(z, z, z, z, z, z)))
+
+
+def test_a_node_sends_data_on_the_path_and_refuses_a_forgery_there_as_on_zenoh(run_dir):
+    """Real nodes, each with its keyring: agent 1's reply reaches the plant on the local
+    path (not zenoh), control goes on zenoh, and a reply forged on the path (plain, or
+    under another run's keys) is refused before decoding and counted by reason."""
+    from deploy.runtime.transport import Node, zenoh_config
+
+    sc = load_scenario("paper")
+    keys, master = Keys("t"), new_master()
+    roles = [*run_roles(sc.robot_ids), "launcher"]
+    ring = {r: Keyring.from_text(keyring_text(master, "t", r, roles), "test", r, sc, keys)
+            for r in roles}
+    other = Keyring.from_text(keyring_text(new_master(), "t", "agent-1", roles), "x",
+                              "agent-1", sc, keys)
+    plant = Node("plant", keys, Codec(sc.robot_ids), zenoh_config(gossip=False),
+                 keyring=ring["plant"], datagrams=DatagramPath(run_dir, "plant", True))
+    agent = Node("agent-1", keys, Codec(sc.robot_ids), zenoh_config(gossip=False), 1,
+                 keyring=ring["agent-1"], datagrams=DatagramPath(run_dir, "agent-1", True))
+    got: list[Reply] = []
+    ctl: list[Control] = []
+    try:
+        plant.subscribe(keys.cmd(1), Reply, got.append, robot=1)
+        plant.subscribe(keys.ctl_all, Control, ctl.append)
+        assert list((run_dir / "plant.hears").read_text().split(keys.cmd(1)))[1:]  # heard here
+        agent.datagrams.refresh()
+        msg = agent.publish(keys.cmd(1), lambda seq, stamp: Reply(
+            WIRE_VERSION, 1, seq, stamp, robot=1, k=0, t=0.0, torques=(1.0,) * 4,
+            v_cmd=(0.0,) * 3, state_seq=0, state_stamp_ns=0,
+            share=ShareData(*([(0.0,) * 3] * 6))))
+        assert msg is not None and keys.cmd(1) not in agent._pubs  # not a zenoh publisher
+        forger = DatagramPath(run_dir, "forger", True)
+        forger.refresh()
+        forger.send(keys.cmd(1), _reply(1))  # plain
+        forger.send(keys.cmd(1), other.seal(_reply(1), keys.cmd(1)))  # another run's keys
+        plant.mailbox.wait_until(lambda: len(got) >= 1 and sum(plant.refused.values()) >= 2,
+                                 5.0)
+        assert [m.seq for m in got] == [0]  # the real one, once
+        assert plant.refused == {"reply: unsigned": 1, "reply: MAC does not check": 1}
+        assert plant.received == {keys.cmd(1): 1}
+        forger.close()
+    finally:
+        agent.close()
+        plant.close()
