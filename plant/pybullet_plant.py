@@ -71,7 +71,9 @@ fixedTimeStep h = dt / substeps; before each call the forces are recomputed from
 the state Bullet returned (TORQUE_CONTROL forces last one stepSimulation), with
 h_d evaluated at the sub-step's start time. A sub-step is one
 setJointMotorControlArray and one getJointStates per body, one stepSimulation
-and one getContactPoints. Deterministic settings:
+and one getContactPoints; the arithmetic between them (the states Bullet
+returned into q, q_dot, then h_d and (P3)-(P5) into the next forces) is one call
+of the plant kernel (:attr:`ForceLaw.substep`). Deterministic settings:
 deterministicOverlappingPairs=1, numSubSteps=1, sleeping disabled, one physics
 client per plant (several plants coexist in one process).
 
@@ -123,6 +125,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from plant.bodies import Body
+from plant.disturbance import Disturbance
 from plant.fleet_kernel import FleetDynamics
 from plant.interface import DEFAULT_SUBSTEPS
 from plant.mecanum import MecanumModel, generalised_inertia
@@ -148,7 +151,7 @@ def _import_pybullet_quietly():
 
 pb = _import_pybullet_quietly()
 
-Disturbance = Callable[[float], np.ndarray]
+DisturbanceFn = Callable[[float], np.ndarray]
 
 MIN_COLLISION_RADIUS_M = 0.01  # collision radius of a point obstacle (scenario radius 0)
 HEIGHT_PER_RADIUS = 4.0  # column height / largest radius: contact normals stay horizontal
@@ -180,10 +183,16 @@ class ForceLaw:
     """The wheels' generalised force on the chassis, (P3)-(P5), rows = robots: the plant
     kernel's (plant/fleet_kernel.pyx ``FleetDynamics.wheel_forces``), one pass over the
     fleet. ``law(q, q_dot, wheel_torques)`` with (n,3), (n,3), (n,4) arrays
-    (``wheel_torques`` = u + h_d) gives the (n,3) world-frame forces [F_x, F_y, M_z]."""
+    (``wheel_torques`` = u + h_d) gives the (n,3) world-frame forces [F_x, F_y, M_z].
 
-    def __init__(self, models: Sequence[MecanumModel]) -> None:
-        self._fleet = FleetDynamics(list(models), "none", 0.0, (0.0,) * 4, 1)
+    :attr:`substep` is the same law as a plant's sub-step uses it (``FleetDynamics.
+    bullet_substep``): from the joint states Bullet returned to the next forces in one
+    call, h_d added inside when ``disturbance`` is the scenario's (:class:`Disturbance`).
+    """
+
+    def __init__(self, models: Sequence[MecanumModel], disturbance: Disturbance | None = None) -> None:
+        known = disturbance or Disturbance("none")
+        self._fleet = FleetDynamics(list(models), known.kind, known.scale, known.constant, 1)
         self._out = np.empty((len(models), 3))
 
     @classmethod
@@ -192,15 +201,17 @@ class ForceLaw:
 
     def __call__(self, q: np.ndarray, q_dot: np.ndarray, wheel_torques: np.ndarray) -> np.ndarray:
         out = np.empty_like(self._out)
-        self.into(np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(q_dot, dtype=float),
-                  np.ascontiguousarray(wheel_torques, dtype=float), out)
+        self._fleet.wheel_forces(np.ascontiguousarray(q, dtype=float),
+                                 np.ascontiguousarray(q_dot, dtype=float),
+                                 np.ascontiguousarray(wheel_torques, dtype=float), out)
         return out
 
     @property
-    def into(self) -> Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None]:
-        """``into(q, q_dot, wheel_torques, out)``: the same forces written into ``out``; every
-        array C-contiguous float64 of the right shape (the plant's own buffers)."""
-        return self._fleet.wheel_forces
+    def substep(self) -> Callable[..., list[float] | None]:
+        """``substep(states, torques, t, q, q_dot)``: ``states`` (getJointStates' tuples of
+        every robot's x, y, yaw in turn, or None) into q, q_dot, then the forces from
+        torques + h_d(t) as one flat list [F_x, F_y, M_z, ...] (``torques`` None: none)."""
+        return self._fleet.bullet_substep
 
 
 def generalised_force(model: MecanumModel, q: np.ndarray, q_dot: np.ndarray,
@@ -233,7 +244,7 @@ class PybulletPlant:
         models: Sequence[MecanumModel],
         q: np.ndarray,
         q_dot: np.ndarray,
-        disturbance: Disturbance,
+        disturbance: DisturbanceFn,
         robot_radii: Sequence[float],
         robot_ids: Sequence[int],
         obstacles: Sequence[Body],
@@ -261,11 +272,11 @@ class PybulletPlant:
         if not 1 <= robots_per_body <= MAX_ROBOTS_PER_BODY:
             raise ValueError(f"robots_per_body must be 1 .. {MAX_ROBOTS_PER_BODY}, got {robots_per_body}")
         self.contacts: list[ContactEvent] = []
-        self._law = ForceLaw.from_models(self.models)
+        # the scenario's h_d is evaluated in the kernel; any other function of t here
+        self._law = ForceLaw(self.models, disturbance if isinstance(disturbance, Disturbance) else None)
+        self._other = None if isinstance(disturbance, Disturbance) else disturbance
         self._h: float | None = None
-        # the sub-steps' buffers: u + h_d, and the forces (P5) as one (n, 3) block
-        self._wheel_torques = np.empty((n, 4))
-        self._forces = np.empty((n, 3))
+        self._wheel_torques = np.empty((n, 4))  # u + h_d of another disturbance than the scenario's
 
         if gui and not os.environ.get("DISPLAY"):
             # pybullet's GUI would end the whole process on a failed X connection
@@ -400,9 +411,8 @@ class PybulletPlant:
     # -- stepping ----------------------------------------------------------------
     def step(self, t: float, dt: float, torques: np.ndarray, v_cmd: np.ndarray) -> None:
         """Advance by dt with wheel torques u held; ``v_cmd`` is ignored."""
-        u = np.asarray(torques, dtype=float)
-        wheel_torques, forces = self._wheel_torques, self._forces
-        if u.shape != wheel_torques.shape:
+        u = np.ascontiguousarray(torques, dtype=float)
+        if u.shape != self._wheel_torques.shape:
             raise ValueError(f"torques must be ({len(self._chassis)}, 4), got {u.shape}")
         if not np.isfinite(u).all():
             raise ValueError("torques must be finite")
@@ -413,27 +423,36 @@ class PybulletPlant:
         if h != self._h:
             pb.setPhysicsEngineParameter(fixedTimeStep=h, numSubSteps=1, physicsClientId=cid)
             self._h = h
-        # new arrays each step (whoever kept the last state keeps it unchanged), written
-        # in place by every sub-step through their flat views
+        # new arrays each step (whoever kept the last state keeps it unchanged), written in
+        # place by every sub-step
         q, qd = self.q.copy(), self.q_dot.copy()
-        q_flat, qd_flat, f_flat = q.reshape(-1), qd.reshape(-1), forces.reshape(-1)
-        law, disturbance, bodies = self._law.into, self.disturbance, self._bodies
-        set_forces, read, torque = pb.setJointMotorControlArray, pb.getJointStates, pb.TORQUE_CONTROL
+        substep, other, wheel_torques = self._law.substep, self._other, self._wheel_torques
+        set_forces, read, torque, bodies = pb.setJointMotorControlArray, pb.getJointStates, \
+            pb.TORQUE_CONTROL, self._bodies
+        # pybullet's calls with positional arguments: parsing keywords costs ~0.3 µs a call
+        # (of 1-3). setJointMotorControlArray wants every sequence before the client id as
+        # long as the joints, and reads only the forces in TORQUE_CONTROL: the forces stand
+        # in for the target positions, velocities and gains. getContactPoints(-1, -1, -2,
+        # -2): no body or link filter (its defaults).
+        states = None  # the first sub-step starts from q, qd
         for k in range(self.substeps):
             ts = t + k * h
-            np.add(u, disturbance(ts), out=wheel_torques)
-            law(q, qd, wheel_torques, forces)  # (P3)-(P5)
-            f = f_flat.tolist()
+            if other is None:
+                forces = substep(states, u, ts, q, qd)  # (P3)-(P5), h_d(ts) inside
+            else:
+                np.add(u, other(ts), out=wheel_torques)
+                forces = substep(states, wheel_torques, ts, q, qd)
             for body, joints, a, b in bodies:
-                set_forces(body, joints, torque, forces=f[a:b], physicsClientId=cid)
+                f = forces[a:b]
+                set_forces(body, joints, torque, f, f, f, f, f, cid)
             pb.stepSimulation(cid)
             states = ()
             for body, joints, _, _ in bodies:
                 states += read(body, joints, cid)
-            q_flat[:], qd_flat[:], _, _ = zip(*states)  # (position, velocity, reaction, torque)
-            points = pb.getContactPoints(physicsClientId=cid)
+            points = pb.getContactPoints(-1, -1, -2, -2, cid)
             if points or self._ongoing:
                 self._record_contacts(ts, points)
+        substep(states, None, t, q, qd)
         self.q, self.q_dot = q, qd
 
     def _record_contacts(self, ts: float, points: Sequence[tuple]) -> None:

@@ -224,6 +224,30 @@ def test_force_law_over_inertia_is_eq4(scenario):
 
 
 @pytest.mark.parametrize("scenario", ["paper", "lab"])
+def test_the_kernels_substep_is_the_force_law_at_the_state_bullet_returned(scenario):
+    """ForceLaw.substep, what a plant's sub-step calls, against the law itself: getJointStates'
+    tuples read into q, q_dot as they are, then law(q, q_dot, u + h_d(t)) bit for bit,
+    with h_d evaluated in the kernel (the scenario's) or added before (any other)."""
+    sc = load_scenario(scenario)
+    model, d, n, t = sc.model(), _disturbance(sc), 4, 2.5
+    rng = np.random.default_rng(5)
+    q, q_dot, u = rng.uniform(-3, 3, (n, 3)), rng.uniform(-3, 3, (n, 3)), rng.uniform(-1, 1, (n, 4))
+    states = tuple((float(q[i, j]), float(q_dot[i, j]), (0.0,) * 6, 0.0)
+                   for i in range(n) for j in range(3))
+    expected = ForceLaw([model] * n)(q, q_dot, u + d(t)).reshape(-1).tolist()
+    for law, torques in ((ForceLaw([model] * n, d), u), (ForceLaw([model] * n), u + d(t))):
+        got_q, got_q_dot = np.zeros((n, 3)), np.zeros((n, 3))
+        assert law.substep(states, torques, t, got_q, got_q_dot) == expected
+        assert np.array_equal(got_q, q) and np.array_equal(got_q_dot, q_dot)
+        assert law.substep(None, torques, t, got_q, got_q_dot) == expected  # from q, q_dot as they are
+        assert law.substep(states, None, t, got_q, got_q_dot) is None  # only the read
+        with pytest.raises(ValueError, match="joint states"):
+            law.substep(states[:-3], torques, t, got_q, got_q_dot)
+        with pytest.raises(ValueError, match="must be"):
+            law.substep(states, torques[:-1], t, got_q, got_q_dot)
+
+
+@pytest.mark.parametrize("scenario", ["paper", "lab"])
 def test_one_bullet_substep_has_eq4_acceleration(scenario):
     """(q_dot after one sub-step - q_dot) / h = eq. (4) at the start state (Euler)."""
     sc = load_scenario(scenario)
