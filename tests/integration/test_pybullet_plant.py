@@ -194,6 +194,25 @@ def test_open_loop_is_the_same_bit_for_bit_whatever_the_robots_per_body():
         assert np.array_equal(shared.q, alone.q) and np.array_equal(shared.q_dot, alone.q_dot)
 
 
+def test_a_full_body_reads_back_every_robot():
+    """MAX_ROBOTS_PER_BODY robots in one body: pybullet's state of a body (128 coordinates,
+    7 of the base) holds them all (41 would not: their states came back wrong)."""
+    sc = load_scenario("paper")
+    n = MAX_ROBOTS_PER_BODY
+    q = np.column_stack([SPACING_M * np.arange(n), np.zeros(n), np.linspace(0.0, 3.0, n)])
+    q_dot = np.tile(MOVING_Q_DOT, (n, 1))
+    u = np.random.default_rng(2).uniform(-1.0, 1.0, (20, n, 4))
+    ends = []
+    for robots_per_body in (1, n):
+        with PybulletPlant([sc.model()] * n, q, q_dot, _zero, [0.5] * n, list(range(1, n + 1)), [],
+                           4, robots_per_body=robots_per_body) as plant:
+            for k in range(len(u)):
+                plant.step(k * sc.dt, sc.dt, u[k], None)
+            ends.append((plant.q, plant.q_dot))
+    (q1, v1), (qn, vn) = ends
+    assert np.array_equal(qn, q1) and np.array_equal(vn, v1)
+
+
 def test_a_robot_at_rest_stays_exactly_at_rest_beside_driven_robots_of_its_body():
     sc = load_scenario("paper")
     q = np.zeros((3, 3))
@@ -385,6 +404,9 @@ def test_two_robots_head_on_make_one_robot_robot_event():
         assert 0.4 < event.t_start < 0.6
 
 
+PILE_IDS = [5, 3, 9, 1, 2, 8, 4]
+
+
 def _pile_up(robots_per_body: int, disturbance, steps: int = 800):
     """7 lab robots on a circle of 1 m, each driven at the centre (an obstacle) and so into
     its neighbours, 4 s; the plant (closed) and the least centre distance of two robots."""
@@ -403,9 +425,6 @@ def _pile_up(robots_per_body: int, disturbance, steps: int = 800):
             xy = plant.q[:, :2]
             closest = min(closest, float(np.linalg.norm(xy[:, None] - xy[None], axis=2)[upper].min()))
     return plant, closest
-
-
-PILE_IDS = [5, 3, 9, 1, 2, 8, 4]
 
 
 def test_robots_sharing_a_body_collide_as_robots_of_separate_bodies_do():
