@@ -1,6 +1,7 @@
 """The plant's per-step arithmetic on C doubles: eq. (4) integrated for the whole fleet
-(RK4 sub-steps, the disturbance h_d(t) of eq. 49 inside), and what each robot perceives of
-the discs around it. One pass over the fleet per step, no Python object per robot.
+(RK4 sub-steps, the disturbance h_d(t) of eq. 49 inside), the pybullet plant's wheel forces
+between its calls to Bullet, and what each robot perceives of the discs around it. One pass
+over the fleet per step, no Python object per robot.
 
 Why compiled: as numpy over 3-vectors a robot-step of RK4 cost ~100 µs, almost all of it
 the per-call overhead of ~400 numpy calls on arrays of 3-12 elements; the same loops on C
@@ -71,6 +72,26 @@ cdef inline void _disturbance(int kind, double scale, const double* constant, do
                                           scale * constant[2], scale * constant[3])
     else:
         out[0] = out[1] = out[2] = out[3] = 0.0
+
+
+cdef inline void _wheel_force(const Model* m, const double* q, const double* qd,
+                              const double* torques, const double* h_d,
+                              double* out) noexcept nogil:
+    """(P3)-(P5) of one robot: world-frame [F_x, F_y, M_z] into ``out`` from the wheel
+    torques (plus h_d, when given) at state (q, qd)."""
+    cdef int j
+    cdef double w, fx, fy, fw
+    cdef double tau[4]
+    cdef double c = cos(q[2]), s = sin(q[2])
+    cdef double bx = c * qd[0] + s * qd[1], by = c * qd[1] - s * qd[0], bw = qd[2]
+    for j in range(4):
+        w = (m.P[j][0] * bx + m.P[j][1] * by + m.P[j][2] * bw) * m.inv_R  # (P3)
+        tau[j] = (torques[j] if h_d == NULL else torques[j] + h_d[j]) \
+            - m.coulomb * tanh(w * m.inv_smooth) - m.viscous * w  # (P4)
+    fx = (m.P[0][0] * tau[0] + m.P[1][0] * tau[1] + m.P[2][0] * tau[2] + m.P[3][0] * tau[3]) * m.inv_R
+    fy = (m.P[0][1] * tau[0] + m.P[1][1] * tau[1] + m.P[2][1] * tau[2] + m.P[3][1] * tau[3]) * m.inv_R
+    fw = (m.P[0][2] * tau[0] + m.P[1][2] * tau[1] + m.P[2][2] * tau[2] + m.P[3][2] * tau[3]) * m.inv_R
+    out[0], out[1], out[2] = c * fx - s * fy, s * fx + c * fy, fw  # (P5)
 
 
 cdef void _rk4_disturbed(const Model* m, double* q, double* qd, const double* u,
@@ -201,21 +222,44 @@ cdef class FleetDynamics:
         """The wheels' generalised force on each chassis (plant/pybullet_plant.py, (P3)-(P5)):
         theta_dot = P T(phi)^T q_dot / R; tau_w = u + h_d - tau_c(theta_dot) - C_theta R^2
         theta_dot; F = T(phi) P^T tau_w / R, world frame [F_x, F_y, M_z], into ``out``."""
-        cdef int i, j
-        cdef double c, s, bx, by, bw, w, fx, fy, fw
-        cdef double tau[4]
-        cdef Model* m
+        cdef int i
         for i in range(self.n):
-            m = &self._models[i]
-            c, s = cos(q[i, 2]), sin(q[i, 2])
-            bx, by, bw = c * qd[i, 0] + s * qd[i, 1], c * qd[i, 1] - s * qd[i, 0], qd[i, 2]
-            for j in range(4):
-                w = (m.P[j][0] * bx + m.P[j][1] * by + m.P[j][2] * bw) * m.inv_R  # (P3)
-                tau[j] = wheel_torques[i, j] - m.coulomb * tanh(w * m.inv_smooth) - m.viscous * w  # (P4)
-            fx = (m.P[0][0] * tau[0] + m.P[1][0] * tau[1] + m.P[2][0] * tau[2] + m.P[3][0] * tau[3]) * m.inv_R
-            fy = (m.P[0][1] * tau[0] + m.P[1][1] * tau[1] + m.P[2][1] * tau[2] + m.P[3][1] * tau[3]) * m.inv_R
-            fw = (m.P[0][2] * tau[0] + m.P[1][2] * tau[1] + m.P[2][2] * tau[2] + m.P[3][2] * tau[3]) * m.inv_R
-            out[i, 0], out[i, 1], out[i, 2] = c * fx - s * fy, s * fx + c * fy, fw  # (P5)
+            _wheel_force(&self._models[i], &q[i, 0], &qd[i, 0], &wheel_torques[i, 0], NULL,
+                         &out[i, 0])
+
+    def bullet_substep(self, tuple states, const double[:, ::1] torques, double t,
+                       double[:, ::1] q, double[:, ::1] qd):
+        """The arithmetic of a pybullet plant's sub-step (plant/pybullet_plant.py): the joint
+        states Bullet returned (getJointStates' tuples for x, y, yaw of each robot in turn,
+        position and velocity first) into ``q`` and ``qd`` (``states`` None: they hold the
+        state already); then, unless ``torques`` is None, the wheels' forces (P3)-(P5) there
+        from torques + h_d(t) (this kernel's disturbance) as the flat list [F_x, F_y, M_z,
+        ...] that setJointMotorControlArray takes."""
+        cdef int i, j, n = self.n
+        cdef tuple joint
+        cdef double d[4]
+        cdef double f[3]
+        cdef const double* h_d = NULL  # none: the torques as given
+        if q.shape[0] != n or qd.shape[0] != n or q.shape[1] != 3 or qd.shape[1] != 3 or (
+                torques is not None and (torques.shape[0] != n or torques.shape[1] != 4)):
+            raise ValueError("q, q_dot, torques must be (n, 3), (n, 3), (n, 4)")
+        if states is not None:
+            if len(states) != 3 * n:
+                raise ValueError(f"{len(states)} joint states for {n} robots")
+            for i in range(n):
+                for j in range(3):
+                    joint = <tuple?> states[3 * i + j]
+                    q[i, j], qd[i, j] = joint[0], joint[1]
+        if torques is None:
+            return None
+        if self.kind != 0:
+            _disturbance(self.kind, self.scale, self.constant, t, d)
+            h_d = d
+        forces = [None] * (3 * n)
+        for i in range(n):
+            _wheel_force(&self._models[i], &q[i, 0], &qd[i, 0], &torques[i, 0], h_d, f)
+            forces[3 * i], forces[3 * i + 1], forces[3 * i + 2] = f[0], f[1], f[2]
+        return forces
 
     def step(self, double t, double dt, double[:, ::1] q, double[:, ::1] qd,
              const double[:, ::1] torques, const double[:, :, ::1] stage_disturbance=None):

@@ -15,13 +15,15 @@ are therefore not bodies: their effect on the chassis is computed from the
 no-slip roller kinematics every physics sub-step and applied as generalised
 forces, and Bullet integrates the chassis and resolves its contacts.
 
-Bodies. Each robot is a Featherstone multibody with a fixed base at the world
-origin and a planar chain: link 0 prismatic along world x, link 1 prismatic
-along world y, link 2 revolute about z. The joint positions are exactly
-q = [x, y, phi] and the joint velocities q_dot. Links 0 and 1 are massless and
-have no collision shape; link 2 carries the chassis: a vertical cylinder of the
-robot's radius and the inertia of M_q (plant/mecanum.py ``generalised_inertia``,
-the wheel inertia reflected through the no-slip rollers)
+Bodies. The robots are Featherstone multibodies with a fixed base at the world
+origin, up to ``robots_per_body`` robots (default ROBOTS_PER_BODY) in each. A
+robot is a planar chain from that base: its link 3j prismatic along world x,
+3j + 1 prismatic along world y, 3j + 2 revolute about z (j = its place in its
+body). The joint positions are exactly q = [x, y, phi] and the joint velocities
+q_dot. Its x and y links are massless and have no collision shape; its yaw link
+carries the chassis: a vertical cylinder of the robot's radius and the inertia
+of M_q (plant/mecanum.py ``generalised_inertia``, the wheel inertia reflected
+through the no-slip rollers)
 
     m_t = m + 4 I_w / R^2,   I_t = I_z + 4 I_w (l + w)^2 / R^2.          (P1)
 
@@ -31,10 +33,22 @@ on the yaw axis, so Bullet's joint-space equation of motion is exactly
 
     M_q q_ddot = F + F_contact,   M_q = diag(m_t, m_t, I_t)              (P2)
 
-with no Coriolis term (checked in tests/integration/test_pybullet_plant.py). Gravity is 0
-(the joints are planar anyway); joint damping, link damping, the default
-velocity motors and the joint velocity cap are all disabled, so F (ours) and
-F_contact (Bullet's contact solver) are the only forces.
+with no Coriolis term (checked in tests/integration/test_pybullet_plant.py). The
+robots of one body do not act on each other through it: its base is fixed, so
+a force on one robot's chain accelerates that chain's joints only (the
+articulated-body pass carries nothing across a base that cannot move; checked
+against one body per robot). Gravity is 0 (the joints are planar anyway); joint
+damping, link damping, the default velocity motors and the joint velocity cap
+are all disabled, so F (ours) and F_contact (Bullet's contact solver) are the
+only forces.
+
+Robots share bodies because a pybullet call costs a fixed ~1-3 µs besides its
+work, and forces go in and states come out by the body: two calls per body and
+sub-step, not two per robot. The groups stay small because Bullet's contact
+solver works on every joint of the bodies a contact involves, so a contact costs
+in proportion to its bodies' size (figures in docs/pybullet.md). pybullet's state
+of one body holds 128 coordinates (7 of the base, 3 per robot), hence at most
+MAX_ROBOTS_PER_BODY.
 
 Wheel forces. From the current joint velocities, every sub-step:
 
@@ -55,7 +69,11 @@ pybullet in it.
 Stepping. ``step(t, dt, ...)`` calls stepSimulation ``substeps`` times with
 fixedTimeStep h = dt / substeps; before each call the forces are recomputed from
 the state Bullet returned (TORQUE_CONTROL forces last one stepSimulation), with
-h_d evaluated at the sub-step's start time. Deterministic settings:
+h_d evaluated at the sub-step's start time. A sub-step is one
+setJointMotorControlArray and one getJointStates per body, one stepSimulation
+and one getContactPoints; the arithmetic between them (the states Bullet
+returned into q, q_dot, then h_d and (P3)-(P5) into the next forces) is one call
+of the plant kernel (:attr:`ForceLaw.substep`). Deterministic settings:
 deterministicOverlappingPairs=1, numSubSteps=1, sleeping disabled, one physics
 client per plant (several plants coexist in one process).
 
@@ -73,12 +91,14 @@ contact normal of two columns is then always horizontal (a penetration through
 the caps would cost more than any sideways one; with short columns Bullet's EPA
 resolved deep overlaps vertically), and Bullet's distances between two columns
 are exact to ~2e-11 m when apart and ~1e-8 m in penetration (measured). Robots
-collide with robots and obstacles; a robot's base and sliders have no shape, so
-nothing of a robot collides with itself. Contact friction and restitution are
-Bullet's defaults (lateral friction 0.5, restitution 0); Bullet's contacts are
-speculative (a pair within its contact threshold is kept from closing the gap),
-so even a 50 m/s impact stops at the surface, and a resting contact settles
-~1e-5 m deep (measured).
+collide with robots and obstacles: robots of one body through Bullet's
+self-collision of a body's links (URDF_USE_SELF_COLLISION; a link never collides
+with its parent), robots of two bodies as any two bodies do. A body's base and a
+robot's sliders have no shape, so nothing of a robot collides with itself.
+Contact friction and restitution are Bullet's defaults (lateral friction 0.5,
+restitution 0); Bullet's contacts are speculative (a pair within its contact
+threshold is kept from closing the gap), so even a 50 m/s impact stops at the
+surface, and a resting contact settles ~1e-5 m deep (measured).
 
 Contacts. After each sub-step the contact points of robot-robot and
 robot-obstacle pairs are read (getContactPoints). Bullet's narrowphase runs at
@@ -89,12 +109,14 @@ touches when one of its points has distance <= 0. A :class:`ContactEvent`
 starts when a pair goes from not touching to touching; its max_depth_m (the
 largest penetration, metres, >= 0) grows while it lasts and t_end is the time of
 the first sample at which the pair no longer touches. Robots are named by their
-robot id, obstacles by their Body ident (-(k+1) for the scenario's k-th).
+robot id, obstacles by their Body ident (-(k+1) for the scenario's k-th); Bullet
+names a point's two sides by (body, link), which the plant maps to those.
 """
 
 from __future__ import annotations
 
 import ctypes
+import math
 import os
 import weakref
 from collections.abc import Callable, Sequence
@@ -103,6 +125,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from plant.bodies import Body
+from plant.disturbance import Disturbance
 from plant.fleet_kernel import FleetDynamics
 from plant.interface import DEFAULT_SUBSTEPS
 from plant.mecanum import MecanumModel, generalised_inertia
@@ -128,13 +151,17 @@ def _import_pybullet_quietly():
 
 pb = _import_pybullet_quietly()
 
-Disturbance = Callable[[float], np.ndarray]
+DisturbanceFn = Callable[[float], np.ndarray]
 
 MIN_COLLISION_RADIUS_M = 0.01  # collision radius of a point obstacle (scenario radius 0)
 HEIGHT_PER_RADIUS = 4.0  # column height / largest radius: contact normals stay horizontal
 MAX_JOINT_VELOCITY = 1e9  # Bullet clamps joint speeds at 100 by default; effectively no cap
-CHASSIS_LINK = 2  # the link carrying the chassis shape and M_q's mass / yaw inertia
-_JOINTS = [0, 1, 2]  # x slider, y slider, yaw
+LINKS_PER_ROBOT = 3  # x slider, y slider, yaw (the chassis): robot j of a body has links 3j .. 3j + 2
+CHASSIS_LINK = 2  # of a robot's three links, the one carrying the chassis shape and M_q's mass / yaw inertia
+# Robots per multibody: fewer pybullet calls per sub-step against a contact solve that
+# grows with the body (measured, docs/pybullet.md).
+ROBOTS_PER_BODY = 6
+MAX_ROBOTS_PER_BODY = 40  # pybullet's state of a body: 128 coordinates, 7 of the base and 3 per robot
 
 
 class GuiUnavailable(RuntimeError):
@@ -156,10 +183,16 @@ class ForceLaw:
     """The wheels' generalised force on the chassis, (P3)-(P5), rows = robots: the plant
     kernel's (plant/fleet_kernel.pyx ``FleetDynamics.wheel_forces``), one pass over the
     fleet. ``law(q, q_dot, wheel_torques)`` with (n,3), (n,3), (n,4) arrays
-    (``wheel_torques`` = u + h_d) gives the (n,3) world-frame forces [F_x, F_y, M_z]."""
+    (``wheel_torques`` = u + h_d) gives the (n,3) world-frame forces [F_x, F_y, M_z].
 
-    def __init__(self, models: Sequence[MecanumModel]) -> None:
-        self._fleet = FleetDynamics(list(models), "none", 0.0, (0.0,) * 4, 1)
+    :attr:`substep` is the same law as a plant's sub-step uses it (``FleetDynamics.
+    bullet_substep``): from the joint states Bullet returned to the next forces in one
+    call, h_d added inside when ``disturbance`` is the scenario's (:class:`Disturbance`).
+    """
+
+    def __init__(self, models: Sequence[MecanumModel], disturbance: Disturbance | None = None) -> None:
+        known = disturbance or Disturbance("none")
+        self._fleet = FleetDynamics(list(models), known.kind, known.scale, known.constant, 1)
         self._out = np.empty((len(models), 3))
 
     @classmethod
@@ -172,6 +205,13 @@ class ForceLaw:
                                  np.ascontiguousarray(q_dot, dtype=float),
                                  np.ascontiguousarray(wheel_torques, dtype=float), out)
         return out
+
+    @property
+    def substep(self) -> Callable[..., list[float] | None]:
+        """``substep(states, torques, t, q, q_dot)``: ``states`` (getJointStates' tuples of
+        every robot's x, y, yaw in turn, or None) into q, q_dot, then the forces from
+        torques + h_d(t) as one flat list [F_x, F_y, M_z, ...] (``torques`` None: none)."""
+        return self._fleet.bullet_substep
 
 
 def generalised_force(model: MecanumModel, q: np.ndarray, q_dot: np.ndarray,
@@ -204,13 +244,14 @@ class PybulletPlant:
         models: Sequence[MecanumModel],
         q: np.ndarray,
         q_dot: np.ndarray,
-        disturbance: Disturbance,
+        disturbance: DisturbanceFn,
         robot_radii: Sequence[float],
         robot_ids: Sequence[int],
         obstacles: Sequence[Body],
         substeps: int = DEFAULT_SUBSTEPS,
         gui: bool = False,
         shapes: Sequence[Polygon] = (),
+        robots_per_body: int = ROBOTS_PER_BODY,
     ) -> None:
         self.models = list(models)
         n = len(self.models)
@@ -228,9 +269,14 @@ class PybulletPlant:
         self.obstacles = list(obstacles)
         self.shapes = list(shapes)
         self.substeps = substeps
+        if not 1 <= robots_per_body <= MAX_ROBOTS_PER_BODY:
+            raise ValueError(f"robots_per_body must be 1 .. {MAX_ROBOTS_PER_BODY}, got {robots_per_body}")
         self.contacts: list[ContactEvent] = []
-        self._law = ForceLaw.from_models(self.models)
+        # the scenario's h_d is evaluated in the kernel; any other function of t here
+        self._law = ForceLaw(self.models, disturbance if isinstance(disturbance, Disturbance) else None)
+        self._other = None if isinstance(disturbance, Disturbance) else disturbance
         self._h: float | None = None
+        self._wheel_torques = np.empty((n, 4))  # u + h_d of another disturbance than the scenario's
 
         if gui and not os.environ.get("DISPLAY"):
             # pybullet's GUI would end the whole process on a failed X connection
@@ -260,38 +306,22 @@ class PybulletPlant:
             return pb.createVisualShape(pb.GEOM_CYLINDER, radius=radius, length=self._height,
                                         rgbaColor=rgba, physicsClientId=cid)
 
-        self._robots: list[int] = []
-        for k, model in enumerate(self.models):
-            m_t, _, i_t = np.diag(generalised_inertia(model.params))  # (P1)
-            r = self.robot_radii[k]
-            body = pb.createMultiBody(
-                baseMass=0.0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=-1,
-                basePosition=[0.0, 0.0, 0.0],
-                linkMasses=[0.0, 0.0, float(m_t)],
-                linkCollisionShapeIndices=[-1, -1, shape(r)],
-                linkVisualShapeIndices=[-1, -1, visual(r, [0.2, 0.4, 0.9, 1.0])],
-                linkPositions=[[0.0, 0.0, 0.0]] * 3,
-                linkOrientations=[[0.0, 0.0, 0.0, 1.0]] * 3,
-                linkInertialFramePositions=[[0.0, 0.0, 0.0]] * 3,
-                linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * 3,
-                linkParentIndices=[0, 1, 2],
-                linkJointTypes=[pb.JOINT_PRISMATIC, pb.JOINT_PRISMATIC, pb.JOINT_REVOLUTE],
-                linkJointAxis=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-                physicsClientId=cid,
-            )
-            for link in (-1, *_JOINTS):
-                pb.changeDynamics(body, link, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0,
-                                  maxJointVelocity=MAX_JOINT_VELOCITY,
-                                  activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING,
-                                  physicsClientId=cid)
-            # x, y inertia of the chassis are irrelevant (planar joints); I_t about z
-            pb.changeDynamics(body, CHASSIS_LINK, localInertiaDiagonal=[i_t, i_t, i_t],
-                              physicsClientId=cid)
-            pb.setJointMotorControlArray(body, _JOINTS, pb.VELOCITY_CONTROL, forces=[0.0] * 3,
-                                         physicsClientId=cid)
-            for j in _JOINTS:
-                pb.resetJointState(body, j, self.q[k, j], self.q_dot[k, j], physicsClientId=cid)
-            self._robots.append(body)
+        # robots in bodies of near-equal size, in order: robot k is (body, its chassis link)
+        count = -(-n // robots_per_body)
+        sizes = [n // count + (g < n % count) for g in range(count)]
+        self._chassis: list[tuple[int, int]] = []
+        # per body: (body id, its joint indices, its slice of the flat (3n) force list)
+        self._bodies: list[tuple[int, list[int], int, int]] = []
+        first = 0
+        for size in sizes:
+            robots = range(first, first + size)
+            body = self._robot_body([shape(self.robot_radii[k]) for k in robots],
+                                    [visual(self.robot_radii[k], [0.2, 0.4, 0.9, 1.0]) for k in robots],
+                                    robots)
+            self._chassis += [(body, LINKS_PER_ROBOT * j + CHASSIS_LINK) for j in range(size)]
+            self._bodies.append((body, list(range(LINKS_PER_ROBOT * size)), LINKS_PER_ROBOT * first,
+                                 LINKS_PER_ROBOT * (first + size)))
+            first += size
 
         self._obstacle_ids: list[int] = []
         self._collision_radius: list[float] = []
@@ -306,11 +336,51 @@ class PybulletPlant:
             self._collision_radius.append(r)
         self._shape_ids = [self._prism(poly, gui) for poly in self.shapes]
 
-        # pybullet body id -> scenario ident (robot id, or obstacle ident)
-        self._ident = {b: rid for b, rid in zip(self._robots, self.robot_ids, strict=True)}
-        self._ident.update({b: o.ident for b, o in zip(self._obstacle_ids, self.obstacles, strict=True)})
-        self._ident.update({b: p.ident for b, p in zip(self._shape_ids, self.shapes, strict=True)})
+        # Bullet's (body id, link index) -> scenario ident (robot id, or obstacle ident)
+        self._ident = dict(zip(self._chassis, self.robot_ids, strict=True))
+        for bodies, named in ((self._obstacle_ids, self.obstacles), (self._shape_ids, self.shapes)):
+            self._ident.update({(b, -1): o.ident for b, o in zip(bodies, named, strict=True)})
         self._ongoing: dict[tuple[int, int], int] = {}  # pair -> index in self.contacts
+
+    def _robot_body(self, shapes: list[int], visuals: list[int], robots: range) -> int:
+        """One multibody holding ``robots`` (indices into the fleet), each a planar chain
+        x slider, y slider, yaw from the fixed base, at its state; see the module docstring."""
+        cid, size = self._cid, len(robots)
+        links = LINKS_PER_ROBOT * size
+        inertia = [np.diag(generalised_inertia(self.models[k].params)) for k in robots]  # (P1)
+        body = pb.createMultiBody(
+            baseMass=0.0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=-1,
+            basePosition=[0.0, 0.0, 0.0],
+            linkMasses=[m for m_t, _, _ in inertia for m in (0.0, 0.0, float(m_t))],
+            linkCollisionShapeIndices=[c for s in shapes for c in (-1, -1, s)],
+            linkVisualShapeIndices=[v for s in visuals for v in (-1, -1, s)],
+            linkPositions=[[0.0, 0.0, 0.0]] * links,
+            linkOrientations=[[0.0, 0.0, 0.0, 1.0]] * links,
+            linkInertialFramePositions=[[0.0, 0.0, 0.0]] * links,
+            linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * links,
+            # pybullet's parent index: 0 the base, i link i - 1; each chain starts at the base
+            linkParentIndices=[p for j in range(size) for p in (0, 3 * j + 1, 3 * j + 2)],
+            linkJointTypes=[pb.JOINT_PRISMATIC, pb.JOINT_PRISMATIC, pb.JOINT_REVOLUTE] * size,
+            linkJointAxis=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]] * size,
+            flags=pb.URDF_USE_SELF_COLLISION,  # robots of one body collide with each other
+            physicsClientId=cid,
+        )
+        for link in range(-1, links):
+            pb.changeDynamics(body, link, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0,
+                              maxJointVelocity=MAX_JOINT_VELOCITY,
+                              activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING,
+                              physicsClientId=cid)
+        for j, (_, _, i_t) in enumerate(inertia):
+            # x, y inertia of the chassis are irrelevant (planar joints); I_t about z
+            pb.changeDynamics(body, LINKS_PER_ROBOT * j + CHASSIS_LINK,
+                              localInertiaDiagonal=[i_t, i_t, i_t], physicsClientId=cid)
+        pb.setJointMotorControlArray(body, list(range(links)), pb.VELOCITY_CONTROL,
+                                     forces=[0.0] * links, physicsClientId=cid)
+        for j, k in enumerate(robots):
+            for axis in range(LINKS_PER_ROBOT):
+                pb.resetJointState(body, LINKS_PER_ROBOT * j + axis, self.q[k, axis],
+                                   self.q_dot[k, axis], physicsClientId=cid)
+        return body
 
     def _prism(self, poly: Polygon, gui: bool) -> int:
         """A static convex hull of ``poly`` extruded to the column height, margin 0."""
@@ -341,45 +411,56 @@ class PybulletPlant:
     # -- stepping ----------------------------------------------------------------
     def step(self, t: float, dt: float, torques: np.ndarray, v_cmd: np.ndarray) -> None:
         """Advance by dt with wheel torques u held; ``v_cmd`` is ignored."""
-        u = np.asarray(torques, dtype=float)
-        if u.shape != (len(self._robots), 4):
-            raise ValueError(f"torques must be ({len(self._robots)}, 4), got {u.shape}")
-        if not np.all(np.isfinite(u)):
+        u = np.ascontiguousarray(torques, dtype=float)
+        if u.shape != self._wheel_torques.shape:
+            raise ValueError(f"torques must be ({len(self._chassis)}, 4), got {u.shape}")
+        if not np.isfinite(u).all():
             raise ValueError("torques must be finite")
-        if not (dt > 0.0 and np.isfinite(dt)):
+        if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"dt must be positive and finite, got {dt}")
         cid = self._cid
         h = dt / self.substeps
         if h != self._h:
             pb.setPhysicsEngineParameter(fixedTimeStep=h, numSubSteps=1, physicsClientId=cid)
             self._h = h
-        q, qd = self.q, self.q_dot
+        # new arrays each step (whoever kept the last state keeps it unchanged), written in
+        # place by every sub-step
+        q, qd = self.q.copy(), self.q_dot.copy()
+        substep, other, wheel_torques = self._law.substep, self._other, self._wheel_torques
+        set_forces, read, torque, bodies = pb.setJointMotorControlArray, pb.getJointStates, \
+            pb.TORQUE_CONTROL, self._bodies
+        # pybullet's calls with positional arguments: parsing keywords costs ~0.3 µs a call
+        # (of 1-3). setJointMotorControlArray wants every sequence before the client id as
+        # long as the joints, and reads only the forces in TORQUE_CONTROL: the forces stand
+        # in for the target positions, velocities and gains. getContactPoints(-1, -1, -2,
+        # -2): no body or link filter (its defaults).
+        states = None  # the first sub-step starts from q, qd
         for k in range(self.substeps):
             ts = t + k * h
-            forces = self._law(q, qd, u + self.disturbance(ts))  # (P3)-(P5)
-            for body, f in zip(self._robots, forces.tolist(), strict=True):
-                pb.setJointMotorControlArray(body, _JOINTS, pb.TORQUE_CONTROL, forces=f,
-                                             physicsClientId=cid)
-            pb.stepSimulation(physicsClientId=cid)
-            q, qd = self._read_state()
-            self._record_contacts(ts)
+            if other is None:
+                forces = substep(states, u, ts, q, qd)  # (P3)-(P5), h_d(ts) inside
+            else:
+                np.add(u, other(ts), out=wheel_torques)
+                forces = substep(states, wheel_torques, ts, q, qd)
+            for body, joints, a, b in bodies:
+                f = forces[a:b]
+                set_forces(body, joints, torque, f, f, f, f, f, cid)
+            pb.stepSimulation(cid)
+            states = ()
+            for body, joints, _, _ in bodies:
+                states += read(body, joints, cid)
+            points = pb.getContactPoints(-1, -1, -2, -2, cid)
+            if points or self._ongoing:
+                self._record_contacts(ts, points)
+        substep(states, None, t, q, qd)
         self.q, self.q_dot = q, qd
 
-    def _read_state(self) -> tuple[np.ndarray, np.ndarray]:
-        cid = self._cid
-        q, qd = [], []
-        for body in self._robots:
-            (x, vx, *_), (y, vy, *_), (phi, w, *_) = pb.getJointStates(body, _JOINTS,
-                                                                      physicsClientId=cid)
-            q.append((x, y, phi))
-            qd.append((vx, vy, w))
-        return np.array(q), np.array(qd)
-
-    def _record_contacts(self, ts: float) -> None:
+    def _record_contacts(self, ts: float, points: Sequence[tuple]) -> None:
         """Update the contact events from the points Bullet found at sub-step time ``ts``."""
         depth: dict[tuple[int, int], float] = {}
-        for point in pb.getContactPoints(physicsClientId=self._cid):
-            a, b, dist = self._ident.get(point[1]), self._ident.get(point[2]), point[8]
+        ident = self._ident
+        for point in points:
+            a, b, dist = ident.get((point[1], point[3])), ident.get((point[2], point[4])), point[8]
             if a is None or b is None or dist > 0.0 or (a < 0 and b < 0):
                 continue
             pair = _pair(a, b)
@@ -406,18 +487,18 @@ class PybulletPlant:
         scenario's radius 0). Positions, velocities and radii are the plant's
         state and the scenario's radii.
         """
-        cid, me = self._cid, self._robots[i]
+        cid, (me, link) = self._cid, self._chassis[i]
         reach = float(detection_range_m) - self.robot_radii[i]
         robots: list[Body] = []
-        for j, body in enumerate(self._robots):
-            if j != i and pb.getClosestPoints(me, body, reach, linkIndexA=CHASSIS_LINK,
-                                              linkIndexB=CHASSIS_LINK, physicsClientId=cid):
+        for j, (body, other) in enumerate(self._chassis):
+            if j != i and pb.getClosestPoints(me, body, reach, linkIndexA=link, linkIndexB=other,
+                                              physicsClientId=cid):
                 robots.append(Body(self.robot_ids[j], self.q[j, :2].copy(), self.q_dot[j, :2].copy(),
                                    self.robot_radii[j]))
         seen = [
             o for o, body, rc in zip(self.obstacles, self._obstacle_ids, self._collision_radius,
                                      strict=True)
-            if pb.getClosestPoints(me, body, reach + float(o.radius) - rc, linkIndexA=CHASSIS_LINK,
+            if pb.getClosestPoints(me, body, reach + float(o.radius) - rc, linkIndexA=link,
                                    physicsClientId=cid)
         ]
         x, y = self.q[i, :2].tolist()

@@ -8,6 +8,8 @@ that is not the code under test.
 * Contacts: geometry (centre distance vs sum of radii) and the crossing time
   of the obstacle-free ModelPlant trajectory.
 * Sensing: plant/perception.py ``sense`` on the same positions.
+* Robots sharing a multibody: the same plant with one body per robot, bit for bit
+  (open loop and a pile-up full of contacts), and a robot at rest beside driven ones.
 """
 
 from __future__ import annotations
@@ -26,7 +28,9 @@ from plant.mecanum import MecanumModel, generalised_inertia, rotation
 from plant.model_plant import ModelPlant
 from plant.perception import sense
 from plant.pybullet_plant import (
+    MAX_ROBOTS_PER_BODY,
     MIN_COLLISION_RADIUS_M,
+    ROBOTS_PER_BODY,
     ContactEvent,
     ForceLaw,
     PybulletPlant,
@@ -80,14 +84,15 @@ def _disturbance(sc):
 
 
 def _plants(sc, q, q_dot, disturbance=None, obstacles=(), radii=None, ids=None, substeps=None,
-            model: MecanumModel | None = None):
+            model: MecanumModel | None = None, robots_per_body: int = ROBOTS_PER_BODY):
     n = len(q)
     model = model or sc.model()
     disturbance = _disturbance(sc) if disturbance is None else disturbance
     substeps = substeps or sc.spec.plant.substeps
     radii = radii or [sc.spec.robot.body_radius_m] * n
     ids = ids or list(range(1, n + 1))
-    bullet = PybulletPlant([model] * n, q, q_dot, disturbance, radii, ids, list(obstacles), substeps)
+    bullet = PybulletPlant([model] * n, q, q_dot, disturbance, radii, ids, list(obstacles), substeps,
+                           robots_per_body=robots_per_body)
     return bullet, ModelPlant([model] * n, q, q_dot, disturbance, substeps)
 
 
@@ -96,7 +101,7 @@ def _cases():
     return [(name, wave, start) for start in STARTS for wave in WAVEFORMS for name in PATTERNS]
 
 
-def _open_loop(scenario: str, substeps: int | None = None):
+def _open_loop(scenario: str, substeps: int | None = None, robots_per_body: int = ROBOTS_PER_BODY):
     """Every case at once: one robot per (pattern, waveform, start), far apart, 1 s."""
     sc = load_scenario(scenario)
     cases = _cases()
@@ -108,7 +113,7 @@ def _open_loop(scenario: str, substeps: int | None = None):
         if start == "moving":
             q[k, 2], q_dot[k] = MOVING_PHI, MOVING_Q_DOT
     q0 = q.copy()
-    bullet, model = _plants(sc, q, q_dot, substeps=substeps)
+    bullet, model = _plants(sc, q, q_dot, substeps=substeps, robots_per_body=robots_per_body)
     amp = TORQUE_NM[scenario]
     dt = sc.dt
     for step in range(int(round(1.0 / dt))):
@@ -181,6 +186,47 @@ def test_open_loop_difference_is_first_order_in_the_substep():
         assert 3.8 < ratio < 4.2, ratio  # measured 4.00-4.02
 
 
+def test_open_loop_is_the_same_bit_for_bit_whatever_the_robots_per_body():
+    """16 robots in one body, in 4, or in one body each: the fixed base couples nothing."""
+    _, _, alone, _ = _open_loop("paper", robots_per_body=1)
+    for robots_per_body in (4, MAX_ROBOTS_PER_BODY):
+        _, _, shared, _ = _open_loop("paper", robots_per_body=robots_per_body)
+        assert np.array_equal(shared.q, alone.q) and np.array_equal(shared.q_dot, alone.q_dot)
+
+
+def test_a_full_body_reads_back_every_robot():
+    """MAX_ROBOTS_PER_BODY robots in one body: pybullet's state of a body (128 coordinates,
+    7 of the base) holds them all (41 would not: their states came back wrong)."""
+    sc = load_scenario("paper")
+    n = MAX_ROBOTS_PER_BODY
+    q = np.column_stack([SPACING_M * np.arange(n), np.zeros(n), np.linspace(0.0, 3.0, n)])
+    q_dot = np.tile(MOVING_Q_DOT, (n, 1))
+    u = np.random.default_rng(2).uniform(-1.0, 1.0, (20, n, 4))
+    ends = []
+    for robots_per_body in (1, n):
+        with PybulletPlant([sc.model()] * n, q, q_dot, _zero, [0.5] * n, list(range(1, n + 1)), [],
+                           4, robots_per_body=robots_per_body) as plant:
+            for k in range(len(u)):
+                plant.step(k * sc.dt, sc.dt, u[k], None)
+            ends.append((plant.q, plant.q_dot))
+    (q1, v1), (qn, vn) = ends
+    assert np.array_equal(qn, q1) and np.array_equal(vn, v1)
+
+
+def test_a_robot_at_rest_stays_exactly_at_rest_beside_driven_robots_of_its_body():
+    sc = load_scenario("paper")
+    q = np.zeros((3, 3))
+    q[:, 0] = SPACING_M * np.arange(3)
+    u = np.zeros((3, 4))
+    u[0], u[2] = 5.0 * PATTERNS["forward"][0], 5.0 * PATTERNS["rotate"][0]
+    with PybulletPlant([sc.model()] * 3, q, np.zeros((3, 3)), _zero, [0.5] * 3, [1, 2, 3], [], 4,
+                       robots_per_body=3) as plant:
+        for k in range(200):
+            plant.step(k * sc.dt, sc.dt, u, None)
+        assert np.array_equal(plant.q[1], q[1]) and not plant.q_dot[1].any()
+        assert plant.q[0, 0] - q[0, 0] > 0.1 and abs(plant.q[2, 2]) > 0.1  # its body-mates moved
+
+
 # -- 2. force law and effective inertia --------------------------------------------
 @pytest.mark.parametrize("scenario", ["paper", "lab"])
 def test_force_law_over_inertia_is_eq4(scenario):
@@ -194,6 +240,30 @@ def test_force_law_over_inertia_is_eq4(scenario):
         expected = model.acceleration(q, q_dot, u, h_d)
         got = inv_mq @ generalised_force(model, q, q_dot, u + h_d)
         assert np.linalg.norm(got - expected) <= 1e-12 * np.linalg.norm(expected)
+
+
+@pytest.mark.parametrize("scenario", ["paper", "lab"])
+def test_the_kernels_substep_is_the_force_law_at_the_state_bullet_returned(scenario):
+    """ForceLaw.substep, what a plant's sub-step calls, against the law itself: getJointStates'
+    tuples read into q, q_dot as they are, then law(q, q_dot, u + h_d(t)) bit for bit,
+    with h_d evaluated in the kernel (the scenario's) or added before (any other)."""
+    sc = load_scenario(scenario)
+    model, d, n, t = sc.model(), _disturbance(sc), 4, 2.5
+    rng = np.random.default_rng(5)
+    q, q_dot, u = rng.uniform(-3, 3, (n, 3)), rng.uniform(-3, 3, (n, 3)), rng.uniform(-1, 1, (n, 4))
+    states = tuple((float(q[i, j]), float(q_dot[i, j]), (0.0,) * 6, 0.0)
+                   for i in range(n) for j in range(3))
+    expected = ForceLaw([model] * n)(q, q_dot, u + d(t)).reshape(-1).tolist()
+    for law, torques in ((ForceLaw([model] * n, d), u), (ForceLaw([model] * n), u + d(t))):
+        got_q, got_q_dot = np.zeros((n, 3)), np.zeros((n, 3))
+        assert law.substep(states, torques, t, got_q, got_q_dot) == expected
+        assert np.array_equal(got_q, q) and np.array_equal(got_q_dot, q_dot)
+        assert law.substep(None, torques, t, got_q, got_q_dot) == expected  # from q, q_dot as they are
+        assert law.substep(states, None, t, got_q, got_q_dot) is None  # only the read
+        with pytest.raises(ValueError, match="joint states"):
+            law.substep(states[:-3], torques, t, got_q, got_q_dot)
+        with pytest.raises(ValueError, match="must be"):
+            law.substep(states, torques[:-1], t, got_q, got_q_dot)
 
 
 @pytest.mark.parametrize("scenario", ["paper", "lab"])
@@ -334,6 +404,49 @@ def test_two_robots_head_on_make_one_robot_robot_event():
         assert 0.4 < event.t_start < 0.6
 
 
+PILE_IDS = [5, 3, 9, 1, 2, 8, 4]
+
+
+def _pile_up(robots_per_body: int, disturbance, steps: int = 800):
+    """7 lab robots on a circle of 1 m, each driven at the centre (an obstacle) and so into
+    its neighbours, 4 s; the plant (closed) and the least centre distance of two robots."""
+    sc = load_scenario("lab")
+    n, r = 7, sc.spec.robot.body_radius_m
+    angle = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    q = np.column_stack([np.cos(angle), np.sin(angle), angle + math.pi])  # facing the centre
+    obstacles = [Body(-1, np.zeros(2), np.zeros(2), 0.15), Body(-2, np.array([1.6, 0.3]), np.zeros(2), 0.0)]
+    rng = np.random.default_rng(3)
+    closest = np.inf
+    upper = np.triu_indices(n, 1)
+    with PybulletPlant([sc.model()] * n, q, np.zeros((n, 3)), disturbance, [r] * n, PILE_IDS,
+                       obstacles, sc.spec.plant.substeps, robots_per_body=robots_per_body) as plant:
+        for k in range(steps):
+            plant.step(k * sc.dt, sc.dt, 0.4 + rng.uniform(-0.3, 0.3, (n, 4)), None)
+            xy = plant.q[:, :2]
+            closest = min(closest, float(np.linalg.norm(xy[:, None] - xy[None], axis=2)[upper].min()))
+    return plant, closest
+
+
+def test_robots_sharing_a_body_collide_as_robots_of_separate_bodies_do():
+    """Robots of one multibody touch through Bullet's self-collision of its links: in a
+    pile-up the states and the contact events are bit for bit those of one body per robot
+    (h_d evaluated in the kernel or handed over), and no two robots pass through each other."""
+    sc = load_scenario("lab")
+    d = _disturbance(sc)
+    alone, closest = _pile_up(1, d)
+    assert closest >= 2 * sc.spec.robot.body_radius_m - MAX_PENETRATION_M
+    pairs = {(e.body_a, e.body_b) for e in alone.contacts}
+    assert any(b < 0 for _, b in pairs), "a robot touches an obstacle"
+    # 3 robots a body: the 7 in bodies of 3, 2 and 2, in order; touching pairs of both kinds
+    bodies = [set(PILE_IDS[:3]), set(PILE_IDS[3:5]), set(PILE_IDS[5:])]
+    within = {(a, b) for a, b in pairs if any({a, b} <= ids for ids in bodies)}
+    assert within and pairs - within - {(a, b) for a, b in pairs if b < 0}
+    for robots_per_body, disturbance in ((3, d), (7, d), (7, lambda t: d(t))):
+        shared, _ = _pile_up(robots_per_body, disturbance)
+        assert np.array_equal(shared.q, alone.q) and np.array_equal(shared.q_dot, alone.q_dot)
+        assert shared.contacts == alone.contacts
+
+
 def test_robots_apart_and_grazing_pass_make_no_contact():
     """Paper start (nothing touches) and a robot passing 5 mm from an obstacle: no events,
     and the grazing robot's path is the obstacle-free one (no phantom contact force)."""
@@ -371,16 +484,17 @@ def _assert_same_sensing(got, expected):
             assert g.radius == e.radius
 
 
-def _check_perceive(q, q_dot, radii, ids, obstacles, r_det):
+def _check_perceive(q, q_dot, radii, ids, obstacles, r_det, robots_per_body=ROBOTS_PER_BODY):
     with PybulletPlant([load_scenario("paper").model()] * len(q), q, q_dot, _zero, radii, ids,
-                       obstacles, 4) as plant:
+                       obstacles, 4, robots_per_body=robots_per_body) as plant:
         for i in range(len(q)):
             expected = sense(i, plant.q[:, :2], plant.q_dot[:, :2], radii, ids, obstacles, r_det)
             _assert_same_sensing(plant.perceive(i, r_det), expected)
             yield expected
 
 
-def test_perceive_equals_sense_at_the_detection_boundary():
+@pytest.mark.parametrize("robots_per_body", [1, 2, ROBOTS_PER_BODY])  # 5 robots: 5, 3 or 1 bodies
+def test_perceive_equals_sense_at_the_detection_boundary(robots_per_body):
     """Bodies 1 um inside and outside r_det, robots and obstacles of radius 0 and > 0."""
     r_det, r0 = 8.0, 0.5
     radii = [r0, 0.5, 0.3, 0.5, 0.3]
@@ -398,7 +512,7 @@ def test_perceive_equals_sense_at_the_detection_boundary():
             d = 0.3 * r0  # a point obstacle inside the robot
         obstacles.append(Body(-(k + 1), np.array([d * math.cos(angle), d * math.sin(angle)]),
                               np.zeros(2), radius))
-    seen = list(_check_perceive(q, q_dot, radii, [1, 2, 3, 4, 5], obstacles, r_det))
+    seen = list(_check_perceive(q, q_dot, radii, [1, 2, 3, 4, 5], obstacles, r_det, robots_per_body))
     robots0, obstacles0 = seen[0]
     assert [b.ident for b in robots0] == [2, 3]
     assert [b.ident for b in obstacles0] == [-1, -3, -5]
@@ -477,6 +591,15 @@ def test_non_finite_torques_are_rejected_and_change_nothing(bad):
         assert np.array_equal(plant.q, q) and np.array_equal(plant.q_dot, q_dot)
         plant.step(0.0, 0.005, np.zeros((3, 4)), None)
         assert np.all(np.isfinite(plant.q))
+
+
+@pytest.mark.parametrize("robots_per_body", [0, MAX_ROBOTS_PER_BODY + 1])
+def test_robots_per_body_out_of_range_is_refused(robots_per_body):
+    sc = load_scenario("lab")
+    q, q_dot = sc.initial_state()
+    with pytest.raises(ValueError, match="robots_per_body"):
+        PybulletPlant([sc.model()] * sc.n, q, q_dot, _zero, [0.2] * sc.n, sc.robot_ids, [],
+                      robots_per_body=robots_per_body)
 
 
 def test_close_disconnects_its_own_client_only():
