@@ -114,6 +114,10 @@ class FleetScene:
         self.history_stride = stride(sc, 1.0 / trace_history_step_s)
         self.recent_steps = int(round(TRACE_RECENT_S / sc.dt))
         self._obstacle_entities = self._obstacles()
+        # per path (robot frame or the leader's): its points by row, built once for the
+        # series they come from (each scene's trace re-sends the path so far: built anew
+        # every scene, the points cost O(k) each time, ~1 s for paper's 720 scenes)
+        self._points: dict[str, tuple[TimeSeries, list[Point3 | None]]] = {}
 
     def time(self, k: int) -> float:
         return k * self.sc.dt
@@ -235,17 +239,32 @@ class FleetScene:
     def _traces(self, ts: TimeSeries, k: int, stamp: Timestamp) -> list[SceneEntity]:
         rows = self._trace_rows(k)
         out = []
-        paths = [(robot_frame(rid), ts.q[rows, i], COLORS[i % len(COLORS)])
+        paths = [(robot_frame(rid), ts.q[:, i], COLORS[i % len(COLORS)])
                  for i, rid in enumerate(self.st.ids)]
-        paths.append((LEADER_FRAME, ts.leader_q[rows], LEADER_COLOR))
+        paths.append((LEADER_FRAME, ts.leader_q, LEADER_COLOR))
         for name, path, col in paths:
-            pts = [Point3(x=float(x), y=float(y), z=0.0) for x, y in path[:, :2]
-                   if math.isfinite(x) and math.isfinite(y)]
+            every = self._points_of(name, ts, path, k)
+            pts = [p for p in map(every.__getitem__, rows.tolist()) if p is not None]
             out.append(SceneEntity(
                 timestamp=stamp, frame_id=WORLD_FRAME, id=f"trace-{name}",
                 lines=[LinePrimitive(type=LinePrimitiveLineType.LineStrip, thickness=2.0,
                                      scale_invariant=True, points=pts, color=_color(col, 0.8))]))
         return out
+
+    def _points_of(self, name: str, ts: TimeSeries, path: np.ndarray, k: int
+                   ) -> list[Point3 | None]:
+        """Rows 0..k of ``path`` as points (None where not finite), kept for ``ts``: a row
+        is final once a scene of it is asked for (a live view's series fills as it goes,
+        so nothing past k is read)."""
+        held = self._points.get(name)
+        if held is None or held[0] is not ts:
+            held = self._points[name] = (ts, [])
+        pts = held[1]
+        if len(pts) <= k:
+            pts += [Point3(x=x, y=y, z=0.0) if math.isfinite(x) and math.isfinite(y) else None
+                    for x, y in path[len(pts):k + 1, :2].tolist()]
+        return pts
+
 
 def _stamp(t: float, offset_ns: int = 0) -> Timestamp:
     ns = max(0, int(round(t * 1e9)) + offset_ns)

@@ -10,6 +10,7 @@ import numpy as np
 
 from deploy.contract.output_paths import rescue_folder, usable_folder
 from deploy.contract.scenario import Scenario
+from deploy.report.figure_process import FigureProcess
 from deploy.report.metrics import compute_metrics, write_metrics
 from deploy.report.run_folder import FIGURE_FILES
 from deploy.report.timeseries import TimeSeries
@@ -44,6 +45,26 @@ def write_run(
     the results: they go to a folder under the temporary directory, said on stderr and in
     ``folder``."""
     out_dir = _usable(out_dir, sc.name)
+    # the figures draw in a process of their own while the rest is written here
+    drawing = FigureProcess() if figures else None
+    try:
+        if drawing is not None:
+            drawing.start(sc, series, out_dir)
+        return _write_run(sc, series, out_dir, plant, clock, wall_time_s, messages, extra,
+                          drawing, contact_log, contacts_total, recorder, step_unix_ns,
+                          t0_unix_ns, steps_asked)
+    finally:
+        if drawing is not None:
+            drawing.stop()
+
+
+def _write_run(sc: Scenario, series: TimeSeries, out_dir: Path, plant: str, clock: str,
+               wall_time_s: float, messages: dict[str, int] | None,
+               extra: dict[str, Any] | None, drawing: FigureProcess | None,
+               contact_log: list[dict[str, Any]] | None, contacts_total: int | None,
+               recorder: McapRecorder | None, step_unix_ns: np.ndarray | None,
+               t0_unix_ns: int | None, steps_asked: int | None) -> dict[str, Any]:
+    figures = drawing is not None
     metrics = compute_metrics(sc, series, plant, clock, wall_time_s, messages, contact_log,
                               contacts_total, steps_asked)
     metrics.update(extra or {})
@@ -61,19 +82,23 @@ def write_run(
         *(FIGURE_FILES if figures else ()), *(["logs/"] if (out_dir / "logs").is_dir() else [])]
     metrics["folder"] = str(out_dir)
     try:
-        _write_files(sc, series, metrics, out_dir, figures)
+        _write_files(sc, series, metrics, out_dir, drawing)
     except OSError as exc:  # the folder went away between the check and the writing
         rescue = _usable(rescue_folder(sc.name), sc.name, f"{out_dir}: {exc.strerror or exc}")
         metrics["folder"] = str(rescue)
-        _write_files(sc, series, metrics, rescue, figures)
+        if drawing is not None:
+            drawing.stop()
+        _write_files(sc, series, metrics, rescue, None, figures)
     return metrics
 
 
 def _write_files(sc: Scenario, series: TimeSeries, metrics: dict[str, Any], out_dir: Path,
-                 figures: bool) -> None:
+                 drawing: FigureProcess | None, figures: bool = False) -> None:
+    """metrics.json and timeseries.npz; the figures from ``drawing`` (the process that
+    draws them into ``out_dir``), or drawn here when it failed or ``figures`` without one."""
     write_metrics(metrics, out_dir / "metrics.json")
     series.save(out_dir / "timeseries.npz")
-    if figures:
+    if (drawing is not None and not drawing.finish()) or (drawing is None and figures):
         # matplotlib costs ~0.4 s to import: only a run that draws loads it
         from deploy.report.figures import write_figures
 

@@ -1,0 +1,63 @@
+"""The run's figures drawn in a process of their own, beside the rest of its outputs.
+
+Drawing the three figures costs ~1.2 s and importing matplotlib ~0.3 s, and the
+recording's scene ~0.8 s more, one after the other at the end of every run that
+writes both (README command 1). On two cores the figures now start as soon as the
+series is known and draw while this process writes the scene, metrics and series.
+The child is spawned (a fresh interpreter: the launcher holds zenoh's and the
+recorder's threads, which a fork would copy in whatever state they were) and ended by
+pid, whatever happens here. Should it fail, the figures are drawn here as before.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import sys
+from pathlib import Path
+from typing import Any
+
+from deploy.contract.scenario import Scenario
+from deploy.report.timeseries import TimeSeries
+
+JOIN_TIMEOUT_S = 120.0  # three figures take ~2 s; a child stuck this long is ended
+
+
+def _draw(sc: Scenario, series: TimeSeries, out_dir: str) -> None:  # in the child
+    from deploy.report.figures import write_figures
+
+    write_figures(sc, series, Path(out_dir))
+
+
+class FigureProcess:
+    """``start`` the figures of a run; ``finish`` waits for them (True: drawn)."""
+
+    def __init__(self) -> None:
+        self._proc: Any = None
+
+    def start(self, sc: Scenario, series: TimeSeries, out_dir: Path) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        self._proc = ctx.Process(target=_draw, args=(sc, series, str(out_dir)),
+                                 name="omnifleet-figures", daemon=True)
+        self._proc.start()
+
+    def finish(self) -> bool:
+        p, self._proc = self._proc, None
+        if p is None:
+            return False
+        try:
+            p.join(JOIN_TIMEOUT_S)
+        finally:
+            if p.is_alive():
+                p.kill()
+                p.join()
+        if p.exitcode != 0:
+            print(f"omnifleet: the figure process ended with {p.exitcode}; drawing them here",
+                  file=sys.stderr, flush=True)
+        return p.exitcode == 0
+
+    def stop(self) -> None:
+        """End the child by pid (an error or Ctrl-C here)."""
+        p, self._proc = self._proc, None
+        if p is not None and p.is_alive():
+            p.kill()
+            p.join()
