@@ -111,7 +111,9 @@ class AgentOutput:
     reset: tuple[str, ...] = ()
 
 
-Bodies = Sequence[Body] | np.ndarray  # Body objects, or rows (ident, x, y, vx, vy, radius)
+# Body objects (or anything with ident, position, velocity, radius: the wire's sensed
+# bodies), or rows (ident, x, y, vx, vy, radius)
+Bodies = Sequence[Body] | np.ndarray
 
 
 class AgentCore:
@@ -211,8 +213,8 @@ class AgentCore:
         nbr, kernel_ages = self.kernel_inputs(shares, ages)
         lead = None if leader is None else (_vec3(leader[0]), _vec3(leader[1]))
         h = self.cfg.dt if dt is None else dt
-        raw = self._law.step(t, qv, qdv, nbr, kernel_ages, lead, body_rows(obstacles),
-                             body_rows(robots), h, h if horizon is None else horizon, speed_cap)
+        raw = self._law.step(t, qv, qdv, nbr, kernel_ages, lead, _bodies(obstacles),
+                             _bodies(robots), h, h if horizon is None else horizon, speed_cap)
         (torques, v_cmd, e, s, q_d, q_fd, zeta, zeta_dot, q0h, v0h, z2, order, errors,
          nonfinite, info_age, input_age, speed, left_out, safety) = raw
         out = AgentOutput(
@@ -243,7 +245,7 @@ class AgentCore:
         nbr, kernel_ages = self.kernel_inputs(shares, ages)
         lead = None if leader is None else (_vec3(leader[0]), _vec3(leader[1]))
         return self._law.plan(out.torques, t, _vec3(q), _vec3(q_dot), nbr,
-                              kernel_ages, lead, body_rows(obstacles), body_rows(robots),
+                              kernel_ages, lead, _bodies(obstacles), _bodies(robots),
                               horizon)
 
     def recover(self, q: np.ndarray | Vec3, q_dot: np.ndarray | Vec3,
@@ -296,6 +298,13 @@ class AgentCore:
             return (tuple(sum(x[i] for x, _ in est) / n for i in range(3)),  # type: ignore[return-value]
                     tuple(sum(v[i] for _, v in est) / n for i in range(3)))
         return (q if _finite(q) else (0.0, 0.0, 0.0)), (0.0, 0.0, 0.0)
+
+
+def _bodies(bodies: Bodies) -> Bodies:
+    """What the kernel reads perceived bodies from: rows as a contiguous float array
+    (checked), or a list of objects with ident, position, velocity and radius (a Body, the
+    wire's sensed body) as it is."""
+    return body_rows(bodies) if isinstance(bodies, np.ndarray) else bodies
 
 
 def _vec3(x: np.ndarray | Vec3 | Sequence[float]) -> Vec3:

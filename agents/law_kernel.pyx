@@ -713,6 +713,27 @@ cdef struct Outputs:
     Filtered safety
 
 
+cdef int _copy_bodies(bodies, double* out) except -1:
+    """Perceived bodies into rows (ident, x, y, vx, vy, radius) at ``out``: a (k, 6) float
+    array as it is, or objects with ``ident``, ``position``, ``velocity`` and ``radius``
+    (the wire's sensed bodies: read here, with no numpy array built for them)."""
+    cdef const double[:, ::1] arr
+    cdef int r
+    cdef double* row
+    if isinstance(bodies, np.ndarray):
+        arr = bodies
+        if arr.shape[0] and arr.shape[1] != 6:
+            raise ValueError("perceived bodies must be rows (ident, x, y, vx, vy, radius)")
+        if arr.shape[0]:
+            memcpy(out, &arr[0, 0], sizeof(double) * 6 * arr.shape[0])
+        return 0
+    for r, b in enumerate(bodies):
+        row = out + 6 * r
+        p, v = b.position, b.velocity
+        row[0], row[1], row[2], row[3], row[4], row[5] = b.ident, p[0], p[1], v[0], v[1], b.radius
+    return 0
+
+
 cdef class Law:
     """One agent's law: its constants (from an AgentConfig) and its state."""
 
@@ -1282,11 +1303,8 @@ cdef class Law:
         n_obs, n_rob = len(obstacles), len(robots)
         x.n_obs, x.n_rob = n_obs, n_rob
         x.bodies = self._bodies(n_obs + n_rob)
-        for i, arr in enumerate((obstacles, robots)):
-            if arr.shape[0] and arr.shape[1] != 6:
-                raise ValueError("perceived bodies must be rows (ident, x, y, vx, vy, radius)")
-            memcpy(x.bodies + (6 * n_obs if i else 0), &arr[0, 0] if arr.shape[0] else NULL,
-                   sizeof(double) * 6 * arr.shape[0])
+        _copy_bodies(obstacles, x.bodies)
+        _copy_bodies(robots, x.bodies + 6 * n_obs)
         self._room(1 + n_obs + n_rob, n_obs + n_rob)
         return 0
 

@@ -38,7 +38,6 @@ from deploy.contract.wire import (
     LeaderState,
     Reply,
     Sample,
-    SensedBody,
     ShareData,
     Telemetry,
     TelemetryRow,
@@ -52,7 +51,6 @@ from deploy.runtime.lockstep_inputs import AgentLinks
 from deploy.runtime.node_runtime import ControlInbox, FaultGate, StopFlag, Timing, publish_report
 from deploy.runtime.step_guard import CLOCK_SKEW_S, JUMP_OK, OwnClock, StepGuard
 from deploy.runtime.transport import Node
-from plant.bodies import NO_BODIES
 
 KEEP_STEPS = 4  # lockstep inputs kept behind the current step
 FORGET_EVERY = 32  # lockstep: older inputs are dropped every this many steps (a scan)
@@ -87,13 +85,6 @@ def share_from_msg(m: Reply) -> ShareData:
     """The share as the core takes it: the wire's :class:`ShareData` as it is (it has
     every field of :class:`agents.core.Share`, as float tuples; the core reads fields)."""
     return m.share
-
-
-def body_rows_of(bodies: list[SensedBody]) -> np.ndarray:
-    """Sensed bodies as the law takes them: rows (ident, x, y, vx, vy, radius)."""
-    if not bodies:
-        return NO_BODIES
-    return np.array([(b.ident, *b.position, *b.velocity, b.radius) for b in bodies], dtype=float)
 
 
 def realtime_ages(state: Sample, leader: LeaderPoint | None,
@@ -379,8 +370,8 @@ class AgentNode:
                  ) -> tuple[AgentOutput, list[Vec4]]:
         """The step's output and its look-ahead torques (empty when off); ``horizon``,
         ``speed_cap``: the realtime loop's pace (agents/pace.py)."""
-        robots = body_rows_of(state.robots)
-        obstacles = body_rows_of(state.obstacles)
+        # the wire's sensed bodies as they are: the kernel reads their fields
+        robots, obstacles = state.robots, state.obstacles
         lead = (leader.q, leader.q_dot) if leader is not None else None
         if self.hears_leader and lead is None:  # never heard it yet: use own estimate
             lead = (self.core.q0_hat_vec, self.core.v0_hat_vec)
@@ -475,11 +466,13 @@ class AgentNode:
             del inp.shares[key]
 
     # -- realtime -----------------------------------------------------------------
-    def run_realtime(self, t0_mono: float | None, telemetry_hz: float = TELEMETRY_HZ) -> None:
+    def run_realtime(self, t0_mono: float | None, telemetry_hz: float = TELEMETRY_HZ,
+                     steps: int | None = None) -> None:
         """``t0_mono`` None: this agent rejoins a running fleet (restarted after a
         crash): t = 0 is read from the plant's first state, and the leader
         estimate and reference restart from what the leader or neighbours say
-        (:meth:`_resync`)."""
+        (:meth:`_resync`). ``steps``: the run's (the scenario's unless said)."""
+        steps = self.sc.steps if steps is None else steps
         inp, box, dt = self.inputs, self.node.mailbox, self.sc.dt
         # telemetry is for people and the recorder: at most telemetry_hz, so the
         # control traffic keeps the CPU (the run's series fill the gaps forward)
@@ -516,7 +509,8 @@ class AgentNode:
                 # no new state for 1.5 periods: stepping again on the old one would
                 # integrate the observer on stale data; wait (the plant zeroes our
                 # torques after its command timeout) and count the miss
-                self.timing.deadline_misses += 1
+                if last_k < steps - 1:  # after the run's last sample only `end` is to come
+                    self.timing.deadline_misses += 1
                 continue
             if synced and (now - t0_mono) - state.t > stale_after:
                 # a sample older than the inputs stay fresh, by our clock: the backlog

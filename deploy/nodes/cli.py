@@ -185,11 +185,11 @@ def _cmd_agent(args: argparse.Namespace) -> int:
 
     def realtime(obj, sc):
         if args.rejoin:  # the start was announced long ago: t = 0 comes from the plant
-            obj.run_realtime(None)
+            obj.run_realtime(None, steps=steps_of(sc, args))
             return
         t0 = obj.control.wait_for_start(args.startup_timeout)
         if t0 is not None:
-            obj.run_realtime(t0)
+            obj.run_realtime(t0, steps=steps_of(sc, args))
 
     return run_node(args, agent_role(args.robot), args.robot, build,
                      lambda obj, sc: obj.run_lockstep(args.step_deadline), realtime)

@@ -305,6 +305,10 @@ class PlantNode:
                     self.steps_done += 1
             self._publish_world(k, k * dt)
             k_prev = k
+            if k == steps - 1:
+                # the last sample is out: say end now, not a period later (the agents
+                # waited that period for a sample that never came, each counting a miss)
+                break
         self.flush_log()
         self._control("end", self.steps_done, self.steps_done * dt)
 
