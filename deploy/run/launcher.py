@@ -36,7 +36,7 @@ from deploy.run.plan import LaunchOptions, endpoint_of, key_roles, plan_run
 from deploy.run.run_figures import run_figures
 from deploy.run.supervisor import Interrupted, RunFailed, Supervisor
 from deploy.runtime.datagrams import DatagramPath
-from deploy.runtime.node_runtime import START_LEAD_S, StopFlag
+from deploy.runtime.node_runtime import START_LEAD_S, LoopClock, StopFlag
 from deploy.runtime.plants import CAN_EMULATED
 from deploy.runtime.transport import Node, zenoh_config
 
@@ -98,6 +98,7 @@ class Launcher:
         self.steps = opts.steps(sc)
         self.kills = KillSchedule(opts.faults.kills if opts.faults else ())
         self.truth_files: dict[int, Path] = {}  # can-emulated: each emulator's ground truth
+        self.loop_clock = LoopClock()
 
     def run(self, progress: Progress = None) -> dict[str, Any]:
         """Run to the end; returns the figures the launcher adds to metrics.json.
@@ -138,7 +139,8 @@ class Launcher:
                     sup.stop_all()  # by pid, before the launcher leaves the fleet
         finally:
             shutil.rmtree(run_dir, ignore_errors=True)
-        return run_figures(obs, sup.children, zid, wall, o.faults, self.kills.events)
+        return run_figures(obs, sup.children, zid, wall, o.faults, self.kills.events,
+                           listener_cpu=self.loop_clock)
 
     def _run_fleet(self, node: Node, endpoint: str, run_dir: Path, progress: Progress) -> float:
         """Start the fleet, supervise it to the end and collect its reports; returns
@@ -151,9 +153,10 @@ class Launcher:
         roles = [c.role for c in plan.children if c.zenoh]
         self._wait_ready(node, roles)
         start = time.perf_counter()
-        if o.plant == CAN_EMULATED:
-            self._announce_start(node)
-        self._supervise(node, progress)
+        with self.loop_clock:  # this process's CPU over the run (it hears the whole fleet)
+            if o.plant == CAN_EMULATED:
+                self._announce_start(node)
+            self._supervise(node, progress)
         wall = time.perf_counter() - start
         if progress is not None:  # the steps the plant says it simulated, no more
             progress(self.observer.progress_k + 1, self.steps)

@@ -16,7 +16,7 @@ from deploy.contract.wire import LAUNCHER_ROLE, PLANT_ROLE, NodeReport, agent_ro
 from deploy.run.observer import Observer
 from deploy.run.plan import Child
 from deploy.runtime.fault_model import fault_metrics, merge_reports
-from deploy.runtime.node_runtime import peak_rss_kb
+from deploy.runtime.node_runtime import LoopClock, peak_rss_kb
 
 
 def agent_figures(agents: list[NodeReport | None]) -> dict[str, Any]:
@@ -78,7 +78,7 @@ def message_figures(reports: dict[str, NodeReport], obs: Observer) -> dict[str, 
 
 
 def process_rows(children: list[Child], reports: dict[str, NodeReport],
-                 listener_zid: str) -> list[dict[str, Any]]:
+                 listener_zid: str, listener_cpu: LoopClock | None = None) -> list[dict[str, Any]]:
     """One row per process started (and one for the listener itself): pid, peak memory,
     exit, and who it had a link with, from its own zenoh session (ids -> roles)."""
     role_of = {r.zid: role for role, r in reports.items() if r.zid}
@@ -97,12 +97,15 @@ def process_rows(children: list[Child], reports: dict[str, NodeReport],
                      else None})
     rows.append({"role": LAUNCHER_ROLE, "robot": None, "pid": os.getpid(),
                  "peak_rss_mb": round(peak_rss_kb() / 1024.0, 1), "exit_code": None,
-                 "reported": True})
+                 "reported": True,
+                 "cpu_s": None if listener_cpu is None else round(listener_cpu.cpu_s, 3),
+                 "loop_s": None if listener_cpu is None else round(listener_cpu.loop_s, 3)})
     return rows
 
 
 def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: float,
                 faults: FaultPlan | None = None, kill_events: list[dict] | None = None,
+                listener_cpu: LoopClock | None = None,
                 expected_roles: list[str] | None = None) -> dict[str, Any]:
     """Everything a run adds to metrics.json beside its series and scene.
     ``expected_roles``: the nodes that must report (default: the zenoh nodes among
@@ -110,7 +113,8 @@ def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: f
     sc = obs.sc
     reports: dict[str, NodeReport] = dict(obs.collector.reports)
     out: dict[str, Any] = {"wall_time_s": wall, "messages": message_figures(reports, obs),
-                           "processes": process_rows(children, reports, listener_zid)}
+                           "processes": process_rows(children, reports, listener_zid,
+                                                     listener_cpu)}
     # per robot, in the scenario's order (None: its agent's report never came); a
     # restarted agent reports for its second life too (the collector keeps the last)
     out |= agent_figures([reports.get(agent_role(r)) for r in sc.robot_ids])
