@@ -58,6 +58,10 @@ WHAT = {Sample: "sample", Reply: "reply", LeaderState: "leader", Control: "contr
         NodeReport: "report", Telemetry: "telemetry", StateLog: "state log"}
 
 
+# zenoh's connect retry: period_init_ms 1000 by default (then x2, up to 4 s)
+CONNECT_RETRY = {"period_init_ms": 50, "period_max_ms": 2000, "period_increase_factor": 2}
+
+
 class TransportError(RuntimeError):
     """Bad endpoint or zenoh configuration (exit code 2 at the CLI)."""
 
@@ -89,6 +93,9 @@ def zenoh_config(
             cfg = zenoh.Config()
             cfg.insert_json5("mode", '"peer"')
             cfg.insert_json5("scouting/multicast/enabled", "false")
+            # a peer dialled before it listens (the nodes of a run start at once) is
+            # dialled again after 50 ms, not zenoh's default 1 s (a run's start-up)
+            cfg.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
             if not gossip:
                 cfg.insert_json5("scouting/gossip/enabled", "false")
             if lowlatency:
