@@ -135,10 +135,14 @@ class LeaderGenerator:
 
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """(q0, v0) at t_k."""
-        t = self.t
-        q0 = np.array([self._pos[0], self._pos[1], self._heading])
-        v0 = np.array([self._vel[0], self._vel[1], self._heading_rate(t)])
-        return q0, v0
+        q0, v0 = self.state_floats()
+        return np.array(q0), np.array(v0)
+
+    def state_floats(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """(q0, v0) at t_k as float tuples (what the law and the wire take: no arrays built
+        to be unpacked again, every step)."""
+        return ((self._pos[0], self._pos[1], self._heading),
+                (self._vel[0], self._vel[1], self._heading_rate(self.t)))
 
     def advance(self) -> None:
         t_next = (self.k + 1) * self.dt

@@ -30,7 +30,8 @@ from deploy.contract.options import EXIT_BAD_INPUT, add_option
 from deploy.contract.output_paths import check_folder
 from deploy.contract.scaled_scenarios import scale_scenario
 
-BENCH_VERSION = 3  # 3: compiled kernels: in-process wall, per robot-step CPU, lab and CAN at speed
+BENCH_VERSION = 4  # 4: the local data path against zenoh, CPU per step of each process
+# 3: compiled kernels: in-process wall, per robot-step CPU, lab and CAN at speed
 # 2: wire v2 codec figures, README command 1, realtime paper, largest N
 SCALE_SIZES = (3, 10, 20, 30)
 
@@ -98,6 +99,21 @@ class Figure:
 
 class FleetRunFailed(RuntimeError):
     pass
+
+
+def cpu_per_step(m: dict[str, Any]) -> dict[str, float | None]:
+    """CPU per step of a distributed run's processes (metrics.json ``processes[].cpu_s``,
+    µs): the plant, the busiest agent, the leader, the launcher, all of them."""
+    steps = max(1, m["steps"])
+    rows = {p["role"]: p.get("cpu_s") for p in m["processes"]}
+    agents = [v for r, v in rows.items() if r.startswith("agent-") and v is not None]
+
+    def us(v: float | None) -> float | None:
+        return None if v is None else v / steps * 1e6
+
+    return {"plant": us(rows.get("plant")), "agent_max": us(max(agents, default=None)),
+            "leader": us(rows.get("leader")), "launcher": us(rows.get("launcher")),
+            "all": us(sum(v for v in rows.values() if v is not None) or None)}
 
 
 class Bench:
@@ -209,6 +225,14 @@ class Bench:
                           "simulated / wall time of the run", (">=", 2.0))
         ratio = self.figure("lockstep.paper_ratio_to_in_process", "x",
                             "the same run's wall time / the in-process run's, back to back")
+        cpu = {who: self.figure(f"lockstep.paper_cpu_us_per_step.{who}", "µs",
+                                f"the same run: CPU of {what} (every thread) over the run "
+                                "loop, per step")
+               for who, what in (("plant", "the plant process"),
+                                 ("agent_max", "the busiest agent process"),
+                                 ("leader", "the leader process"),
+                                 ("launcher", "the launcher (hearing the series)"),
+                                 ("all", "every process of the run"))}
 
         def body() -> None:
             for _ in range(self.s.repeats):
@@ -216,9 +240,33 @@ class Bench:
                 i = self.run_fleet("paper", "--in-process", *dur)
                 rtf.samples.append(d["real_time_factor"])
                 ratio.samples.append(d["wall_time_s"] / i["wall_time_s"])
+                for who, us in cpu_per_step(d).items():
+                    cpu[who].add(us, "no CPU time reported")
 
         self.measure("lockstep paper (pybullet, distributed and in process)", body, rtf.name,
-                     ratio.name)
+                     ratio.name, *(f.name for f in cpu.values()))
+
+    def data_path(self) -> None:
+        """The same lockstep run with its per-step data on the local data path (unix
+        sockets, the default on one host) and on zenoh (as between hosts), back to back."""
+        dur = ("--duration", str(self.s.paper_s), "--plant", "model")
+        local = self.figure("datapath.local_wall_s", "s",
+                            f"paper, model plant, {self.s.paper_s:g} s simulated, lockstep, "
+                            "per-step data on the local data path (--data-path datagram)")
+        zen = self.figure("datapath.zenoh_wall_s", "s", "the same with every message on zenoh "
+                          "(--data-path zenoh)")
+        ratio = self.figure("datapath.zenoh_over_local", "x", "zenoh / local, back to back")
+
+        def body() -> None:
+            for _ in range(self.s.repeats):
+                a = self.run_fleet("paper", *dur, "--data-path", "datagram")["wall_time_s"]
+                b = self.run_fleet("paper", *dur, "--data-path", "zenoh")["wall_time_s"]
+                local.samples.append(a)
+                zen.samples.append(b)
+                ratio.samples.append(b / a)
+
+        self.measure("the local data path against zenoh (paper, model plant)", body,
+                     local.name, zen.name, ratio.name)
 
     def realtime_fast(self) -> None:
         """lab at 1 kHz on the realtime clock, and the CAN fleet (a bridge per robot, the
@@ -454,6 +502,7 @@ class Bench:
         """The benchmarks by name, in the order a full run takes them."""
         return {"costs": self.costs, "in-process": self.in_process,
                 "lockstep": self.lockstep_overhead, "lockstep-paper": self.lockstep_paper,
+                "data-path": self.data_path,
                 "paper-run": self.paper_run, "rtf500": self.lockstep_rtf_500,
                 "realtime": self.realtime_loop, "realtime-fast": self.realtime_fast,
                 "realtime-paper": self.realtime_paper, "scale": self.scale}
@@ -577,8 +626,8 @@ def add_bench_command(sub: argparse._SubParsersAction) -> None:
     add_option(p, "--repeats")
     p.add_argument("--only", metavar="GROUP[,GROUP]",
                    help="run only these groups: costs, in-process, lockstep, lockstep-paper, "
-                   "paper-run, rtf500, realtime, realtime-fast, realtime-paper, scale (memory is "
-                   "always judged on the fleet runs made)")
+                   "data-path, paper-run, rtf500, realtime, realtime-fast, realtime-paper, scale "
+                   "(memory is always judged on the fleet runs made)")
     p.add_argument("--scale-sizes", type=scale_sizes, default=SCALE_SIZES, metavar="N[,N]",
                    help="the fleet sizes of the scale group (default: "
                    f"{','.join(map(str, SCALE_SIZES))}; the n30 targets apply to N = 30)")

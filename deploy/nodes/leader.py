@@ -49,9 +49,9 @@ class LeaderNode:
         k = self.k_next
         qs, vs = [], []
         for _ in range(count):
-            q, v = self.generator.state()
-            qs.append(tuple(q.tolist()))
-            vs.append(tuple(v.tolist()))
+            q, v = self.generator.state_floats()
+            qs.append(q)
+            vs.append(v)
             self.generator.advance()
         sent = self.node.publish(self.node.keys.leader_state, lambda seq, stamp: LeaderState(
             WIRE_VERSION, 0, seq, stamp, k=k, t=k * self.sc.dt, q=qs, q_dot=vs))

@@ -81,6 +81,9 @@ def run_in_process(
         plant.close()
 
 
+PROGRESS_EVERY = 16  # steps between progress calls (a live view reads the rows up to there)
+
+
 def _run(sc: Scenario, plant, plant_kind: str, steps: int,
          progress: Callable[[int, int], None] | None, model: FaultModel,
          on_series: Callable[[TimeSeries], None] | None = None) -> RunResult:
@@ -125,7 +128,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
         for k in range(steps):
             step_unix_ns[k] = time.time_ns()
             t = k * dt
-            q0, v0 = leader.state()
+            q0, v0 = leader.state_floats()
             leaders[k] = (q0, v0)
             qs, qds = plant.q.tolist(), plant.q_dot.tolist()
             worlds[k] = world_k = [(tuple(q), tuple(qd), *seen)
@@ -155,10 +158,10 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                 law_resets[i] += bool(out.reset)
                 series.record_agent(k, i, out, agent)
             series.record_world(k, t, q0, v0, plant.q, plant.q_dot)
-            for i, rid in enumerate(ids):
-                if fault_free:  # its own command of step k
-                    torques[i], v_cmd[i] = commands_k[rid][0], commands_k[rid][1]
-                    continue
+            if fault_free:  # each robot's own command of step k, in one assignment each
+                torques[:] = [commands_k[rid][0] for rid in ids]
+                v_cmd[:] = [commands_k[rid][1] for rid in ids]
+            for i, rid in enumerate(() if fault_free else ids):
                 cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get(idx, {}).get(rid))
                 if cmd is None:
                     continue
@@ -171,7 +174,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
             leader.advance()
             for by_step in (worlds, leaders, shares, commands):
                 by_step.pop(k - keep, None)
-            if progress is not None:
+            if progress is not None and (k % PROGRESS_EVERY == 0 or k + 1 == steps):
                 progress(k + 1, steps)
             done = k + 1
     except KeyboardInterrupt:

@@ -45,6 +45,9 @@ EXPECTED = {
     "lockstep.paper_real_time_factor", "lockstep.paper_ratio_to_in_process",
     "realtime.lab_1khz_latency_p99_ms", "realtime.lab_1khz_contacts",
     "realtime.can_fleet_jitter_p99_ms", "realtime.can_fleet_settling_max_s",
+    "datapath.local_wall_s", "datapath.zenoh_wall_s", "datapath.zenoh_over_local",
+    *(f"lockstep.paper_cpu_us_per_step.{w}" for w in ("plant", "agent_max", "leader",
+                                                      "launcher", "all")),
 }
 TARGETS = {"lockstep.overhead_ratio": "<= 1.5", "lockstep.real_time_factor_500hz": ">= 10",
            "realtime.latency_p99_ms": "<= 1", "realtime.jitter_p99_ms": "<= 0.5",
@@ -84,6 +87,12 @@ def test_quick_bench_writes_every_figure(tmp_path):
     assert figures["lockstep.overhead_ratio"]["median"] == pytest.approx(
         figures["lockstep.distributed_wall_s"]["median"]
         / figures["lockstep.in_process_wall_s"]["median"])
+    assert figures["datapath.zenoh_over_local"]["median"] == pytest.approx(
+        figures["datapath.zenoh_wall_s"]["median"] / figures["datapath.local_wall_s"]["median"])
+    cpu = {w: figures[f"lockstep.paper_cpu_us_per_step.{w}"]["median"]
+           for w in ("plant", "agent_max", "leader", "launcher", "all")}
+    assert all(v > 0 for v in cpu.values()), cpu  # every process reported its CPU
+    assert cpu["all"] >= cpu["plant"] + cpu["agent_max"] + cpu["leader"] + cpu["launcher"]
     table = (tmp_path / "bench.md").read_text()
     assert table == markdown(report)
     assert all(name in table for name in EXPECTED)
