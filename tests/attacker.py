@@ -53,7 +53,7 @@ from deploy.contract.wire import (
     encode,
     run_roles,
 )
-from deploy.runtime.datagrams import DATA_KINDS, SOCKET_SUFFIX, DatagramPath
+from deploy.runtime.datagrams import DATA_KINDS, DatagramPath
 
 ZERO3 = (0.0, 0.0, 0.0)
 READY_TIMEOUT_S = 60.0
@@ -101,19 +101,25 @@ class Attacker:
             self._listener.start()
 
     # -- listening: what step the fleet is at --------------------------------------
-    def watch_samples(self, robot: int) -> None:
-        """Keep the newest sample of ``robot`` (the fleet's step, as a forger learns it)."""
-        if robot in self._watched:
+    def watch_samples(self, *robots: int) -> None:
+        """Keep the newest sample of each of ``robots`` (the fleet's step, as a forger
+        learns it)."""
+        new = [r for r in robots if r not in self._watched]
+        if not new:
             return
-        self._watched.add(robot)
-
-        self._subs.append(self.session.declare_subscriber(
-            self.keys.sample(robot), lambda s: self._heard(robot, s.payload.to_bytes())))
+        self._watched.update(new)
+        for robot in new:
+            self._subs.append(self.session.declare_subscriber(
+                self.keys.sample(robot),
+                lambda s, robot=robot: self._heard(robot, s.payload.to_bytes())))
         if self.datagrams is not None:
-            self.datagrams.hear([self.keys.sample(robot)])
-            if self._token is None:  # the nodes read who hears what when a peer appears
-                self._token = self.session.liveliness().declare_token(
-                    self.keys.alive(self.datagrams.role))
+            self.datagrams.hear([self.keys.sample(r) for r in new])
+            # the nodes read who hears what when a peer appears or goes: all the keys
+            # first, then the token (declared again when keys are added later)
+            if self._token is not None:
+                self._token.undeclare()
+            self._token = self.session.liveliness().declare_token(
+                self.keys.alive(self.datagrams.role))
 
     def _heard(self, robot: int, data: bytes) -> None:  # zenoh's or the listener's thread
         m = self.codec.decode(Sample, _payload_of(data), robot)
@@ -332,12 +338,14 @@ def fleet_under_attack(scenario: str, out: Path, *args: str, robots: int = 3
             time.sleep(0.02)  # polling for files other processes create
         session = zenoh.open(zenoh_config(connect=list(endpoints.values()), gossip=False))
         run_dir = socks[0].parent if socks else None
+        # the run's data goes over its datagram path unless it was told otherwise (its
+        # nodes' sockets may not be bound yet: they are not what says so)
+        on_zenoh = any(a == "--data-path" and b == "zenoh" for a, b in zip(args, args[1:]))
         dgram = (DatagramPath(run_dir, f"prober-{os.getpid()}", lossless=False)
-                 if run_dir is not None and any(run_dir.glob("*" + SOCKET_SUFFIX)) else None)
+                 if run_dir is not None and not on_zenoh else None)
         attacker = Attacker(fleet, session, load_scenario(scenario), endpoints=endpoints,
                             datagrams=dgram)
-        for r in range(1, robots + 1):  # declared before the fleet starts stepping
-            attacker.watch_samples(r)
+        attacker.watch_samples(*range(1, robots + 1))  # before the fleet starts stepping
         roles = {"plant", "leader", *(f"agent-{r}" for r in range(1, robots + 1))}
         _wait_ready(attacker, roles, proc, READY_TIMEOUT_S)
         yield proc, attacker
