@@ -27,7 +27,12 @@ from deploy.runtime.node_runtime import (
     die_with_parent,
     install_signal_handlers,
 )
-from deploy.runtime.priority import REALTIME_PRIORITY, add_priority_argument, raise_priority
+from deploy.runtime.priority import (
+    REALTIME_PRIORITY,
+    add_priority_argument,
+    batch_scheduling,
+    raise_priority,
+)
 from deploy.runtime.transport import Node, zenoh_config
 
 EXIT_PEER_LOST = 3
@@ -100,7 +105,11 @@ def gui_problem(plant_kind: str, gui: bool) -> str | None:
     return None
 
 
-def run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, realtime) -> int:
+def run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, realtime,
+             batch: bool = False) -> int:
+    """One node's life: keys, peer, handshake, its loop on the run's clock, its report.
+    ``batch``: on the lockstep clock the node runs under SCHED_BATCH (the agents: see
+    deploy/runtime/priority.py)."""
     sc = run_scenario(args)
     try:  # read first: the pipe's write end is the launcher's, whatever happens next
         keyring = keyring_of(args, sc, role)
@@ -126,6 +135,8 @@ def run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, 
         node.note_links()  # the links of the run (at its end, peers leave one by one)
         with LOOP:
             if args.clock == "lockstep":
+                if batch:
+                    batch_scheduling()
                 lockstep(obj, sc)
             else:
                 realtime(obj, sc)
@@ -192,7 +203,7 @@ def _cmd_agent(args: argparse.Namespace) -> int:
             obj.run_realtime(t0, steps=steps_of(sc, args))
 
     return run_node(args, agent_role(args.robot), args.robot, build,
-                     lambda obj, sc: obj.run_lockstep(args.step_deadline), realtime)
+                     lambda obj, sc: obj.run_lockstep(args.step_deadline), realtime, batch=True)
 
 
 def _cmd_plant(args: argparse.Namespace) -> int:
