@@ -22,6 +22,19 @@ from deploy.report.timeseries import TimeSeries
 JOIN_TIMEOUT_S = 120.0  # three figures take ~2 s; a child stuck this long is ended
 
 
+def _end_resource_tracker() -> None:
+    """Starting a spawned child started multiprocessing's resource tracker, a process of
+    its own that ends only when it reads the end of its pipe: after this process has
+    exited, as an orphan its parent is no longer there to reap. End it now, by its pid
+    (the standard library's own stop: close the pipe, wait for the pid); it starts again
+    if anything here needs it."""
+    from multiprocessing import resource_tracker
+
+    stop = getattr(resource_tracker._resource_tracker, "_stop", None)
+    if stop is not None:
+        stop()
+
+
 def _draw(sc: Scenario, series: TimeSeries, out_dir: str) -> None:  # in the child
     from deploy.report.figures import write_figures
 
@@ -50,6 +63,7 @@ class FigureProcess:
             if p.is_alive():
                 p.kill()
                 p.join()
+            _end_resource_tracker()
         if p.exitcode != 0:
             print(f"omnifleet: the figure process ended with {p.exitcode}; drawing them here",
                   file=sys.stderr, flush=True)
@@ -61,3 +75,5 @@ class FigureProcess:
         if p is not None and p.is_alive():
             p.kill()
             p.join()
+        if p is not None:
+            _end_resource_tracker()
