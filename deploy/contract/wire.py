@@ -378,6 +378,7 @@ class Codec:
     def __init__(self, robot_ids: list[int] | tuple[int, ...]) -> None:
         self.robot_ids = frozenset(robot_ids)
         self._decoders = {t: msgspec.msgpack.Decoder(t) for t in MESSAGE_TYPES}
+        self._by_subscription: dict[tuple[type, int | None], Callable[[bytes], Any]] = {}
         self.wrong_version = 0  # refused: a header of another wire version
         self.versions_seen: set[int] = set()  # those versions (a mixed install)
 
@@ -405,15 +406,27 @@ class Codec:
 
     def decoder_for(self, kind: type[Message], robot: int | None = None
                     ) -> Callable[[bytes], Any]:
-        """``lambda data: self.decode(kind, data, robot)``, specialised once for a
-        subscription: the same checks without looking up what they are on every message
-        (a sample, a reply: every step)."""
-        if kind not in (Sample, Reply) or robot is None or robot not in self.robot_ids:
-            return lambda data: self.decode(kind, data, robot)
+        """``lambda data: self.decode(kind, data, robot)``, its checks chosen once for
+        ``kind`` and ``robot`` (a subscription: a sample, a reply every step) rather than
+        looked up on every message. Kept per (kind, robot) of the run's robots."""
+        known = robot is None or robot in self.robot_ids
+        found = self._by_subscription.get((kind, robot)) if known else None
+        if found is None:
+            found = self._decoder(kind, robot)
+            if known:
+                self._by_subscription[(kind, robot)] = found
+        return found
+
+    def _decoder(self, kind: type[Message], robot: int | None) -> Callable[[bytes], Any]:
         dec, ids, note = self._decoders[kind].decode, self.robot_ids, self._note_version
         errors = (msgspec.DecodeError, ValueError, TypeError)
+        max_bytes = MAX_REPORT_BYTES if kind is NodeReport else None
+        field = kind.ROBOT_FIELD
+        sample, state_log = kind is Sample, kind is StateLog
 
         def decode_one(data: bytes) -> Any:
+            if max_bytes is not None and len(data) > max_bytes:
+                return None
             try:
                 msg = dec(data)
             except errors:
@@ -422,42 +435,25 @@ class Codec:
             if msg.v != WIRE_VERSION:
                 note(data)
                 return None
-            if msg.seq < 0 or msg.robot != robot:
+            if msg.seq < 0:
                 return None
-            if kind is Sample:
+            if field is not None:
+                rid = getattr(msg, field)
+                if rid not in ids or (robot is not None and rid != robot):
+                    return None
+            if sample:
                 for b in msg.robots:
                     if b.ident >= 0 and b.ident not in ids:
                         return None
+            if state_log and not ids.issuperset(msg.robots):
+                return None
             return msg
         return decode_one
 
     def decode(self, kind: type[Message], data: bytes, robot: int | None = None) -> Any:
         """The message, or None when it is invalid (never raises). A report larger
         than ``MAX_REPORT_BYTES`` is refused before it is decoded."""
-        if kind is NodeReport and len(data) > MAX_REPORT_BYTES:
-            return None
-        try:
-            msg = self._decoders[kind].decode(data)
-        except (msgspec.DecodeError, ValueError, TypeError):
-            self._note_version(data)
-            return None
-        if msg.v != WIRE_VERSION:
-            self._note_version(data)
-            return None
-        if msg.seq < 0:
-            return None
-        field = kind.ROBOT_FIELD
-        if field is not None:
-            rid = getattr(msg, field)
-            if rid not in self.robot_ids or (robot is not None and rid != robot):
-                return None
-        if kind is Sample and any(
-            b.ident >= 0 and b.ident not in self.robot_ids for b in msg.robots
-        ):
-            return None
-        if kind is StateLog and not self.robot_ids.issuperset(msg.robots):
-            return None
-        return msg
+        return self.decoder_for(kind, robot)(data)
 
 
 class FleetNameError(ValueError):

@@ -261,8 +261,7 @@ class PlantNode:
         with self.node.mailbox.lock:
             for i, rid in enumerate(self.ids):
                 cmd = commands.get((rid, k))
-                if cmd is not None and links[i].edge is None:  # in, and no fault on its link
-                    links[i].value, links[i].k_value = cmd, k
+                if cmd is not None and links[i].take_present(k, cmd):  # in, on a sound link
                     self.torques[i], self.v_cmd[i] = self.bounds.applied(cmd.torques, cmd.v_cmd)
                     continue
                 if cmd is None:

@@ -240,9 +240,7 @@ class DatagramPath:
         while True:
             try:
                 c, _ = self.sock.accept()
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError:
+            except OSError:  # none waiting (BlockingIOError), or closed
                 return
             c.setblocking(False)
             fd = c.fileno()

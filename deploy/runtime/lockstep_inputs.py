@@ -58,6 +58,15 @@ class HeldInput(Generic[T]):
         age = k_nominal - self.k_value if self.k_value is not None else 0
         return self.value, age
 
+    def take_present(self, k: int, sample: T) -> bool:
+        """What :meth:`take` does with step ``k``'s own sample in hand on a link without
+        faults (it is used, age 0), without a lookup; False, nothing taken, on a faulty
+        link or before the first step (:meth:`take` decides then)."""
+        if self.edge is not None or k < self.first_k:
+            return False
+        self.value, self.k_value = sample, k
+        return True
+
 
 W = TypeVar("W")  # what the plant sends a robot (state and perception together)
 L = TypeVar("L")  # a leader sample

@@ -182,6 +182,21 @@ def test_held_input_with_delay_uses_the_sample_lag_steps_back(paper):
     assert model.report()["leader->agent-1"]["delayed"] == 2
 
 
+def test_take_present_is_take_on_a_sound_link_and_declines_a_faulty_one(paper):
+    """The plant's shortcut for a command in hand leaves the link as ``take`` would."""
+    plan = decode_plan("[[link]]\nfrom='leader'\npartitions=[[0.002, 0.005]]\n", paper)
+    model = FaultModel(plan, 0.001)
+    sound: HeldInput[str] = HeldInput(model, None, exempt_first=False)
+    by_take: HeldInput[str] = HeldInput(model, None, exempt_first=False)
+    for k in range(4):
+        assert sound.take_present(k, f"s{k}")
+        assert by_take.take(k, lambda i: f"s{i}") == (f"s{k}", 0)
+        assert (sound.value, sound.k_value) == (by_take.value, by_take.k_value)
+    faulty: HeldInput[str] = HeldInput(model, model.edge("leader", "agent-1"))
+    assert not faulty.take_present(0, "s0")
+    assert (faulty.value, faulty.k_value) == (None, None)
+
+
 # -- degradation math -----------------------------------------------------------------------
 def test_predict_and_freshest_source_ages_add_along_the_graph():
     assert predict((1.0, 2.0, 0.5), (2.0, -1.0, 0.1), 0.5) == (2.0, 1.5, 0.55)
