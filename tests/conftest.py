@@ -31,6 +31,24 @@ def paper():
     return load_scenario("paper")
 
 
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    """A pytest-xdist worker (tests/suite.py) hands its fuzz tally to the controller."""
+    out = getattr(session.config, "workeroutput", None)
+    if out is not None:
+        from fuzzing import TALLY
+
+        out["fuzz_tally"] = {name: vars(t) for name, t in TALLY.by_decoder.items()}
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error) -> None:
+    """pytest-xdist's controller: add a finished worker's fuzz tally to its own."""
+    from fuzzing import TALLY
+
+    for name, counts in getattr(node, "workeroutput", {}).get("fuzz_tally", {}).items():
+        TALLY.add(name, **counts)
+
+
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
     """Inputs tried per decoder by the fuzz tests (tests/fuzzing.py), when any ran."""
     from fuzzing import TALLY

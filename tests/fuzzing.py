@@ -64,7 +64,7 @@ class DecoderTally:
 
 @dataclass
 class Tally:
-    """Inputs tried per decoder in this pytest process."""
+    """Inputs tried per decoder in this pytest process (and its workers', added at their end)."""
 
     by_decoder: dict[str, DecoderTally] = field(default_factory=dict)
 
@@ -75,6 +75,13 @@ class Tally:
             t.accepted += 1
         else:
             t.rejected += 1
+
+    def add(self, decoder: str, tried: int, accepted: int, rejected: int) -> None:
+        """Counts from another process (a pytest-xdist worker)."""
+        t = self.by_decoder.setdefault(decoder, DecoderTally())
+        t.tried += tried
+        t.accepted += accepted
+        t.rejected += rejected
 
     def lines(self) -> list[str]:
         width = max((len(k) for k in self.by_decoder), default=0)

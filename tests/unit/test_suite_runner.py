@@ -1,0 +1,43 @@
+"""The two-phase suite (tests/suite.py): every test runs in exactly one phase, and the
+suite's status is a failing phase's."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+from _pytest.mark.expression import Expression  # how pytest evaluates -m
+from suite import NOTHING_COLLECTED, PARALLEL, SERIAL, combined, phases
+
+MARKERS = ("e2e", "slow", "realtime", "root")
+
+
+@pytest.mark.parametrize("marked", [set(c) for n in range(len(MARKERS) + 1)
+                                    for c in itertools.combinations(MARKERS, n)])
+def test_every_test_runs_in_exactly_one_phase(marked: set[str]) -> None:
+    chosen = [Expression.compile(expr).evaluate(lambda name, **_: name in marked)
+              for expr in (PARALLEL, SERIAL)]
+    assert sum(chosen) == 1
+    if marked & {"e2e", "realtime"}:  # never beside another test
+        assert chosen == [False, True]
+
+
+def test_the_parallel_phase_spreads_and_the_serial_one_does_not() -> None:
+    (_, parallel), (_, serial) = phases(["-x"])
+    assert "-n" in parallel and int(parallel[parallel.index("-n") + 1]) >= 1
+    assert "-n" not in serial
+    assert parallel[-1] == serial[-1] == "-x"  # the caller's arguments go to both
+
+
+@pytest.mark.parametrize(("statuses", "expected"), [
+    ([0, 0], 0),
+    ([0, NOTHING_COLLECTED], 0),  # a path with no fleet test in it
+    ([NOTHING_COLLECTED, 0], 0),
+    ([NOTHING_COLLECTED, NOTHING_COLLECTED], NOTHING_COLLECTED),
+    ([1, 0], 1),
+    ([0, 1], 1),
+    ([2, 1], 2),  # interrupted first: that is said
+    ([NOTHING_COLLECTED, 1], 1),
+])
+def test_the_suite_fails_when_a_phase_fails(statuses: list[int], expected: int) -> None:
+    assert combined(statuses) == expected
