@@ -21,6 +21,7 @@ Exit status: 0 when both phases passed, else the first failing phase's pytest st
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import subprocess
 import sys
@@ -41,12 +42,14 @@ def workers() -> int:
     return max(1, min(cores, MAX_WORKERS))
 
 
-def phases(args: list[str]) -> list[tuple[str, list[str]]]:
-    """(name, pytest arguments) of each phase, in order."""
-    return [
-        (f"{PARALLEL}, {workers()} workers", ["-m", PARALLEL, "-n", str(workers()), *args]),
-        (f"{SERIAL}, one at a time", ["-m", SERIAL, *args]),
-    ]
+def phases(args: list[str], spread: bool = True) -> list[tuple[str, list[str]]]:
+    """(name, pytest arguments) of each phase, in order; ``spread``: pytest-xdist is
+    there to spread the first phase (else it runs one test at a time, and says so)."""
+    first = (f"{PARALLEL}, {workers()} workers", ["-m", PARALLEL, "-n", str(workers()), *args])
+    if not spread:
+        first = (f"{PARALLEL}, one at a time (pytest-xdist is not installed: "
+                 "pip install '.[test]')", ["-m", PARALLEL, *args])
+    return [first, (f"{SERIAL}, one at a time", ["-m", SERIAL, *args])]
 
 
 def combined(statuses: list[int]) -> int:
@@ -59,7 +62,7 @@ def combined(statuses: list[int]) -> int:
 
 def main(argv: list[str]) -> int:
     statuses = []
-    for name, args in phases(argv):
+    for name, args in phases(argv, importlib.util.find_spec("xdist") is not None):
         print(f"== tests: {name}", flush=True)
         try:  # Ctrl-C reaches pytest too (one process group); call() ends it by pid
             status = subprocess.call([sys.executable, "-m", "pytest", *args])

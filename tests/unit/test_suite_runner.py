@@ -29,6 +29,12 @@ def test_the_parallel_phase_spreads_and_the_serial_one_does_not() -> None:
     assert parallel[-1] == serial[-1] == "-x"  # the caller's arguments go to both
 
 
+def test_without_pytest_xdist_the_first_phase_runs_one_at_a_time() -> None:
+    (name, parallel), (_, serial) = phases(["-x"], spread=False)
+    assert "-n" not in parallel and "not installed" in name
+    assert parallel[:2] == ["-m", PARALLEL] and serial[:2] == ["-m", SERIAL]
+
+
 @pytest.mark.parametrize(("statuses", "expected"), [
     ([0, 0], 0),
     ([0, NOTHING_COLLECTED], 0),  # a path with no fleet test in it
