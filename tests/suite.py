@@ -6,8 +6,9 @@
    they take about half the time they take one after the other (docs/layout.md).
 2. The fleets and the realtime tests, one at a time, as before: a realtime run judged
    beside another test would be judged on a scheduler that test starves
-   (tests/realtime_clock.py), and two fleets of processes on 2 cores slow each other
-   down to their start-up timeouts.
+   (tests/realtime_clock.py), and many fleet tests that no judge marks still run on
+   the realtime clock (CAN bridges and their emulators, fault runs, a cut link) with
+   timeouts that assume their cores. Not tried in parallel: unmeasured risk of flakes.
 
 Arguments go to both phases (``-x``, ``-k word``, a test path, ``-q``)::
 
