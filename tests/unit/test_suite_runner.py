@@ -7,7 +7,7 @@ import itertools
 
 import pytest
 from _pytest.mark.expression import Expression  # how pytest evaluates -m
-from suite import NOTHING_COLLECTED, PARALLEL, SERIAL, combined, phases
+from suite import NOTHING_COLLECTED, PARALLEL, SERIAL, combined, phases, split_markers
 
 MARKERS = ("e2e", "slow", "realtime", "root")
 
@@ -33,6 +33,17 @@ def test_without_pytest_xdist_the_first_phase_runs_one_at_a_time() -> None:
     (name, parallel), (_, serial) = phases(["-x"], spread=False)
     assert "-n" not in parallel and "not installed" in name
     assert parallel[:2] == ["-m", PARALLEL] and serial[:2] == ["-m", SERIAL]
+
+
+@pytest.mark.parametrize("args", [["-m", "not slow", "-x"], ["-mnot slow", "-x"],
+                                  ["-m", "slow", "-m", "not slow", "-x"]])
+def test_a_marker_expression_of_the_caller_narrows_each_phase(args: list[str]) -> None:
+    assert split_markers(args) == ("not slow", ["-x"])
+    (_, parallel), (_, serial) = phases(args)
+    assert parallel.count("-m") == serial.count("-m") == 1  # not two: pytest keeps the last
+    assert parallel[parallel.index("-m") + 1] == f"({PARALLEL}) and (not slow)"
+    assert serial[serial.index("-m") + 1] == f"({SERIAL}) and (not slow)"
+    assert parallel[-1] == serial[-1] == "-x"
 
 
 @pytest.mark.parametrize(("statuses", "expected"), [

@@ -1,0 +1,67 @@
+"""tests/suite.py under a signal: pytest ends its own tests' processes, nothing is left,
+no further phase starts, and the status says how it ended."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from suite import SERIAL
+
+SUITE = Path(__file__).resolve().parent.parent / "suite.py"
+
+
+def running(pid: int) -> bool:
+    """Whether ``pid`` is a process that still runs (a zombie has ended)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+SLEEPER = '''
+import os, subprocess, sys, time
+from pathlib import Path
+
+def test_holds_a_child_until_interrupted():
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        Path(os.environ["SUITE_PIDS"]).write_text(f"{os.getpid()} {child.pid}")
+        time.sleep(60)
+    finally:  # what a fleet test does: its processes ended by pid
+        child.terminate()
+        child.wait()
+'''
+
+
+@pytest.mark.parametrize(("sig", "status"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_signal_ends_the_phase_with_its_processes_and_starts_no_other(
+        tmp_path: Path, sig: signal.Signals, status: int) -> None:
+    (tmp_path / "test_sleeper.py").write_text(SLEEPER)
+    pids = tmp_path / "pids"
+    suite = subprocess.Popen(
+        [sys.executable, str(SUITE), str(tmp_path), "-p", "no:cacheprovider", "-q"],
+        cwd=tmp_path, env={**os.environ, "SUITE_PIDS": str(pids)},
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60.0
+        while not pids.exists() or len(pids.read_text().split()) < 2:
+            assert suite.poll() is None and time.monotonic() < deadline, "the test never started"
+            time.sleep(0.05)
+        pytest_pid, child_pid = map(int, pids.read_text().split())
+        if sig == signal.SIGINT:  # as a terminal does: to the whole process group
+            os.killpg(suite.pid, signal.SIGINT)
+        else:
+            suite.send_signal(sig)
+        out, _ = suite.communicate(timeout=60.0)
+        assert suite.returncode == status, out
+        assert f"== tests: {SERIAL}" not in out  # the second phase never started
+        assert not running(pytest_pid) and not running(child_pid), out
+    finally:
+        if suite.poll() is None:
+            os.killpg(suite.pid, signal.SIGKILL)
+            suite.wait()
