@@ -54,6 +54,32 @@ def pids_with(text: str) -> set[int]:
     return found
 
 
+def stat_fields(pid: int | str) -> list[str] | None:
+    """The fields of ``/proc/PID/stat`` after the command name (state, ppid, pgrp, ...),
+    or None when there is no such process."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return stat[stat.rindex(")") + 2:].split()
+
+
+def running(pid: int) -> bool:
+    """Whether ``pid`` is a process that still runs (a zombie has ended)."""
+    fields = stat_fields(pid)
+    return fields is not None and fields[0] != "Z"
+
+
+def in_group(pgid: int) -> list[str]:
+    """The processes (pid and state) whose process group is ``pgid``, zombies included."""
+    found = []
+    for d in Path("/proc").iterdir():
+        fields = stat_fields(d.name) if d.name.isdigit() else None
+        if fields is not None and int(fields[2]) == pgid:
+            found.append(f"{d.name} {fields[0]}")
+    return found
+
+
 def assert_same_series(a, b, atol: float = 1e-9) -> None:
     """Two runs' TimeSeries agree column by column: floats within atol (NaN where
     NaN), everything else exactly."""

@@ -4,25 +4,7 @@ own behind: neither, nor anything else in its process group."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from tests.procs import finish, start
-
-
-def _group(pgid: int) -> list[str]:
-    """The processes (pid and state) whose process group is ``pgid``, zombies included."""
-    found = []
-    for d in Path("/proc").iterdir():
-        if not d.name.isdigit():
-            continue
-        try:
-            stat = (d / "stat").read_text()
-        except OSError:
-            continue
-        fields = stat[stat.rindex(")") + 2:].split()  # state ppid pgrp ...
-        if int(fields[2]) == pgid:
-            found.append(f"{d.name} {fields[0]} {stat[:stat.rindex(')') + 1]}")
-    return found
+from procs import finish, in_group, start
 
 
 def test_a_run_with_figures_leaves_no_process_in_its_group(tmp_path):
@@ -32,4 +14,4 @@ def test_a_run_with_figures_leaves_no_process_in_its_group(tmp_path):
     code, _, err = finish(proc)
     assert code in (0, 1), err  # a half-second lab run may not settle: the verdict says so
     assert (out / "fig4_trajectories.png").exists(), err  # drawn by the spawned process
-    assert _group(proc.pid) == []
+    assert in_group(proc.pid) == []

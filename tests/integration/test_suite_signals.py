@@ -11,17 +11,11 @@ import time
 from pathlib import Path
 
 import pytest
+from procs import running
 from suite import SERIAL
 
 SUITE = Path(__file__).resolve().parent.parent / "suite.py"
 
-
-def running(pid: int) -> bool:
-    """Whether ``pid`` is a process that still runs (a zombie has ended)."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except (OSError, IndexError):
-        return False
 
 SLEEPER = '''
 import os, subprocess, sys, time
