@@ -5,9 +5,9 @@ Same interface as :class:`plant.model_plant.ModelPlant` (``q``, ``q_dot``,
 and obstacles (:attr:`PybulletPlant.contacts`) and sensing by geometric queries
 (:meth:`PybulletPlant.perceive`).
 
-Traction model: computed wheel forces on the chassis (DESIGN section 7)
+Traction model: computed wheel forces on the chassis (docs/pybullet.md)
 -----------------------------------------------------------------------
-Of the three options in DESIGN section 7 (explicit rollers, anisotropic
+Of the three options in docs/pybullet.md (explicit rollers, anisotropic
 friction, computed wheel forces) this plant computes the wheel forces. Explicit
 rollers need tiny time steps and are fragile at the paper's 50 m/s;
 anisotropic friction cannot represent a driven wheel torque exactly. The wheels

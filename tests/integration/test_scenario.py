@@ -80,7 +80,7 @@ NON_FINITE_ELSEWHERE = {
 @pytest.mark.parametrize("case", list(NON_FINITE_ELSEWHERE), ids=list(NON_FINITE_ELSEWHERE))
 def test_non_finite_values_elsewhere_are_refused(tmp_path, case):
     """nan in an obstacle position, the duration, a gain or a safety distance is a ScenarioError
-    naming the file and the key (DESIGN 6: validated on load with clear errors)."""
+    naming the file and the key (docs/scenarios.md: validated on load with clear errors)."""
     old, new, key = NON_FINITE_ELSEWHERE[case]
     path = variant(tmp_path, old, new)
     with pytest.raises(ScenarioError) as info:

@@ -1,4 +1,4 @@
-"""Mecanum robot model, paper eqs. (1)-(4), erratum 3 and DESIGN section 5 item 9.
+"""Mecanum robot model, paper eqs. (1)-(4), erratum 3 and docs/dynamics.md (no Coriolis term).
 
 Every check here uses an oracle that does not come from the code under test:
 the paper's printed matrices, numpy.linalg.pinv, closed-form singular values,
@@ -226,7 +226,7 @@ def test_free_spinning_robot_keeps_momentum_and_energy():
 def test_paper_A0_would_accelerate_a_free_spinning_robot():
     """The printed A0 contains T dT^-1/dt = phi_dot [[0,1,0],[-1,0,0],[0,0,0]]: for the same free
     robot, -A0_paper q_dot is nonzero (it would turn the world-frame velocity with the body),
-    which is why the derived model drops it (module docstring, DESIGN 5 item 9)."""
+    which is why the derived model drops it (module docstring, docs/dynamics.md)."""
     q_dot = np.array([1.0, 0.5, 3.0])
     model = MecanumModel.from_params(FRICTIONLESS)
     paper_acc = -paper_A0(FRICTIONLESS, 0.3, q_dot[2]) @ q_dot
