@@ -27,6 +27,7 @@ import time
 import numpy as np
 import pytest
 from procs import finish, start
+from realtime_clock import judge_clock, measured
 
 from bridges.cia402_driver import DEFAULT_EDS
 from deploy.contract.scenario import load_scenario
@@ -108,51 +109,49 @@ def _drive(node, keys, states, seconds: float, torque: float) -> float:
     return last_at
 
 
-def _starved(reports, sc) -> str | None:
-    jitter = np.array(reports[0].jitter_ns) / 1e6 if reports else np.array([])
-    if jitter.size and np.percentile(jitter, 99) > sc.dt * 1e3:
-        return (f"the scheduler starved the bridge: loop jitter p99 {np.percentile(jitter, 99):.1f} "
-                f"ms > one period {sc.dt * 1e3:.1f} ms")
-    return None
-
-
 def test_bridge_drives_cia402_drives_and_zeroes_torque_when_commands_stop(tmp_path):
     sc = load_scenario("lab")
     can_opts, group, port = _bus()
     node, keys, endpoint, states, reports = _commander(sc, f"t-cia-{os.getpid()}")
     truth = tmp_path / "truth.npz"
     sniffer = Sniffer(group, port)
-    emulator = start("emulate", "--scenario", "lab", "--robot", "1", "--driver", "cia402",
-                     *can_opts, "--duration", "14", "--truth-out", str(truth))
-    bridge = start("bridge", "--scenario", "lab", "--robot", "1", "--driver", "cia402", *can_opts,
-                   "--fleet", f"t-cia-{os.getpid()}", "--listen", "tcp/127.0.0.1:0", "--connect",
-                   endpoint, "--self-start", "--duration", "6",
-                   "--command-timeout", str(COMMAND_TIMEOUT_S))
-    try:
-        assert node.mailbox.wait_until(
-            lambda: any(not m.faulted for _, m in states[-5:]), 40.0), "no healthy state"
-        x0 = states[-1][1].q[0]
-        last_command_at = _drive(node, keys, states, DRIVE_S, FORWARD_NM)
-        x1 = max(m.q[0] for _, m in states)
-        rc_b, _, err_b = finish(bridge, timeout=60)
-        assert rc_b == 0, err_b
-        node.mailbox.wait_until(lambda: bool(reports), 10.0)
-        rc_e, _, err_e = finish(emulator, timeout=60)
-        assert rc_e == 0, err_e
-    finally:
-        for proc in (bridge, emulator):
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-        node.close()
-        sniffer.close()
+    with measured() as load:  # who took the CPU meanwhile (tests/realtime_clock.py)
+        emulator = start("emulate", "--scenario", "lab", "--robot", "1", "--driver", "cia402",
+                         *can_opts, "--duration", "14", "--truth-out", str(truth))
+        bridge = start("bridge", "--scenario", "lab", "--robot", "1", "--driver", "cia402",
+                       *can_opts, "--fleet", f"t-cia-{os.getpid()}", "--listen", "tcp/127.0.0.1:0",
+                       "--connect", endpoint, "--self-start", "--duration", "6",
+                       "--command-timeout", str(COMMAND_TIMEOUT_S))
+        try:
+            assert node.mailbox.wait_until(
+                lambda: any(not m.faulted for _, m in states[-5:]), 40.0), "no healthy state"
+            x0 = states[-1][1].q[0]
+            last_command_at = _drive(node, keys, states, DRIVE_S, FORWARD_NM)
+            x1 = max(m.q[0] for _, m in states)
+            rc_b, _, err_b = finish(bridge, timeout=60)
+            assert rc_b == 0, err_b
+            node.mailbox.wait_until(lambda: bool(reports), 10.0)
+            rc_e, _, err_e = finish(emulator, timeout=60)
+            assert rc_e == 0, err_e
+        finally:
+            for proc in (bridge, emulator):
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+            node.close()
+            sniffer.close()
 
     # the bring-up went by the book, every drive of it named (bridge's stderr)
     for n in NODES:
         assert f"node {n}: NMT operational" in err_b and f"node {n}: PDO mapping written" in err_b
-    why = _starved(reports, sc)
-    if why:
-        pytest.skip(f"{why}; its driving and zero-torque timing cannot be judged here")
+    # the timing claims below hold for a bridge whose loop kept its period: judge what the
+    # clock allowed first (tests/realtime_clock.py), from the bridge's own report. A late
+    # loop is skipped only when other programs measurably took the CPU; alone, it fails
+    if not reports or not reports[0].jitter_ns:
+        pytest.fail("the bridge's report (with its loop jitter) did not arrive")
+    p99 = float(np.percentile(np.array(reports[0].jitter_ns) / 1e6, 99))
+    judge_clock(f"bridge loop jitter p99 {p99:.1f} ms > one period {sc.dt * 1e3:.1f} ms"
+                if p99 > sc.dt * 1e3 else None, load, "CiA 402 bridge")
     assert x1 - x0 > 0.1, (x0, x1, err_e[-600:])
     # SYNC from the bridge at the control rate: the intervals as heard on the bus
     gaps = np.diff([t for t in sniffer.syncs if t < last_command_at]) * 1e3
