@@ -7,12 +7,18 @@ series is known and draw while this process writes the scene, metrics and series
 The child is spawned (a fresh interpreter: the launcher holds zenoh's and the
 recorder's threads, which a fork would copy in whatever state they were) and ended by
 pid, whatever happens here. Should it fail, the figures are drawn here as before.
+
+A run that will draw can ``prepare`` the child when it starts: the child imports
+matplotlib and renders a line of text (its fonts) while the run goes, then waits for the
+series on a pipe, so that at the end only the drawing itself (~2 s for ``paper``) is
+left after the run (spawning and importing took ~1 s more there; docs/bench.md).
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import sys
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
@@ -41,19 +47,64 @@ def _draw(sc: Scenario, series: TimeSeries, out_dir: str) -> None:  # in the chi
     write_figures(sc, series, Path(out_dir))
 
 
+def _draw_when_told(jobs: Connection) -> None:  # in the child
+    """Get ready to draw (imports, fonts), then draw the one job sent on ``jobs``; a
+    closed pipe (the run failed, or was stopped) ends the child quietly."""
+    import os
+    import signal
+
+    # Ctrl-C on the terminal reaches this child too: the run's process ends it by pid
+    # (``stop``), after its own outputs; no traceback of an interrupted wait here
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # its imports and fonts must not take a core from the run's own processes starting
+    # (lowest priority: it gets what they leave; at the end the cores are free anyway)
+    os.nice(19)
+    from deploy.report.figures import warm_up
+
+    warm_up()
+    try:
+        sc, series, out_dir = jobs.recv()
+    except EOFError:
+        return
+    _draw(sc, series, out_dir)
+
+
 class FigureProcess:
     """``start`` the figures of a run; ``finish`` waits for them (True: drawn)."""
 
     def __init__(self) -> None:
         self._proc: Any = None
+        self._jobs: Connection | None = None  # to a prepared child
+
+    def prepare(self) -> None:
+        """Spawn the child now, to get ready while the run goes (``start`` sends it the
+        series); ``stop`` ends it when the run does not get that far."""
+        if self._proc is not None:
+            return
+        ctx = multiprocessing.get_context("spawn")
+        theirs, self._jobs = ctx.Pipe(duplex=False)
+        self._proc = ctx.Process(target=_draw_when_told, args=(theirs,),
+                                 name="omnifleet-figures", daemon=True)
+        self._proc.start()
+        theirs.close()
 
     def start(self, sc: Scenario, series: TimeSeries, out_dir: Path) -> None:
+        """Draw the figures of ``series`` into ``out_dir``: by the prepared child, or by
+        one spawned now."""
+        if self._jobs is not None and self._proc is not None and self._proc.is_alive():
+            try:
+                self._jobs.send((sc, series, str(out_dir)))
+                return
+            except OSError:  # the child is gone: one spawned now draws instead
+                self.stop()
+        self.stop()
         ctx = multiprocessing.get_context("spawn")
         self._proc = ctx.Process(target=_draw, args=(sc, series, str(out_dir)),
                                  name="omnifleet-figures", daemon=True)
         self._proc.start()
 
     def finish(self) -> bool:
+        self._close_jobs()
         p, self._proc = self._proc, None
         if p is None:
             return False
@@ -71,9 +122,15 @@ class FigureProcess:
 
     def stop(self) -> None:
         """End the child by pid (an error or Ctrl-C here)."""
+        self._close_jobs()
         p, self._proc = self._proc, None
         if p is not None and p.is_alive():
             p.kill()
             p.join()
         if p is not None:
             _end_resource_tracker()
+
+    def _close_jobs(self) -> None:
+        if self._jobs is not None:
+            self._jobs.close()
+            self._jobs = None

@@ -36,17 +36,21 @@ def write_run(
     step_unix_ns: np.ndarray | None = None,
     t0_unix_ns: int | None = None,
     steps_asked: int | None = None,
+    drawing: FigureProcess | None = None,
 ) -> dict[str, Any]:
-    """``recorder``: the run's open recording; the scene and plots of ``series``
-    are added to it (``step_unix_ns``: each step's wall clock, when known;
-    ``t0_unix_ns``: the wall clock at t = 0) and it is closed. ``steps_asked``: the
-    steps the run was asked for (metrics.json ``steps_asked``). A folder that cannot be
-    written any more (it vanished, or became a file, while the run went) is not the end of
-    the results: they go to a folder under the temporary directory, said on stderr and in
-    ``folder``."""
+    """``drawing``: the figure process the caller prepared when the run started (one is
+    spawned now when not); ended here whatever happens. ``recorder``: the run's open
+    recording; the scene and plots of ``series`` are added to it (``step_unix_ns``: each
+    step's wall clock, when known; ``t0_unix_ns``: the wall clock at t = 0) and it is
+    closed. ``steps_asked``: the steps the run was asked for (metrics.json
+    ``steps_asked``). A folder that cannot be written any more (it vanished, or became a
+    file, while the run went) is not the end of the results: they go to a folder under
+    the temporary directory, said on stderr and in ``folder``."""
     out_dir = _usable(out_dir, sc.name)
     # the figures draw in a process of their own while the rest is written here
-    drawing = FigureProcess() if figures else None
+    if not figures and drawing is not None:
+        drawing.stop()
+    drawing = (drawing or FigureProcess()) if figures else None
     try:
         if drawing is not None:
             drawing.start(sc, series, out_dir)

@@ -67,14 +67,22 @@ def cmd_run(args: argparse.Namespace) -> int:
     live = _start_live(args, sc)
     if live is False:
         return EXIT_BAD_INPUT
+    drawing = None
+    if not args.no_figures:  # the figure process gets ready while the run goes
+        from deploy.report.figure_process import FigureProcess
+
+        drawing = FigureProcess()
+        drawing.prepare()
     try:
         if args.in_process:
-            metrics = _run_in_process(sc, args, plant, plan, out, label, live)
+            metrics = _run_in_process(sc, args, plant, plan, out, label, live, drawing)
         else:
-            metrics = _run_distributed(sc, args, plant, out, label, live)
+            metrics = _run_distributed(sc, args, plant, out, label, live, drawing)
             if metrics is None:
                 return 1
     finally:
+        if drawing is not None:  # by pid, also after a failed or interrupted run
+            drawing.stop()
         if live is not None:
             live.close()
             front = live.server.front
@@ -98,7 +106,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, label: str, live):
+def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, label: str, live,
+                    drawing=None):
     from deploy.report.outputs import write_run
     from deploy.report.recorder import McapRecorder
     from deploy.run.runner import run_in_process, run_progress
@@ -130,7 +139,7 @@ def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, l
     return write_run(sc, result.series, out, plant, "lockstep", result.wall_time_s,
                      extra=extra, figures=not args.no_figures, contact_log=result.contacts,
                      recorder=recorder, step_unix_ns=result.step_unix_ns,
-                     steps_asked=steps_of(sc, args))
+                     steps_asked=steps_of(sc, args), drawing=drawing)
 
 
 def _interrupted(metrics: dict, out: Path) -> None:
@@ -174,7 +183,8 @@ def _with_live(progress, live):
     return both
 
 
-def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label: str, live=None):
+def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label: str, live=None,
+                     drawing=None):
     import time
 
     from deploy.report.outputs import run_wall_clock, write_run
@@ -252,6 +262,6 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     return write_run(sc, series, out, plant, args.clock, wall, messages, extra,
                      figures=not args.no_figures, contact_log=contact_log,
                      contacts_total=contacts_total, recorder=recorder,
-                     steps_asked=opts.steps(sc),
+                     steps_asked=opts.steps(sc), drawing=drawing,
                      **run_wall_clock(end_unix_ns, wall, launcher.observer.run_t0, series.steps,
                                       args.clock == "lockstep"))

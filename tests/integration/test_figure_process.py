@@ -1,10 +1,21 @@
 """The figures draw in a spawned process (deploy/report/figure_process.py); spawning
 starts multiprocessing's resource tracker too. A finished run leaves no process of its
-own behind: neither, nor anything else in its process group."""
+own behind: neither, nor anything else in its process group. A child prepared when the
+run starts draws what it is sent at the end, is replaced when it died meanwhile, and is
+ended by pid when the run never gets to its figures."""
 
 from __future__ import annotations
 
-from procs import finish, in_group, start
+import os
+import signal
+
+import pytest
+from procs import finish, in_group, running, start
+
+from deploy.contract.scenario import load_scenario
+from deploy.report.figure_process import FigureProcess
+from deploy.report.run_folder import FIGURE_FILES
+from deploy.run.runner import run_in_process
 
 
 def test_a_run_with_figures_leaves_no_process_in_its_group(tmp_path):
@@ -15,3 +26,45 @@ def test_a_run_with_figures_leaves_no_process_in_its_group(tmp_path):
     assert code in (0, 1), err  # a half-second lab run may not settle: the verdict says so
     assert (out / "fig4_trajectories.png").exists(), err  # drawn by the spawned process
     assert in_group(proc.pid) == []
+
+
+@pytest.fixture(scope="module")
+def lab_run():
+    sc = load_scenario("lab")
+    return sc, run_in_process(sc, "model", 0.3).series
+
+
+def test_a_prepared_figure_process_draws_the_run_it_is_sent(tmp_path, lab_run):
+    sc, series = lab_run
+    drawing = FigureProcess()
+    drawing.prepare()  # it imports and warms up while "the run goes"
+    try:
+        drawing.start(sc, series, tmp_path)
+        assert drawing.finish()
+    finally:
+        drawing.stop()
+    for name in FIGURE_FILES:
+        assert (tmp_path / name).stat().st_size > 0, name
+
+
+def test_a_prepared_child_that_died_is_replaced_by_one_spawned_then(tmp_path, lab_run):
+    sc, series = lab_run
+    drawing = FigureProcess()
+    drawing.prepare()
+    try:
+        child = drawing._proc
+        os.kill(child.pid, signal.SIGKILL)
+        child.join(10.0)
+        drawing.start(sc, series, tmp_path)
+        assert drawing.finish()
+    finally:
+        drawing.stop()
+    assert (tmp_path / FIGURE_FILES[0]).stat().st_size > 0
+
+
+def test_a_run_that_never_gets_to_its_figures_ends_the_prepared_child(lab_run):
+    drawing = FigureProcess()
+    drawing.prepare()
+    pid = drawing._proc.pid
+    drawing.stop()  # a failed or interrupted run (deploy/run/run_cli.py)
+    assert not running(pid)
