@@ -200,10 +200,12 @@ cdef class FleetDynamics:
     cdef double scale
     cdef double constant[4]
     cdef object _keep
+    cdef double* _mass  # M_q's diagonal (P1), robot after robot: what Bullet's joints carry
+    cdef object _keep_mass
 
     def __cinit__(self, models, str disturbance_kind, double disturbance_scale,
                   disturbance_constant, int substeps):
-        cdef int i
+        cdef int i, j
         self.n = len(models)
         if substeps < 1:
             raise ValueError(f"substeps must be >= 1, got {substeps}")
@@ -216,6 +218,14 @@ cdef class FleetDynamics:
         self._models = <Model*> <char*> self._keep
         for i in range(self.n):
             model_from(&self._models[i], models[i])
+        from plant.mecanum import generalised_inertia
+
+        self._keep_mass = bytearray(sizeof(double) * 3 * max(self.n, 1))
+        self._mass = <double*> <char*> self._keep_mass
+        for i in range(self.n):
+            m_q = generalised_inertia(models[i].params)
+            for j in range(3):
+                self._mass[3 * i + j] = float(m_q[j, j])
 
     def wheel_forces(self, const double[:, ::1] q, const double[:, ::1] qd,
                      const double[:, ::1] wheel_torques, double[:, ::1] out):
@@ -260,6 +270,25 @@ cdef class FleetDynamics:
             _wheel_force(&self._models[i], &q[i, 0], &qd[i, 0], &torques[i, 0], h_d, f)
             forces[3 * i], forces[3 * i + 1], forces[3 * i + 2] = f[0], f[1], f[2]
         return forces
+
+    def bullet_free_substep(self, list forces, double h, double[:, ::1] q, double[:, ::1] qd):
+        """A sub-step in which Bullet found no contact point (so no constraint acted, its
+        joints being free of limits, damping and motors), as Bullet integrates it: the
+        semi-implicit Euler step v += h M_q^-1 F, q += h v of (P2) with the forces ``forces``
+        (the flat list the sub-step applied), in place. Bullet's articulated-body pass
+        rounds M_q^-1 F its own way: the velocities agree to ~1e-13 relative, not bit for
+        bit (docs/bench.md); the step's last sub-step is always read back from Bullet."""
+        cdef int i, j, n = self.n
+        cdef double v
+        if q.shape[0] != n or qd.shape[0] != n or q.shape[1] != 3 or qd.shape[1] != 3:
+            raise ValueError("q, q_dot must be (n, 3)")
+        if len(forces) != 3 * n:
+            raise ValueError(f"{len(forces)} forces for {n} robots")
+        for i in range(n):
+            for j in range(3):
+                v = qd[i, j] + h * (<double> forces[3 * i + j] / self._mass[3 * i + j])
+                qd[i, j] = v
+                q[i, j] = q[i, j] + h * v
 
     def step(self, double t, double dt, double[:, ::1] q, double[:, ::1] qd,
              const double[:, ::1] torques, const double[:, :, ::1] stage_disturbance=None):

@@ -68,12 +68,20 @@ pybullet in it.
 
 Stepping. ``step(t, dt, ...)`` calls stepSimulation ``substeps`` times with
 fixedTimeStep h = dt / substeps; before each call the forces are recomputed from
-the state Bullet returned (TORQUE_CONTROL forces last one stepSimulation), with
-h_d evaluated at the sub-step's start time. A sub-step is one
-setJointMotorControlArray and one getJointStates per body, one stepSimulation
-and one getContactPoints; the arithmetic between them (the states Bullet
-returned into q, q_dot, then h_d and (P3)-(P5) into the next forces) is one call
-of the plant kernel (:attr:`ForceLaw.substep`). Deterministic settings:
+the state after the previous sub-step (TORQUE_CONTROL forces last one
+stepSimulation), with h_d evaluated at the sub-step's start time. A sub-step is
+one setJointMotorControlArray per body, one stepSimulation and one
+getContactPoints, and then the state: read back from Bullet (getJointStates, one
+per body) when Bullet found a contact point in the sub-step, and always after the
+step's last one; otherwise no constraint acted, and the state is Bullet's own free
+step of (P2), v += h M_q^-1 F, q += h v, computed by the kernel
+(:attr:`ForceLaw.free_substep`; 3 getJointStates of 4 saved, ~9 % of the
+in-process run). Bullet's articulated-body pass rounds M_q^-1 F its own way, so
+such a predicted state agrees with the one Bullet holds to ~1e-13 relative, not
+bit for bit (docs/bench.md); the state a step ends on is always Bullet's. The
+arithmetic between the calls (the states Bullet returned into q, q_dot, then h_d
+and (P3)-(P5) into the next forces) is one call of the plant kernel
+(:attr:`ForceLaw.substep`). Deterministic settings:
 deterministicOverlappingPairs=1, numSubSteps=1, sleeping disabled, one physics
 client per plant (several plants coexist in one process).
 
@@ -212,6 +220,13 @@ class ForceLaw:
         every robot's x, y, yaw in turn, or None) into q, q_dot, then the forces from
         torques + h_d(t) as one flat list [F_x, F_y, M_z, ...] (``torques`` None: none)."""
         return self._fleet.bullet_substep
+
+    @property
+    def free_substep(self) -> Callable[[list[float], float, np.ndarray, np.ndarray], None]:
+        """``free_substep(forces, h, q, q_dot)``: a sub-step without contact as Bullet
+        integrates it, v += h M_q^-1 F, q += h v, in place (``FleetDynamics.
+        bullet_free_substep``)."""
+        return self._fleet.bullet_free_substep
 
 
 def generalised_force(model: MecanumModel, q: np.ndarray, q_dot: np.ndarray,
@@ -435,6 +450,7 @@ class PybulletPlant:
         # in for the target positions, velocities and gains. getContactPoints(-1, -1, -2,
         # -2): no body or link filter (its defaults).
         states = None  # the first sub-step starts from q, qd
+        free, last = self._law.free_substep, self.substeps - 1
         for k in range(self.substeps):
             ts = t + k * h
             if other is None:
@@ -446,10 +462,14 @@ class PybulletPlant:
                 f = forces[a:b]
                 set_forces(body, joints, torque, f, f, f, f, f, cid)
             pb.stepSimulation(cid)
-            states = ()
-            for body, joints, _, _ in bodies:
-                states += read(body, joints, cid)
             points = pb.getContactPoints(-1, -1, -2, -2, cid)
+            if points or k == last:  # Bullet's own state: a contact acted, or the step's end
+                states = ()
+                for body, joints, _, _ in bodies:
+                    states += read(body, joints, cid)
+            else:  # no contact point, no constraint: Bullet's free step, (P2), predicted
+                free(forces, h, q, qd)
+                states = None
             if points or self._ongoing:
                 self._record_contacts(ts, points)
         substep(states, None, t, q, qd)

@@ -287,6 +287,46 @@ def test_one_bullet_substep_has_eq4_acceleration(scenario):
 
 
 @pytest.mark.parametrize("scenario", ["paper", "lab"])
+def test_a_substep_without_contact_is_predicted_as_bullet_integrates_it(scenario):
+    """The sub-steps in which Bullet found no contact point are not read back
+    (ForceLaw.free_substep predicts them, v += h M_q^-1 F, q += h v): one such sub-step
+    against Bullet's own, and a step of 4 sub-steps (3 predicted) against 4 steps of one
+    sub-step each (every one read back), over 200 steps of random torques. Bullet's
+    articulated-body pass rounds M_q^-1 F its own way: equal to ~1e-13 relative, and
+    the last sub-step of a step is always Bullet's (bit for bit with itself)."""
+    sc = load_scenario(scenario)
+    model, d, n = sc.model(), _disturbance(sc), 4
+    rng = np.random.default_rng(11)
+    q, q_dot = rng.uniform(-3, 3, (n, 3)), rng.uniform(-3, 3, (n, 3))
+    q[:, :2] = SPACING_M * np.arange(n)[:, None]
+    h = sc.dt / 4
+    with PybulletPlant([model] * n, q, q_dot, d, [0.5] * n, list(range(1, n + 1)), [],
+                       substeps=1) as plant:
+        u = rng.uniform(-1, 1, (n, 4))
+        forces = plant._law.substep(None, u, 1.0, q.copy(), q_dot.copy())
+        plant.step(1.0, h, u, None)  # its one sub-step is its last: read back
+        predicted_q, predicted_v = q.copy(), q_dot.copy()
+        plant._law.free_substep(forces, h, predicted_q, predicted_v)
+        assert np.abs(predicted_v - plant.q_dot).max() <= 1e-12 * np.abs(plant.q_dot).max()
+        assert np.abs(predicted_q - plant.q).max() <= 1e-12 * np.abs(plant.q).max()
+    torques = rng.uniform(-1, 1, (200, n, 4)) * TORQUE_NM[scenario]
+    with PybulletPlant([model] * n, q, q_dot, d, [0.5] * n, list(range(1, n + 1)), [],
+                       substeps=4) as four, \
+            PybulletPlant([model] * n, q, q_dot, d, [0.5] * n, list(range(1, n + 1)), [],
+                          substeps=1) as one:
+        for k in range(len(torques)):
+            t = k * sc.dt
+            four.step(t, sc.dt, torques[k], None)
+            for j in range(4):
+                one.step(t + j * h, h, torques[k], None)
+        assert not four.contacts and not one.contacts
+        scale = max(np.abs(one.q).max(), 1.0)
+        assert np.abs(four.q - one.q).max() <= 1e-12 * scale
+        assert np.abs(four.q_dot - one.q_dot).max() <= 1e-12 * max(np.abs(one.q_dot).max(), 1.0)
+        assert four.q_dot.any()  # it moved
+
+
+@pytest.mark.parametrize("scenario", ["paper", "lab"])
 def test_effective_mass_and_yaw_inertia(scenario):
     """No friction, no disturbance: a pure x/y force gives F/m_t, a pure yaw torque M/I_t."""
     sc = load_scenario(scenario)
