@@ -82,6 +82,16 @@ def _bus() -> tuple[list[str], str, int]:
             "--can-arg", f"port={port}"], group, port
 
 
+def _end(node, sniffer: Sniffer, *procs) -> None:
+    """Every process by pid (whatever the test got to), then the commander and the sniffer."""
+    for proc in procs:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    node.close()
+    sniffer.close()
+
+
 def _commander(sc, fleet: str):
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     keys = Keys(fleet)
@@ -134,12 +144,7 @@ def test_bridge_drives_cia402_drives_and_zeroes_torque_when_commands_stop(tmp_pa
             rc_e, _, err_e = finish(emulator, timeout=60)
             assert rc_e == 0, err_e
         finally:
-            for proc in (bridge, emulator):
-                if proc.poll() is None:
-                    proc.kill()
-                    proc.wait()
-            node.close()
-            sniffer.close()
+            _end(node, sniffer, bridge, emulator)
 
     # the bring-up went by the book, every drive of it named (bridge's stderr)
     for n in NODES:
@@ -205,12 +210,7 @@ def test_a_drive_that_never_enables_is_reported_and_no_wheel_is_driven(tmp_path)
         _drive(node, keys, states, 3.0, FORWARD_NM)
         rc_b, _, err_b = finish(bridge, timeout=60)
     finally:
-        for proc in (bridge, emulator):
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-        node.close()
-        sniffer.close()
+        _end(node, sniffer, bridge, emulator)
     assert rc_b == 0, err_b
     assert "node 3 given up, the robot is not driven" in err_b
     assert re.search(r"not enabled [\d.]+ s after arming, \d+ arming frames answered \(state "

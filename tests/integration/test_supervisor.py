@@ -70,9 +70,13 @@ def test_the_plant_exiting_cleanly_ends_the_run():
     assert sup.check(ended=False)
 
 
-KEYS_READER = ("import sys, hashlib, os; fd = int(sys.argv[sys.argv.index('--keys-fd') + 1]); "
-               "data = os.read(fd, 1 << 20); print('got', hashlib.sha256(data).hexdigest(), "
-               "flush=True); import time; time.sleep(60)")
+# reads its pipe as a node does (to the end: one os.read may return part of a keyring
+# larger than the pipe's buffer), and says so in one line (the supervisor's children
+# write unbuffered: print's pieces would be separate writes the test could see half of)
+KEYS_READER = ("import sys, hashlib; from deploy.contract.keyring import read_fd; "
+               "data = read_fd(int(sys.argv[sys.argv.index('--keys-fd') + 1])); "
+               "sys.stdout.write('got ' + hashlib.sha256(data).hexdigest() + '\\n'); "
+               "sys.stdout.flush(); import time; time.sleep(60)")
 
 
 def test_a_child_gets_its_keys_on_a_pipe_never_in_its_environment_or_command_line(tmp_path):
@@ -86,7 +90,7 @@ def test_a_child_gets_its_keys_on_a_pipe_never_in_its_environment_or_command_lin
     try:
         children = [_started(sup, tmp_path, role, KEYS_READER) for role in texts]
         for c in children:
-            while b"got" not in c.log_path.read_bytes():
+            while b"\n" not in c.log_path.read_bytes():  # its whole line
                 assert c.proc.poll() is None, c.log_path.read_text()
                 time.sleep(0.01)  # polling its output, the readiness signal
             want = hashlib.sha256(texts[c.role].encode()).hexdigest()
