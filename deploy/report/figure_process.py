@@ -82,11 +82,19 @@ class FigureProcess:
         if self._proc is not None:
             return
         ctx = multiprocessing.get_context("spawn")
-        theirs, self._jobs = ctx.Pipe(duplex=False)
-        self._proc = ctx.Process(target=_draw_when_told, args=(theirs,),
-                                 name="omnifleet-figures", daemon=True)
-        self._proc.start()
-        theirs.close()
+        theirs = None
+        try:
+            theirs, self._jobs = ctx.Pipe(duplex=False)
+            self._proc = ctx.Process(target=_draw_when_told, args=(theirs,),
+                                     name="omnifleet-figures", daemon=True)
+            self._proc.start()
+        except OSError as exc:  # no process or pipe to be had now: ``start`` tries again
+            print(f"omnifleet: the figure process could not start early ({exc}); it starts "
+                  "after the run", file=sys.stderr, flush=True)
+            self.stop()
+        finally:
+            if theirs is not None:
+                theirs.close()  # the child's end: ours is closed by then, or never opened
 
     def start(self, sc: Scenario, series: TimeSeries, out_dir: Path) -> None:
         """Draw the figures of ``series`` into ``out_dir``: by the prepared child, or by

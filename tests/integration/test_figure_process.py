@@ -68,3 +68,40 @@ def test_a_run_that_never_gets_to_its_figures_ends_the_prepared_child(lab_run):
     pid = drawing._proc.pid
     drawing.stop()  # a failed or interrupted run (deploy/run/run_cli.py)
     assert not running(pid)
+
+
+def test_a_child_that_cannot_start_early_is_started_after_the_run(tmp_path, lab_run, monkeypatch,
+                                                                 capsys):
+    """No process to be had when the run starts (a limit, a full /dev/shm): the run goes
+    on, and the figures are drawn by a child spawned at the end, as before."""
+    import multiprocessing
+
+    from deploy.report import figure_process
+
+    real = multiprocessing.get_context("spawn")
+
+    def refused() -> None:
+        raise OSError(11, "Resource temporarily unavailable")
+
+    class Refused:  # the context of the first spawn: its process cannot start
+        Pipe = staticmethod(real.Pipe)
+
+        @staticmethod
+        def Process(*args, **kwargs):
+            proc = real.Process(*args, **kwargs)
+            proc.start = refused
+            return proc
+
+    contexts = iter([Refused])
+    monkeypatch.setattr(figure_process.multiprocessing, "get_context",
+                        lambda kind: next(contexts, real))
+    sc, series = lab_run
+    drawing = FigureProcess()
+    drawing.prepare()
+    assert "could not start early" in capsys.readouterr().err
+    try:
+        drawing.start(sc, series, tmp_path)
+        assert drawing.finish()
+    finally:
+        drawing.stop()
+    assert (tmp_path / FIGURE_FILES[0]).stat().st_size > 0
