@@ -107,9 +107,14 @@ class FigureProcess:
                 self.stop()
         self.stop()
         ctx = multiprocessing.get_context("spawn")
-        self._proc = ctx.Process(target=_draw, args=(sc, series, str(out_dir)),
-                                 name="omnifleet-figures", daemon=True)
-        self._proc.start()
+        try:
+            self._proc = ctx.Process(target=_draw, args=(sc, series, str(out_dir)),
+                                     name="omnifleet-figures", daemon=True)
+            self._proc.start()
+        except OSError as exc:  # ``finish`` says False: the figures are drawn by the caller
+            print(f"omnifleet: the figure process could not start ({exc}); drawing them here",
+                  file=sys.stderr, flush=True)
+            self._proc = None
 
     def finish(self) -> bool:
         self._close_jobs()

@@ -105,3 +105,30 @@ def test_a_child_that_cannot_start_early_is_started_after_the_run(tmp_path, lab_
     finally:
         drawing.stop()
     assert (tmp_path / FIGURE_FILES[0]).stat().st_size > 0
+
+
+def test_figures_are_drawn_by_the_run_when_no_child_can_start(tmp_path, lab_run, monkeypatch,
+                                                             capsys):
+    """Neither early nor late: write_run draws them itself (nothing of the run lost)."""
+    from deploy.report import figure_process
+    from deploy.report.outputs import write_run
+
+    class NoProcess:
+        @staticmethod
+        def Pipe(*args, **kwargs):
+            raise OSError(24, "Too many open files")
+
+        @staticmethod
+        def Process(*args, **kwargs):
+            raise OSError(11, "Resource temporarily unavailable")
+
+    monkeypatch.setattr(figure_process.multiprocessing, "get_context", lambda kind: NoProcess)
+    sc, series = lab_run
+    drawing = FigureProcess()
+    drawing.prepare()
+    metrics = write_run(sc, series, tmp_path, "model", "lockstep", 1.0, drawing=drawing)
+    err = capsys.readouterr().err
+    assert "could not start early" in err and "drawing them here" in err
+    for name in ("metrics.json", "timeseries.npz", *FIGURE_FILES):
+        assert (tmp_path / name).stat().st_size > 0, name
+    assert metrics["files"][:2] == ["metrics.json", "timeseries.npz"]
