@@ -124,6 +124,7 @@ class Bench:
         self.figures: dict[str, Figure] = {}
         self.work = Path(tempfile.mkdtemp(prefix="runs-", dir=out))
         self.agent_rss_mb: list[float] = []
+        self.fleet_runs = 0  # runs with a process per node: what the memory figure is of
 
     def figure(self, name: str, unit: str, what: str,
                target: tuple[str, float] | None = None) -> Figure:
@@ -136,6 +137,8 @@ class Bench:
         command's wall time as a user waits for it (start-up, run, outputs). Ended by pid
         whatever happens."""
         out = self.work / f"run-{len(list(self.work.iterdir()))}"
+        if "--in-process" not in args:
+            self.fleet_runs += 1
         cmd = [sys.executable, "-m", "deploy.cli", "run", scenario, "--out", str(out),
                *([] if figures else ["--no-figures"]), *([] if record else ["--no-record"]),
                *args]
@@ -511,7 +514,8 @@ class Bench:
         for name, run in self.groups().items():
             if only is None or name in only:
                 run()
-        self.memory()
+        if self.fleet_runs:  # the groups asked for started agents (not in-process or costs)
+            self.memory()
 
     # -- outputs --------------------------------------------------------------------------
     def report(self, quick: bool, started: float) -> dict[str, Any]:

@@ -1,5 +1,6 @@
 """The pure parts of `omnifleet bench` (deploy/bench/): the generated scale scenarios, the
-sizes it accepts, a figure judged against its target on its median."""
+sizes it accepts, a figure judged against its target on its median, the memory figure
+only where agents ran."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import argparse
 import numpy as np
 import pytest
 
-from deploy.bench.suite import SCALE_SIZES, Figure, scale_sizes
+from deploy.bench.suite import SCALE_SIZES, Bench, Figure, Settings, scale_sizes
 from deploy.contract.scaled_scenarios import scale_scenario, tree_adjacency
 from deploy.contract.scenario import has_spanning_tree, load_scenario
 
@@ -38,3 +39,19 @@ def test_figure_judges_its_target_on_the_median():
     assert f.median == 0.9 and f.met is True
     assert Figure("y", "x", "", [9.0, 11.0, 8.0], (">=", 10.0)).met is False
     assert Figure("z", "x", "", []).met is None
+
+
+def test_the_memory_figure_is_of_agents_that_ran(tmp_path):
+    """`--only in-process` (or costs) starts no agent: no memory figure, so no "no figure
+    for memory" and no exit 1 for a bench that measured all it was asked. A fleet that ran
+    and reported no agent's memory is still a missing figure."""
+    bench = Bench(tmp_path, Settings.of(True, 1), lambda msg: None)
+    bench.run_all([])
+    assert "memory.agent_peak_rss_mb" not in bench.figures
+    bench.fleet_runs = 1
+    bench.run_all([])
+    assert bench.figures["memory.agent_peak_rss_mb"].error
+    bench.agent_rss_mb = [58.0, 61.5]
+    bench.figures.clear()
+    bench.run_all([])
+    assert bench.figures["memory.agent_peak_rss_mb"].median == 61.5
