@@ -79,7 +79,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 # the judge, and the helpers that call it for a test (tests/can_fleet_runs.py)
-CLOCK_JUDGES = {"judged", "judge_clock", "clean_fleet_run", "killed_fleet_run"}
+CLOCK_JUDGES = {"judged", "judge_clock", "once_more", "clean_fleet_run", "killed_fleet_run"}
 
 
 def _judges_the_clock(item: pytest.Item) -> bool:

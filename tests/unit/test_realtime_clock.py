@@ -1,6 +1,6 @@
 """The judge of realtime runs (tests/realtime_clock.py): a run that kept its clock is
-judged; one that missed it is retried and skipped only when other programs measurably
-took the CPU, failed when they did not; a missing report always fails."""
+judged; one that missed it is retried once, then skipped only when other programs
+measurably took the CPU, failed when they did not; a missing report always fails."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from realtime_clock import (
     clock_missed,
     judged,
     measured,
+    once_more,
 )
 
 LOADED = MachineLoad(cores=2, wall_s=10.0, busy_cores=2.0, ours_cores=0.8)
@@ -67,11 +68,40 @@ def test_starved_far_beyond_the_period_is_skipped_without_a_retry():
     assert len(calls) == 1
 
 
-def test_a_run_that_missed_its_clock_on_a_quiet_machine_fails():
+def test_a_run_late_once_on_a_quiet_machine_is_judged_by_its_retry():
+    """A late stretch of a shared host (one bridge's p99 5.4 ms against 5 ms, others at
+    0.21 of 2 cores): once more, and the retry that kept its clock is judged."""
     run, calls = _runs(9.0, 1.0)
-    with pytest.raises(pytest.fail.Exception, match=r"left alone.*9\.0 ms.*0\.10 of 2 cores"):
+    assert judged(run, lambda m: m, "x", _machine(QUIET))["jitter_ms"]["p99"] == 1.0
+    assert len(calls) == 2
+
+
+def test_a_run_that_missed_its_clock_twice_on_a_quiet_machine_fails():
+    run, calls = _runs(9.0, 8.0)
+    with pytest.raises(pytest.fail.Exception, match=r"left alone.*9\.0 ms.*then.*8\.0 ms"):
+        judged(run, lambda m: m, "x", _machine(QUIET))
+    assert len(calls) == 2
+
+
+def test_far_beyond_the_period_on_a_quiet_machine_fails_without_a_retry():
+    run, calls = _runs(63.0, 1.0)
+    with pytest.raises(pytest.fail.Exception, match=r"left alone.*63\.0 ms.*12\.6 periods"):
         judged(run, lambda m: m, "x", _machine(QUIET))
     assert len(calls) == 1
+
+
+def test_a_test_measuring_its_own_run_gets_the_same_second_chance():
+    """once_more: for the CAN bridge tests, which start and measure their processes."""
+    tries = iter([({"try": 1}, QUIET, "p99 5.4 ms > 5.0 ms"), ({"try": 2}, QUIET, None)])
+    assert once_more(lambda: next(tries), "x") == {"try": 2}
+    tries = iter([({"try": 1}, QUIET, "p99 5.4 ms"), ({"try": 2}, QUIET, "p99 6.1 ms")])
+    with pytest.raises(pytest.fail.Exception, match=r"5\.4 ms.*then p99 6\.1 ms"):
+        once_more(lambda: next(tries), "x")
+    tries = iter([({"try": 1}, LOADED, "p99 9 ms"), ({"try": 2}, LOADED, "p99 8 ms")])
+    with pytest.raises(pytest.skip.Exception, match="starved"):
+        once_more(lambda: next(tries), "x")
+    tries = iter([({"try": 1}, QUIET, None)])
+    assert once_more(lambda: next(tries), "x") == {"try": 1}  # kept its clock: run once
 
 
 def test_others_taking_a_quarter_of_an_unsaturated_machine_starve_it_too():
@@ -85,7 +115,7 @@ def test_a_run_that_saturates_the_machine_by_itself_fails():
     alone = MachineLoad(cores=2, wall_s=10.0, busy_cores=1.95, ours_cores=1.9)
     assert not alone.loaded and LOADED.loaded and not QUIET.loaded
     with pytest.raises(pytest.fail.Exception, match="left alone"):
-        judged(_runs(9.0)[0], lambda m: m, "x", _machine(alone))
+        judged(_runs(9.0, 9.5)[0], lambda m: m, "x", _machine(alone))
 
 
 def test_a_missing_report_fails_and_is_never_skipped():
