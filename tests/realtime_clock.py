@@ -34,6 +34,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+import numpy as np
 import pytest
 
 T = TypeVar("T")
@@ -150,6 +151,17 @@ def judge_clock(missed: str | None, load: MachineLoad, what: str) -> None:
                     f"({missed}; {load.text()}): its claims cannot be judged here")
     pytest.fail(f"{what}: the realtime run missed its clock on a machine other programs left "
                 f"alone ({missed}; {load.text()}): the code or the test's sizing does not fit")
+
+
+def loop_missed(reports: list[Any], period_s: float, who: str) -> str | None:
+    """Why a node's loop missed its period, from the loop jitter of its own report (the
+    first of ``reports``; None: it kept it). A report that never came fails the test."""
+    if not reports or not reports[0].jitter_ns:
+        pytest.fail(f"the {who}'s report (with its loop jitter) did not arrive")
+    p99 = float(np.percentile(np.array(reports[0].jitter_ns) / 1e6, 99))
+    if p99 <= period_s * 1e3:
+        return None
+    return f"{who} loop jitter p99 {p99:.1f} ms > one period {period_s * 1e3:.1f} ms"
 
 
 def once_more(attempt: Callable[[], tuple[T, MachineLoad, str | None]], what: str) -> T:

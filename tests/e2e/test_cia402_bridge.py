@@ -28,7 +28,7 @@ import types
 import numpy as np
 import pytest
 from procs import finish, start
-from realtime_clock import MachineLoad, measured, once_more
+from realtime_clock import MachineLoad, loop_missed, measured, once_more
 
 from bridges.cia402_driver import DEFAULT_EDS
 from deploy.contract.scenario import load_scenario
@@ -148,11 +148,7 @@ def _drive_once(sc, tmp_path) -> tuple[types.SimpleNamespace, MachineLoad, str |
             assert rc_e == 0, err_e
         finally:
             _end(node, sniffer, bridge, emulator)
-    if not reports or not reports[0].jitter_ns:
-        pytest.fail("the bridge's report (with its loop jitter) did not arrive")
-    p99 = float(np.percentile(np.array(reports[0].jitter_ns) / 1e6, 99))
-    missed = (f"bridge loop jitter p99 {p99:.1f} ms > one period {sc.dt * 1e3:.1f} ms"
-              if p99 > sc.dt * 1e3 else None)
+    missed = loop_missed(reports, sc.dt, "bridge")
     return (types.SimpleNamespace(states=states, reports=reports, sniffer=sniffer, x0=x0, x1=x1,
                                   err_b=err_b, err_e=err_e, last_command_at=last_command_at,
                                   truth=truth), load, missed)

@@ -12,6 +12,7 @@ from realtime_clock import (
     MachineLoad,
     clock_missed,
     judged,
+    loop_missed,
     measured,
     once_more,
 )
@@ -147,3 +148,17 @@ def test_the_machine_measurement_sees_a_busy_child_as_ours():
     assert load.ours_cores * load.wall_s >= 0.45  # the child's CPU time, once reaped
     assert load.busy_cores is not None and load.busy_cores * load.wall_s >= 0.45
     assert 0 < OTHERS_SHARE < 1
+
+
+def test_a_nodes_own_report_says_whether_its_loop_kept_its_period():
+    import types
+
+    def report(*ms):
+        return [types.SimpleNamespace(jitter_ns=[int(x * 1e6) for x in ms])]
+
+    assert loop_missed(report(*[0.2] * 99, 4.9), 0.005, "bridge") is None
+    assert "bridge loop jitter p99 5.4 ms > one period 5.0 ms" == loop_missed(
+        report(*[5.4] * 100), 0.005, "bridge")
+    for missing in ([], [types.SimpleNamespace(jitter_ns=[])]):
+        with pytest.raises(pytest.fail.Exception, match="report .* did not arrive"):
+            loop_missed(missing, 0.005, "bridge")
