@@ -164,14 +164,19 @@ def loop_missed(reports: list[Any], period_s: float, who: str) -> str | None:
     return f"{who} loop jitter p99 {p99:.1f} ms > one period {period_s * 1e3:.1f} ms"
 
 
-def once_more(attempt: Callable[[], tuple[T, MachineLoad, str | None]], what: str) -> T:
+def once_more(attempt: Callable[[], tuple[T, MachineLoad, str | None]], what: str,
+              hopeless: Callable[[T], str | None] = lambda _: None) -> T:
     """For a test that runs and measures its processes itself: ``attempt()`` gives what it
     measured, the machine's load over it (:func:`measured`) and why the run missed its
-    clock (None: it kept it). A missed clock is run once more; missed again, it is judged
-    (:func:`judge_clock`: skipped when others starved it, failed when they did not)."""
+    clock (None: it kept it). A missed clock is run once more, unless ``hopeless`` says
+    why not (then judged at once); missed again, it is judged (:func:`judge_clock`:
+    skipped when others starved it, failed when they did not)."""
     result, load, why = attempt()
     if why is None:
         return result
+    beyond = hopeless(result)
+    if beyond is not None:
+        judge_clock(f"{why}: {beyond}", load, what)
     result, load_again, why_again = attempt()
     if why_again is not None:
         judge_clock(f"{why}; {load.text()}; then {why_again}", load_again, what)
@@ -181,25 +186,20 @@ def once_more(attempt: Callable[[], tuple[T, MachineLoad, str | None]], what: st
 def judged(run: Callable[[], T], metrics_of: Callable[[T], dict[str, Any]], what: str,
            measure: Callable[[], Any] = measured) -> T:
     """``run()`` under a measurement of the machine's load; once more when it missed
-    its clock (not beyond ``HOPELESS`` periods on a machine others left alone: that
-    fails at once); then skipped, naming both measurements, or failed when the machine
-    was left alone (:func:`judge_clock`)."""
-    with measure() as load:
-        first = run()
-    m = metrics_of(first)
-    reports_complete(m, what)
-    why = clock_missed(m)
-    if why is None:
-        return first
-    periods = _jitter_periods(m)
-    if periods is not None and periods > HOPELESS:
-        judge_clock(f"{why}: {periods:.1f} periods, not retried beyond {HOPELESS:g}", load, what)
-    with measure() as load_again:
-        second = run()
-    m2 = metrics_of(second)
-    reports_complete(m2, what)
-    why_again = clock_missed(m2)
-    if why_again is None:
-        return second
-    judge_clock(f"{why}; {load.text()}; then {why_again}", load_again, what)
-    raise AssertionError("unreachable")  # judge_clock skipped or failed
+    its clock (not beyond ``HOPELESS`` periods: judged at once); then skipped, naming
+    both measurements, or failed when the machine was left alone (:func:`once_more`)."""
+
+    def attempt() -> tuple[T, MachineLoad, str | None]:
+        with measure() as load:
+            result = run()
+        m = metrics_of(result)
+        reports_complete(m, what)
+        return result, load, clock_missed(m)
+
+    def hopeless(result: T) -> str | None:
+        periods = _jitter_periods(metrics_of(result))
+        if periods is None or periods <= HOPELESS:
+            return None
+        return f"{periods:.1f} periods, not retried beyond {HOPELESS:g}"
+
+    return once_more(attempt, what, hopeless)

@@ -9,9 +9,10 @@ recorder's threads, which a fork would copy in whatever state they were) and end
 pid, whatever happens here. Should it fail, the figures are drawn here as before.
 
 A run that will draw can ``prepare`` the child when it starts: the child imports
-matplotlib and renders a line of text (its fonts) while the run goes, then waits for the
-series on a pipe, so that at the end only the drawing itself (~2 s for ``paper``) is
-left after the run (spawning and importing took ~1 s more there; docs/bench.md).
+matplotlib and draws a small plot into memory (fonts, the mathtext of log ticks, the PNG
+encoder: ``figures.warm_up``) while the run goes, then waits for the series on a pipe,
+so that at the end only the drawing itself (~2 s for ``paper``) is left after the run
+(spawning and importing took ~1 s more there; docs/bench.md).
 """
 
 from __future__ import annotations
@@ -104,7 +105,7 @@ class FigureProcess:
                 self._jobs.send((sc, series, str(out_dir)))
                 return
             except OSError:  # the child is gone: one spawned now draws instead
-                self.stop()
+                pass
         self.stop()
         ctx = multiprocessing.get_context("spawn")
         try:
