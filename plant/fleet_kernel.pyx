@@ -12,7 +12,7 @@ DEF _SOURCE = PLANT_FLEET_KERNEL_SHA256  # given by setup.py at build time
 BUILT_FROM = _SOURCE  # the sha256 of the .pyx this module was built from (plant/kernels.py)
 
 
-from libc.math cimport cos, sin, tanh, hypot
+from libc.math cimport cos, sin, tanh, hypot, isfinite
 
 import numpy as np
 
@@ -244,7 +244,9 @@ cdef class FleetDynamics:
         position and velocity first) into ``q`` and ``qd`` (``states`` None: they hold the
         state already); then, unless ``torques`` is None, the wheels' forces (P3)-(P5) there
         from torques + h_d(t) (this kernel's disturbance) as the flat list [F_x, F_y, M_z,
-        ...] that setJointMotorControlArray takes."""
+        ...] that setJointMotorControlArray takes. Torques that are not all finite raise
+        ValueError before any force is computed (the plant's check of its input, at C
+        cost: numpy's isfinite().all() on 12 values was ~3 % of an in-process run)."""
         cdef int i, j, n = self.n
         cdef tuple joint
         cdef double d[4]
@@ -262,6 +264,10 @@ cdef class FleetDynamics:
                     q[i, j], qd[i, j] = joint[0], joint[1]
         if torques is None:
             return None
+        for i in range(n):
+            for j in range(4):
+                if not isfinite(torques[i, j]):
+                    raise ValueError("torques must be finite")
         if self.kind != 0:
             _disturbance(self.kind, self.scale, self.constant, t, d)
             h_d = d

@@ -425,12 +425,12 @@ class PybulletPlant:
 
     # -- stepping ----------------------------------------------------------------
     def step(self, t: float, dt: float, torques: np.ndarray, v_cmd: np.ndarray) -> None:
-        """Advance by dt with wheel torques u held; ``v_cmd`` is ignored."""
+        """Advance by dt with wheel torques u held; ``v_cmd`` is ignored. Torques of
+        another shape, or not all finite, raise ValueError and change nothing (the
+        kernel's first sub-step checks their values before Bullet is called)."""
         u = np.ascontiguousarray(torques, dtype=float)
         if u.shape != self._wheel_torques.shape:
             raise ValueError(f"torques must be ({len(self._chassis)}, 4), got {u.shape}")
-        if not np.isfinite(u).all():
-            raise ValueError("torques must be finite")
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"dt must be positive and finite, got {dt}")
         cid = self._cid

@@ -186,8 +186,8 @@ class PlantNode:
         plant_q, plant_qd = self.plant.q, self.plant.q_dot
         # the whole state within the wire's bound, checked once: every float of the
         # samples comes from it (perception: positions, velocities, the scenario's radii)
-        checked = within_wire_bound(plant_q, plant_qd)
         q, qd = plant_q.tolist(), plant_qd.tolist()
+        checked = within_wire_bound(q, qd)
         stamps_of, last_seq = self.sent_stamps, self.last_state_seq
         for i, (rid, key, (robots, obstacles)) in enumerate(
                 zip(self.ids, self.sample_keys, self.sense(), strict=True)):

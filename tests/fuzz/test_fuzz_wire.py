@@ -20,6 +20,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from deploy.contract.wire import (
+    FLOAT_LIMIT,
     MAX_BODIES,
     MESSAGE_TYPES,
     WIRE_VERSION,
@@ -29,6 +30,7 @@ from deploy.contract.wire import (
     Sample,
     SensedBody,
     encode,
+    within_wire_bound,
 )
 
 CODEC = Codec(list(ROBOT_IDS))
@@ -119,3 +121,22 @@ def test_a_message_of_another_wire_version_is_refused_and_counted_apart() -> Non
     assert codec.wrong_version == 2 and codec.versions_seen == {1}
     assert codec.decode(Sample, b"\xc1garbage", 1) is None
     assert codec.wrong_version == 2  # garbage is invalid, not another version
+
+
+STATE_FLOATS = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.sampled_from([FLOAT_LIMIT, -FLOAT_LIMIT, math.nextafter(FLOAT_LIMIT, math.inf),
+                     -math.nextafter(FLOAT_LIMIT, math.inf), 1e308, math.nan, -math.inf]))
+
+
+@fuzz_settings(200)
+@given(st.lists(STATE_FLOATS, min_size=6, max_size=6))
+def test_the_plants_one_check_of_a_state_says_what_the_receivers_schema_takes(
+        values: list[float]) -> None:
+    """The plant sends its samples unchecked when ``within_wire_bound`` passed its state:
+    so it must pass exactly the states whose sample the receivers' decoder accepts."""
+    q, q_dot = tuple(values[:3]), tuple(values[3:])
+    raw = encode(Sample(WIRE_VERSION, 0, 0, 0, robot=ROBOT_IDS[0], k=0, t=0.0, q=q,
+                        q_dot=q_dot, robots=[], obstacles=[]))
+    taken = CODEC.decode(Sample, raw, ROBOT_IDS[0]) is not None
+    assert within_wire_bound([list(q)], [list(q_dot)]) == taken
