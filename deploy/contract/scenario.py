@@ -305,6 +305,14 @@ class Scenario:
             )
         return ids.index(robot_id)
 
+    def bridge_phase_s(self, robot_id: int) -> float:
+        """When robot ``robot_id``'s CAN bridge runs each period, after the period's start
+        t_k: the bridges' periods are staggered by dt / n in the robots' order (as
+        bridges on separate hosts would be; aligned, every bridge of one host woke at
+        once with the same work, and on 2 cores the last waited for the others:
+        docs/bench.md). Its state at step k is measured then."""
+        return self.dt * self.index_of(robot_id) / self.n
+
     def listeners(self, index: int) -> list[int]:
         """Ids of the robots whose agents use robot ``index``'s share (a_ji != 0)."""
         return [self.robot_ids[j] for j in range(self.n)

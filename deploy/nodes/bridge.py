@@ -69,6 +69,10 @@ class BridgeNode:
                  heartbeat_timeout_s: float = 0.35) -> None:
         self.sc, self.rid, self.node, self.stop = sc, robot_id, node, stop
         self.index = sc.index_of(robot_id)
+        # this bridge's periods start this long after the run's (staggered: the drives'
+        # reports, a sample and then the torque frames of every bridge of a host no
+        # longer fall due at once); step k is still the period since t = 0
+        self.phase_s = sc.bridge_phase_s(robot_id)
         self.bus, self.protocol, self.node_ids = bus, protocol, list(node_ids)
         q0, _ = sc.initial_state()
         self.odometry = Odometry(sc.model(), q0[self.index])
@@ -298,7 +302,7 @@ class BridgeNode:
     def run_realtime(self, t0_mono: float, steps: int) -> None:
         dt = self.sc.dt
         self.clock.t0_s = t0_mono
-        ticker = Periodic(t0_mono, dt, self.timing, self.node.mailbox)
+        ticker = Periodic(t0_mono + self.phase_s, dt, self.timing, self.node.mailbox)
         last = getattr(self, "_pre_run_last", None)
         try:
             while not self.stop():

@@ -242,7 +242,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
 
         extra["odometry_drift"] = odometry_drift(
             series, sc.robot_ids, launcher.truth_files, launcher.observer.t0_mono,
-            launcher.observer.collector.have_state)
+            launcher.observer.collector.have_state, [sc.bridge_phase_s(r) for r in sc.robot_ids])
         extra["emulator_lag_ms"] = emulator_lag_ms(launcher.truth_files)
         extra["driver"] = opts.driver  # the drives' protocol on every robot's bus
         c = launcher.observer.collector
