@@ -222,6 +222,13 @@ class ForceLaw:
         return self._fleet.bullet_substep
 
     @property
+    def step_in_bullet(self) -> Callable[..., list[tuple]]:
+        """``step_in_bullet(bullet, bodies, torques, other, wheel_torques, t, h, substeps, q,
+        q_dot)``: a pybullet plant's whole step, its sub-steps' loop compiled
+        (``FleetDynamics.bullet_step``); each sub-step's contact points."""
+        return self._fleet.bullet_step
+
+    @property
     def free_substep(self) -> Callable[[list[float], float, np.ndarray, np.ndarray], None]:
         """``free_substep(forces, h, q, q_dot)``: a sub-step without contact as Bullet
         integrates it, v += h M_q^-1 F, q += h v, in place (``FleetDynamics.
@@ -301,6 +308,13 @@ class PybulletPlant:
             raise RuntimeError("could not connect to a pybullet physics server")
         self._finalizer = weakref.finalize(self, _disconnect, self._cid)
         cid = self._cid
+        # what the kernel's step loop calls (FleetDynamics.bullet_step), with positional
+        # arguments: parsing keywords costs ~0.3 µs a call (of 1-3). setJointMotorControlArray
+        # wants every sequence before the client id as long as the joints and reads only the
+        # forces in TORQUE_CONTROL: the forces stand in for the target positions, velocities
+        # and gains; getContactPoints(-1, -1, -2, -2): no body or link filter (its defaults)
+        self._bullet = (pb.setJointMotorControlArray, pb.stepSimulation, pb.getContactPoints,
+                        pb.getJointStates, pb.TORQUE_CONTROL, cid)
         pb.setGravity(0.0, 0.0, 0.0, physicsClientId=cid)
         pb.setPhysicsEngineParameter(numSubSteps=1, deterministicOverlappingPairs=1,
                                      physicsClientId=cid)
@@ -439,40 +453,15 @@ class PybulletPlant:
             pb.setPhysicsEngineParameter(fixedTimeStep=h, numSubSteps=1, physicsClientId=cid)
             self._h = h
         # new arrays each step (whoever kept the last state keeps it unchanged), written in
-        # place by every sub-step
+        # place by every sub-step: the kernel runs the sub-steps' loop, Bullet's calls
+        # included (FleetDynamics.bullet_step: the forces in, Bullet's step, its contact
+        # points, its state read back after a contact and at the end, else predicted)
         q, qd = self.q.copy(), self.q_dot.copy()
-        substep, other, wheel_torques = self._law.substep, self._other, self._wheel_torques
-        set_forces, read, torque, bodies = pb.setJointMotorControlArray, pb.getJointStates, \
-            pb.TORQUE_CONTROL, self._bodies
-        # pybullet's calls with positional arguments: parsing keywords costs ~0.3 µs a call
-        # (of 1-3). setJointMotorControlArray wants every sequence before the client id as
-        # long as the joints, and reads only the forces in TORQUE_CONTROL: the forces stand
-        # in for the target positions, velocities and gains. getContactPoints(-1, -1, -2,
-        # -2): no body or link filter (its defaults).
-        states = None  # the first sub-step starts from q, qd
-        free, last = self._law.free_substep, self.substeps - 1
-        for k in range(self.substeps):
-            ts = t + k * h
-            if other is None:
-                forces = substep(states, u, ts, q, qd)  # (P3)-(P5), h_d(ts) inside
-            else:
-                np.add(u, other(ts), out=wheel_torques)
-                forces = substep(states, wheel_torques, ts, q, qd)
-            for body, joints, a, b in bodies:
-                f = forces[a:b]
-                set_forces(body, joints, torque, f, f, f, f, f, cid)
-            pb.stepSimulation(cid)
-            points = pb.getContactPoints(-1, -1, -2, -2, cid)
-            if points or k == last:  # Bullet's own state: a contact acted, or the step's end
-                states = ()
-                for body, joints, _, _ in bodies:
-                    states += read(body, joints, cid)
-            else:  # no contact point, no constraint: Bullet's free step, (P2), predicted
-                free(forces, h, q, qd)
-                states = None
+        seen = self._law.step_in_bullet(self._bullet, self._bodies, u, self._other,
+                                        self._wheel_torques, t, h, self.substeps, q, qd)
+        for k, points in enumerate(seen):
             if points or self._ongoing:
-                self._record_contacts(ts, points)
-        substep(states, None, t, q, qd)
+                self._record_contacts(t + k * h, points)
         self.q, self.q_dot = q, qd
 
     def _record_contacts(self, ts: float, points: Sequence[tuple]) -> None:
