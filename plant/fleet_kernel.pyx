@@ -1,7 +1,9 @@
 """The plant's per-step arithmetic on C doubles: eq. (4) integrated for the whole fleet
 (RK4 sub-steps, the disturbance h_d(t) of eq. 49 inside), the pybullet plant's wheel forces
-between its calls to Bullet, and what each robot perceives of the discs around it. One pass
-over the fleet per step, no Python object per robot.
+between its calls to Bullet (and its loop over the sub-steps, which calls the pybullet
+functions the plant hands it: this module imports no pybullet), and what each robot
+perceives of the discs around it. One pass over the fleet per step, no Python object per
+robot.
 
 Why compiled: as numpy over 3-vectors a robot-step of RK4 cost ~100 µs, almost all of it
 the per-call overhead of ~400 numpy calls on arrays of 3-12 elements; the same loops on C

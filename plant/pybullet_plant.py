@@ -195,7 +195,8 @@ class ForceLaw:
 
     :attr:`substep` is the same law as a plant's sub-step uses it (``FleetDynamics.
     bullet_substep``): from the joint states Bullet returned to the next forces in one
-    call, h_d added inside when ``disturbance`` is the scenario's (:class:`Disturbance`).
+    call, h_d added inside when ``disturbance`` is the scenario's (:class:`Disturbance`);
+    :attr:`step_in_bullet` runs a whole step's sub-steps with the same arithmetic.
     """
 
     def __init__(self, models: Sequence[MecanumModel], disturbance: Disturbance | None = None) -> None:
