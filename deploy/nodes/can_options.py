@@ -211,9 +211,9 @@ def _drop_own_frames(bus: Any) -> None:
     unpacked: what the bus then receives is, as a multiset, exactly what the others sent
     (a CAN identifier has one sender, and even two senders of identical bytes lose only
     copies of our own). Measured on the CAN fleet (``lab --plant can-emulated``, 200 Hz):
-    each bridge's receive thread heard its own 4 torque frames a period, ~65 % of its
-    frames, and the emulator its own encoder frames; each cost a wake-up, the unpacking
-    and the GIL (docs/bench.md)."""
+    each bridge's receive thread heard its own 4 torque frames a period (about two thirds
+    of its frames, by the frame rates), and the emulator its own encoder frames; each
+    cost a wake-up, the unpacking and the GIL (docs/bench.md)."""
     multicast = getattr(bus, "_multicast", None)
     send, recv = getattr(multicast, "send", None), getattr(multicast, "recv", None)
     if send is None or recv is None:
