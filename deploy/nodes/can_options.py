@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import math
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -244,11 +245,16 @@ def _drop_own_frames(bus: Any) -> None:
             raise
 
     def recv_others(timeout: float | None = None) -> Any:
-        got = recv(timeout)
-        if got:
+        # ours are read past within the same timeout: a frame queued behind one of them
+        # is returned by this call (recv(timeout=0), the emulator's poll once a tick,
+        # would otherwise stop at our own frame and leave a torque frame for later)
+        end = None if timeout is None else time.monotonic() + timeout
+        while True:
+            got = recv(None if end is None else max(end - time.monotonic(), 0.0))
+            if not got:
+                return got
             with lock:
-                if forget_one(got[0]):
-                    return None  # ours: BusABC.recv waits on for the rest of its timeout
-        return got
+                if not forget_one(got[0]):
+                    return got
 
     multicast.send, multicast.recv = send_counted, recv_others

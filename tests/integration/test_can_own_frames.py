@@ -6,11 +6,12 @@ for each of its own torque frames."""
 from __future__ import annotations
 
 import random
+from types import SimpleNamespace
 
 import can
 import pytest
 
-from deploy.nodes.can_options import _open
+from deploy.nodes.can_options import _drop_own_frames, _open
 
 
 @pytest.fixture
@@ -56,3 +57,32 @@ def test_identical_frames_of_two_senders_each_reach_the_other_as_often_as_sent(t
     b.send(same)
     assert _heard(a) == [bytes([7, 7, 7, 7])]
     assert _heard(b) == [bytes([7, 7, 7, 7])] * 2
+
+
+class _Loopback:
+    """A multicast group's socket as python-can's udp_multicast bus holds it: what it
+    sends comes back to it (the loopback), after whatever was queued before."""
+
+    def __init__(self) -> None:
+        self.queue: list[bytes] = []
+
+    def send(self, data: bytes, timeout: float | None = None) -> None:
+        self.queue.append(data)
+
+    def recv(self, timeout: float | None = None):
+        return (self.queue.pop(0), ("127.0.0.1", 0), 0.0) if self.queue else None
+
+
+def test_a_poll_reads_past_its_own_frames_to_the_others():
+    """``recv(timeout=0)`` (the emulator polls its bus so once a tick) returns the other's
+    datagram queued behind two of its own, and None once only its own were there."""
+    bus = SimpleNamespace(_multicast=_Loopback())
+    _drop_own_frames(bus)
+    group = bus._multicast
+    group.send(b"own-1")
+    group.send(b"own-2")
+    group.queue.append(b"theirs")
+    assert group.recv(0.0) == (b"theirs", ("127.0.0.1", 0), 0.0)
+    group.send(b"own-3")
+    assert group.recv(0.0) is None
+    assert group.queue == []
