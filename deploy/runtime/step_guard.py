@@ -130,7 +130,10 @@ class OwnClock:
             waited = max(0.0, now - self.answered_at)
             return self.answered + 1 + int(waited / (self.deadline_s * DEADLINE_MARGIN))
         if self.t0_s is not None:
-            return int((now - self.t0_s + CLOCK_SKEW_S) / self.dt) + 1
+            # never below -1: the initial shares (k = -1) go out at the handshake, before
+            # t = 0, and one still queued when t = 0 is known was refused as ahead (the
+            # bound was int() of a negative time: -34 at 0.35 s before t = 0, 100 Hz)
+            return max(-1, math.floor((now - self.t0_s + CLOCK_SKEW_S) / self.dt) + 1)
         return None
 
     def refusal(self, k: int, seq: int, now: float, ahead: int = 0) -> str | None:

@@ -146,3 +146,19 @@ def test_realtime_no_sender_is_past_the_wall_clock():
     assert c.refusal(1000 + int(CLOCK_SKEW_S / 0.001), 0, 6.0) is None  # within the skew
     assert c.refusal(1200, 0, 6.0) == "step ahead of our clock"
     assert c.refusal(900, 2**62, 6.0) == "seq ahead of our clock"
+
+
+def test_realtime_an_initial_share_is_heard_before_the_run_starts():
+    """A neighbour's initial share (k = -1) goes out at the handshake, before t = 0: one
+    handled after ``ctl/start`` told us t = 0 but before that instant is real (refused
+    as "step ahead" once, 0.3 s before t = 0 at 100 Hz: the realtime forgery test's
+    flake), while a sample of step 0 that early is not."""
+    from deploy.runtime.step_guard import CLOCK_SKEW_S, OwnClock
+
+    c = OwnClock(dt=0.01)
+    c.t0_s = 10.0
+    for before in (0.3, 1.0, 60.0):
+        assert c.latest(10.0 - before) == -1
+        assert c.refusal(-1, 0, 10.0 - before) is None
+        assert c.refusal(0, 0, 10.0 - before) == "step ahead of our clock"
+    assert c.refusal(0, 0, 10.0 - CLOCK_SKEW_S + 1e-6) is None  # within the skew of t = 0
