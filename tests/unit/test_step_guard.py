@@ -151,7 +151,7 @@ def test_realtime_no_sender_is_past_the_wall_clock():
 def test_realtime_an_initial_share_is_heard_before_the_run_starts():
     """A neighbour's initial share (k = -1) goes out at the handshake, before t = 0: one
     handled after ``ctl/start`` told us t = 0 but before that instant is real (refused
-    as "step ahead" once, 0.3 s before t = 0 at 100 Hz: the realtime forgery test's
+    as "step ahead", 0.3 s before t = 0 at 100 Hz: most likely the realtime forgery test's
     flake), while a sample of step 0 that early is not."""
     from deploy.runtime.step_guard import CLOCK_SKEW_S, OwnClock
 
