@@ -132,7 +132,7 @@ class OwnClock:
         if self.t0_s is not None:
             # never below -1: the initial shares (k = -1) go out at the handshake, before
             # t = 0, and one still queued when t = 0 is known was refused as ahead (the
-            # bound was int() of a negative time: -19 at 0.3 s before t = 0, 100 Hz)
+            # bound was int() of a negative time: -18 at 0.3 s before t = 0, 100 Hz)
             return max(-1, math.floor((now - self.t0_s + CLOCK_SKEW_S) / self.dt) + 1)
         return None
 
