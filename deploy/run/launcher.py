@@ -215,11 +215,15 @@ class Launcher:
 
 def _write_endpoints(out: Path, launcher_endpoint: str, children, run_dir: Path) -> None:
     """logs/endpoints.json: where each node of the run listens (a tool that must
-    reach the fleet itself, a probe, connects to those it needs)."""
+    reach the fleet itself, a probe, connects to those it needs). Written whole, then
+    renamed: a tool that sees the file never reads half of it (or none)."""
     import json
+    import os
 
     where = {LAUNCHER_ROLE: launcher_endpoint}
     where |= {c.role: endpoint_of(run_dir, c.role) for c in children if c.zenoh}
     path = out / "logs" / "endpoints.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(where, indent=1) + "\n")
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(where, indent=1) + "\n")
+    os.replace(tmp, path)

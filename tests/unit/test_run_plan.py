@@ -91,3 +91,30 @@ def test_run_refuses_a_driver_without_can_bridges(capsys):
     assert main(["run", "lab", "--plant", "model", "--driver", "cia402", "--in-process",
                  "--out", "/tmp/never-written"]) == 2
     assert "--driver cia402 drives CAN bridges: it needs --plant can-emulated" in capsys.readouterr().err
+
+
+def test_endpoints_json_is_never_seen_half_written(tmp_path, monkeypatch):
+    """A probe polls for logs/endpoints.json and reads it as soon as it exists: the file
+    appears whole (written aside, then renamed), never empty. Every write is watched: at
+    no write does the file the probe reads exist with other content than the final one."""
+    import json
+
+    from deploy.run import launcher
+
+    _, plan = _plan("paper")
+    path = tmp_path / "logs" / "endpoints.json"
+    seen: list[str] = []
+    write = Path.write_text
+
+    def watched(self: Path, data: str, *a, **k):
+        seen.append(path.read_text() if path.exists() else "<absent>")
+        out = write(self, data, *a, **k)
+        seen.append(path.read_text() if path.exists() else "<absent>")
+        return out
+
+    monkeypatch.setattr(Path, "write_text", watched)
+    launcher._write_endpoints(tmp_path, LAUNCHER, plan.children, RUN_DIR)
+    assert seen and set(seen) == {"<absent>"}  # nothing at the path until the rename
+    where = json.loads(path.read_text())
+    assert where["launcher"] == LAUNCHER and where["plant"] == endpoint_of(RUN_DIR, "plant")
+    assert [p.name for p in path.parent.iterdir()] == ["endpoints.json"]
