@@ -7,6 +7,7 @@ flattened column. Column names and units are listed in ``COLUMNS``.
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,6 +46,11 @@ AGENT_FLOAT_COLUMNS = (("q_d", 3), ("e", 3), ("s", 3), ("v_cmd", 3), ("torque", 
                        ("q0_hat", 3), ("q_fd", 3), ("fdb_error", 1), ("input_age", 1),
                        ("speed_factor", 1), ("safety_dv", 1))
 AGENT_ROW_WIDTH = sum(w for _, w in AGENT_FLOAT_COLUMNS)
+# one row of the block as bytes (native order, no padding): packed in place by one C call
+# (a numpy assignment of the tuple first discovers its shape and type, ~2x the cost)
+_AGENT_ROW = struct.Struct(f"={AGENT_ROW_WIDTH}d")
+# an active set (highest priority first) -> its bitmask and its text, built once each
+_ORDERS: dict[tuple[str, ...], tuple[int, str]] = {}
 # columns a series written before them lacks: loaded as "never happened"
 _ADDED_LATER = ("safety_active", "safety_dv", "safety_infeasible")
 
@@ -114,14 +120,22 @@ class TimeSeries:
         highest priority first."""
         rows = getattr(self, "_agent_rows", None)
         if rows is not None:
-            rows[k, i] = floats
+            steps, n = rows.shape[:2]
+            if not (0 <= k < steps and 0 <= i < n):
+                raise IndexError(f"row ({k}, {i}) of a series of {steps} steps, {n} robots")
+            _AGENT_ROW.pack_into(rows, (k * n + i) * _AGENT_ROW.size, *floats)
         else:  # a series built from its columns (loaded, or cut short)
             j = 0
             for name, width in AGENT_FLOAT_COLUMNS:
                 getattr(self, name)[k, i] = floats[j] if width == 1 else floats[j:j + width]
                 j += width
-        self.active[k, i] = sum(BEHAVIOR_BITS.get(b, 0) for b in order)
-        self.order[k, i] = ">".join(order)
+        key = tuple(order)
+        bits_text = _ORDERS.get(key)
+        if bits_text is None:
+            bits_text = (sum(BEHAVIOR_BITS.get(b, 0) for b in key), ">".join(key))
+            if len(_ORDERS) < 64:  # the behaviors' orders are few; anything else not kept
+                _ORDERS[key] = bits_text
+        self.active[k, i], self.order[k, i] = bits_text
         self.nonfinite[k, i] = nonfinite
         self.safety_active[k, i] = safety_active
         self.safety_infeasible[k, i] = safety_infeasible

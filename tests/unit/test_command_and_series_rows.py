@@ -10,6 +10,7 @@ import math
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from deploy.report.timeseries import AGENT_FLOAT_COLUMNS, AGENT_ROW_WIDTH, COLUMNS, TimeSeries
 from plant.command import PLAUSIBLE_SPEED_MPS, PLAUSIBLE_TORQUE_NM, CommandBounds, exceeds
@@ -55,3 +56,9 @@ def test_a_row_written_as_one_block_equals_the_same_row_column_by_column():
     assert j == AGENT_ROW_WIDTH
     assert block.order[0, 1] == "FOCB>FDB" and block.active[0, 1] == 3
     assert block.speed_factor.dtype == float and block.nonfinite[1, 0] == 1
+    # the row is packed into the block's bytes: a row outside it is refused, never wrapped
+    # around (numpy's k = -1) or written past its end
+    for k, i in ((-1, 0), (3, 0), (0, 2), (0, -1)):
+        with pytest.raises(IndexError):
+            block.record_agent_row(k, i, (0.0,) * AGENT_ROW_WIDTH, (), False, False, False)
+    assert np.array_equal(block.q_d, columns.q_d)
