@@ -20,6 +20,12 @@ import numpy as np
 
 # disturbance kinds, as make_disturbance names them (plant/disturbance.py)
 DISTURBANCE_KINDS = ("none", "constant", "paper")
+# Bullet keeps a contact point while its bodies are within its contact breaking threshold
+# (0.02 m; measured: none at 0.019 m, tests/integration/test_pybullet_plant.py): a
+# sub-step that starts with every robot farther than this from every other body finds
+# none, and its contact query (~33k instructions, an eighth of the in-process loop's) is
+# not made
+CONTACT_QUERY_GAP_M = 0.1
 
 
 cdef void model_from(Model* m, object model):
@@ -320,7 +326,8 @@ cdef class FleetDynamics:
 
     def bullet_step(self, tuple bullet, list bodies, const double[:, ::1] torques,
                     object other, double[:, ::1] wheel_torques, double t, double h,
-                    int substeps, double[:, ::1] q, double[:, ::1] qd):
+                    int substeps, double[:, ::1] q, double[:, ::1] qd,
+                    const double[::1] radii=None, const double[:, ::1] discs=None):
         """A pybullet plant's whole step (plant/pybullet_plant.py ``step``), ``substeps``
         sub-steps of ``h`` from the state (q, qd) at ``t``, in place. Each sub-step: the
         wheels' forces (P3)-(P5) from the torques (plus ``other(ts)``, a disturbance other
@@ -333,16 +340,26 @@ cdef class FleetDynamics:
         ``bodies``: (body, joint indices, first, end) per multibody, its slice of the
         forces. Returns each sub-step's contact points. Compiled, the loop costs ~6 µs a
         step less than as Python around the same calls (docs/bench.md). Torques that are not
-        all finite raise ValueError before Bullet is called."""
+        all finite raise ValueError before Bullet is called.
+
+        ``radii`` (each robot's collision radius) and ``discs`` (rows x, y, radius: every
+        other body of the world, static discs), when given: a sub-step that starts with
+        every robot more than ``CONTACT_QUERY_GAP_M`` from every other body (Bullet finds
+        contact points at the sub-step's start) has none, and Bullet is not asked for
+        them. Without them (a world with other shapes), every sub-step asks."""
         cdef int k, last = substeps - 1
         cdef const double[:, ::1] u = torques
         cdef tuple states = None
         cdef tuple body
         cdef list forces, seen = [None] * substeps
         cdef double ts
+        cdef bint query = True
         self._check_state(q, qd)
         if substeps < 1:
             raise ValueError(f"substeps must be >= 1, got {substeps}")
+        if (radii is None) != (discs is None) or radii is not None and (
+                radii.shape[0] != self.n or discs.shape[1] != 3):
+            raise ValueError("radii and discs: both or neither, (n,) and (m, 3)")
         set_forces, step_bullet, contact_points, joint_states, mode, cid = bullet
         for k in range(substeps):
             ts = t + k * h
@@ -355,8 +372,10 @@ cdef class FleetDynamics:
             for body in bodies:
                 f = forces[<int> body[2]:<int> body[3]]
                 set_forces(body[0], body[1], mode, f, f, f, f, f, cid)
+            if radii is not None:  # where the robots are as this sub-step starts
+                query = not _apart(q, radii, discs, CONTACT_QUERY_GAP_M)
             step_bullet(cid)
-            points = contact_points(-1, -1, -2, -2, cid)
+            points = contact_points(-1, -1, -2, -2, cid) if query else ()
             seen[k] = points
             if points or k == last:  # Bullet's own state: a contact acted, or the step's end
                 states = ()
@@ -403,6 +422,21 @@ cdef class FleetDynamics:
                                        &stage_disturbance[2 * k + 2, i, 0], h)
 
 
+cdef bint _apart(const double[:, ::1] q, const double[::1] radii, const double[:, ::1] discs,
+                 double gap) noexcept:
+    """Every robot (rows of ``q``, radii ``radii``) more than ``gap`` from every other robot
+    and every disc (rows x, y, radius), surface to surface; a non-finite position is not."""
+    cdef Py_ssize_t i, j, n = q.shape[0], m = discs.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            if not hypot(q[j, 0] - q[i, 0], q[j, 1] - q[i, 1]) - radii[i] - radii[j] > gap:
+                return False
+        for j in range(m):
+            if not hypot(discs[j, 0] - q[i, 0], discs[j, 1] - q[i, 1]) - radii[i] - discs[j, 2] > gap:
+                return False
+    return True
+
+
 cdef (int, int) _sense(int i, const double[:, ::1] positions, const double[:, ::1] velocities,
                        const double[::1] radii, const long[::1] ids,
                        const double[:, ::1] obstacles, const long[::1] obstacle_ids,
@@ -430,13 +464,31 @@ cdef (int, int) _sense(int i, const double[:, ::1] positions, const double[:, ::
     return nr, no
 
 
+cdef void _check_discs(const double[:, ::1] positions, const double[:, ::1] velocities,
+                       const double[::1] radii, const long[::1] ids,
+                       const double[:, ::1] obstacles, const long[::1] obstacle_ids) except *:
+    """The shapes :func:`_sense` reads within (the kernel runs without bounds checks)."""
+    cdef Py_ssize_t n = positions.shape[0]
+    if positions.shape[1] < 2 or velocities.shape[1] < 2 or velocities.shape[0] != n:
+        raise ValueError(f"positions and velocities must be (n, 2+) alike, got "
+                         f"({n}, {positions.shape[1]}) and ({velocities.shape[0]}, {velocities.shape[1]})")
+    if radii.shape[0] != n or ids.shape[0] != n:
+        raise ValueError(f"{n} robots, {radii.shape[0]} radii, {ids.shape[0]} ids")
+    if obstacles.shape[1] < 5 or obstacle_ids.shape[0] != obstacles.shape[0]:
+        raise ValueError("obstacles must be (m, 5) rows (x, y, vx, vy, radius), one id each")
+
+
 def sense_discs(int i, const double[:, ::1] positions, const double[:, ::1] velocities,
                 const double[::1] radii, const long[::1] ids, const double[:, ::1] obstacles,
                 const long[::1] obstacle_ids, double detection_range_m):
     """The discs robot ``i`` perceives (plant/perception.py): the other robots and the
     obstacles whose surface is within r_det of its centre, each as (ident, x, y, vx, vy,
     radius); ``obstacles`` rows are (x, y, vx, vy, radius). Returns (robots, obstacles),
-    two (k, 6) arrays in the order of their inputs."""
+    two (k, 6) arrays in the order of their inputs. ``positions`` and ``velocities``:
+    (n, 2 or more), only their first two columns read (a plant's (n, 3) state as it is)."""
+    _check_discs(positions, velocities, radii, ids, obstacles, obstacle_ids)
+    if not 0 <= i < positions.shape[0]:
+        raise IndexError(f"robot row {i} of {positions.shape[0]}")
     robots = np.empty((max(positions.shape[0] - 1, 0), 6))
     seen = np.empty((obstacles.shape[0], 6))
     nr, no = _sense(i, positions, velocities, radii, ids, obstacles, obstacle_ids,
@@ -449,6 +501,7 @@ def sense_fleet(const double[:, ::1] positions, const double[:, ::1] velocities,
                 const long[::1] obstacle_ids, double detection_range_m):
     """:func:`sense_discs` for every robot in one pass: a list of (robots, obstacles),
     views into two arrays filled at once (one allocation each, the inputs read once)."""
+    _check_discs(positions, velocities, radii, ids, obstacles, obstacle_ids)
     cdef int n = positions.shape[0], m = obstacles.shape[0], i, nr, no
     robots = np.empty((n, max(n - 1, 0), 6))
     seen = np.empty((n, m, 6))

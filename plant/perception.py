@@ -42,9 +42,8 @@ class Perception:
              ) -> tuple[np.ndarray, np.ndarray]:
         """(robots, obstacles) seen by the robot at row ``i`` of ``positions`` (n, 2+):
         discs, then the nearest points of the walls and polygons in range."""
-        robots, seen = sense_discs(i, np.ascontiguousarray(positions[:, :2], dtype=float),
-                                   np.ascontiguousarray(velocities[:, :2], dtype=float),
-                                   self.radii, self.ids, self.obstacles, self.obstacle_ids,
+        robots, seen = sense_discs(i, _floats(positions), _floats(velocities), self.radii,
+                                   self.ids, self.obstacles, self.obstacle_ids,
                                    self.detection_range_m)
         if self.shapes:
             walls = body_rows(shape_bodies(float(positions[i, 0]), float(positions[i, 1]),
@@ -56,10 +55,9 @@ class Perception:
     def fleet_rows(self, positions: np.ndarray, velocities: np.ndarray
                    ) -> list[tuple[np.ndarray, np.ndarray]]:
         """:meth:`rows` for every robot, in one call of the kernel."""
-        pos = np.ascontiguousarray(positions[:, :2], dtype=float)
-        out = sense_fleet(pos, np.ascontiguousarray(velocities[:, :2], dtype=float),
-                          self.radii, self.ids, self.obstacles, self.obstacle_ids,
-                          self.detection_range_m)
+        pos = _floats(positions)
+        out = sense_fleet(pos, _floats(velocities), self.radii, self.ids, self.obstacles,
+                          self.obstacle_ids, self.detection_range_m)
         if not self.shapes:
             return out
         for i, (robots, seen) in enumerate(out):
@@ -68,6 +66,14 @@ class Perception:
             if len(walls):
                 out[i] = (robots, np.concatenate([seen, walls]))
         return out
+
+
+def _floats(rows: np.ndarray) -> np.ndarray:
+    """``rows`` as the kernel reads them, C-ordered float64: a plant's state as it is (its
+    (n, 3) arrays are; the kernel reads the first two columns), a copy otherwise."""
+    if type(rows) is np.ndarray and rows.dtype == np.float64 and rows.flags.c_contiguous:
+        return rows
+    return np.ascontiguousarray(rows, dtype=float)
 
 
 def sense(

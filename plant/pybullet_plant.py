@@ -365,6 +365,13 @@ class PybulletPlant:
             ))
             self._collision_radius.append(r)
         self._shape_ids = [self._prism(poly, gui) for poly in self.shapes]
+        # the world as discs, for the kernel to skip the contact query of a sub-step that
+        # starts with every robot clear of every body; a world with prisms: none (it asks)
+        self._discs: tuple = () if self.shapes else (
+            np.array(self.robot_radii, dtype=float),
+            np.array([[*(float(v) for v in o.position), r]
+                      for o, r in zip(self.obstacles, self._collision_radius, strict=True)],
+                     dtype=float).reshape(-1, 3))
 
         # Bullet's (body id, link index) -> scenario ident (robot id, or obstacle ident)
         self._ident = dict(zip(self._chassis, self.robot_ids, strict=True))
@@ -459,7 +466,8 @@ class PybulletPlant:
         # points, its state read back after a contact and at the end, else predicted)
         q, qd = self.q.copy(), self.q_dot.copy()
         seen = self._law.step_in_bullet(self._bullet, self._bodies, u, self._other,
-                                        self._wheel_torques, t, h, self.substeps, q, qd)
+                                        self._wheel_torques, t, h, self.substeps, q, qd,
+                                        *self._discs)
         for k, points in enumerate(seen):
             if points or self._ongoing:
                 self._record_contacts(t + k * h, points)

@@ -15,7 +15,7 @@ that is not the code under test.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import numpy as np
 import pybullet as pb
@@ -574,6 +574,99 @@ def test_perceive_equals_sense_in_scenarios_and_random_worlds():
                      for k, rad in enumerate(rng.choice([0.0, 0.15, 0.4], 6))]
         list(_check_perceive(q, rng.normal(size=(n, 3)), list(rng.uniform(0.1, 0.5, n)),
                              [3, 1, 8, 2], obstacles, 3.0))
+
+
+def test_fleet_perception_reads_a_plants_state_as_it_is_and_refuses_short_rows():
+    """Perception.fleet_rows hands the kernel a plant's (n, 3) state without copying it:
+    the kernel reads the first two columns, so the rows equal those of the (n, 2) copies
+    and of ``sense`` robot by robot; rows of fewer than 2 columns, or velocities of
+    another fleet, are refused (the kernel runs without bounds checks)."""
+    from plant.fleet_kernel import sense_fleet
+
+    from plant.perception import Perception
+
+    rng = np.random.default_rng(3)
+    obstacles = [Body(-(k + 1), rng.uniform(-3, 3, 2), np.zeros(2), 0.3) for k in range(5)]
+    q, q_dot = rng.uniform(-3, 3, (4, 3)), rng.normal(size=(4, 3))
+    world = Perception([0.25] * 4, [1, 2, 3, 4], obstacles, 2.5)
+    whole = world.fleet_rows(q, q_dot)
+    halves = world.fleet_rows(q[:, :2].copy(), q_dot[:, :2].copy())
+    for i, ((r, o), (r2, o2)) in enumerate(zip(whole, halves, strict=True)):
+        robots, seen = sense(i, q[:, :2], q_dot[:, :2], [0.25] * 4, [1, 2, 3, 4], obstacles, 2.5)
+        assert r.tolist() == r2.tolist() and o.tolist() == o2.tolist()
+        assert [b.ident for b in robots] == r[:, 0].tolist()
+        assert [b.ident for b in seen] == o[:, 0].tolist()
+    args = (world.radii, world.ids, world.obstacles, world.obstacle_ids, 2.5)
+    with pytest.raises(ValueError, match="2\\+"):
+        sense_fleet(q[:, :1].copy(), q_dot, *args)
+    with pytest.raises(ValueError, match="2\\+"):
+        sense_fleet(q, q_dot[:3].copy(), *args)
+    with pytest.raises(ValueError, match="radii"):
+        sense_fleet(q[:3].copy(), q_dot[:3].copy(), *args)
+
+
+def _colliding_plants(discs: bool):
+    """Robots 1 and 2 meet head on, robot 3 runs into an obstacle, each at 1 m/s."""
+    sc = load_scenario("lab")
+    q = np.array([[-0.6, 0.0, 0.0], [0.6, 0.0, 0.5], [0.0, 2.0, 0.0]])
+    q_dot = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    obstacle = [Body(-1, np.array([0.0, 3.0]), np.zeros(2), 0.3)]
+    plant = PybulletPlant([sc.model()] * 3, q, q_dot, _disturbance(sc), [0.25] * 3, [1, 2, 3],
+                          obstacle, sc.spec.plant.substeps)
+    if not discs:
+        plant._discs = ()  # the kernel asks Bullet for contact points at every sub-step
+    asked = [0]
+    contact_points = plant._bullet[2]
+
+    def counted(*args):
+        asked[0] += 1
+        return contact_points(*args)
+
+    plant._bullet = (*plant._bullet[:2], counted, *plant._bullet[3:])
+    return sc, plant, asked
+
+
+def test_sub_steps_clear_of_every_body_skip_bullets_contact_query_and_change_nothing():
+    """A sub-step that starts with every robot more than CONTACT_QUERY_GAP_M from every
+    other body is not asked for contact points (Bullet would find none: it keeps points
+    within its 0.02 m breaking threshold, the test below). Through two collisions, the
+    states and the contact events are bit for bit those of the plant that asks at every
+    sub-step, and it asks only near a contact."""
+    from plant.fleet_kernel import CONTACT_QUERY_GAP_M
+
+    sc, skipping, asked = _colliding_plants(discs=True)
+    _, every, asked_every = _colliding_plants(discs=False)
+    rng = np.random.default_rng(2)
+    steps = 600
+    for k in range(steps):
+        u = rng.uniform(-0.2, 0.2, (3, 4))
+        skipping.step(k * sc.dt, sc.dt, u, None)
+        every.step(k * sc.dt, sc.dt, u, None)
+        assert skipping.q.tolist() == every.q.tolist(), k
+        assert skipping.q_dot.tolist() == every.q_dot.tolist(), k
+        if k == 0:  # every robot 0.7 m or more from every body: not one query
+            assert asked[0] == 0
+    assert [asdict(e) for e in skipping.contacts] == [asdict(e) for e in every.contacts]
+    assert {(e.body_a, e.body_b) for e in every.contacts} == {(1, 2), (3, -1)}
+    assert asked_every[0] == steps * sc.spec.plant.substeps
+    assert 0 < asked[0] < asked_every[0]  # the sub-steps near a body (they end touching)
+    skipping.close(), every.close()
+    assert CONTACT_QUERY_GAP_M >= 5 * 0.02
+
+
+def test_bodies_0_019_m_apart_have_no_contact_point_and_0_01_m_apart_have():
+    """Bullet's contact breaking threshold, which the skipped contact query relies on."""
+    sc = load_scenario("lab")
+    for gap, points in ((0.0, 2), (0.01, 2), (0.019, 0), (0.05, 0)):
+        r = 0.25
+        q = np.array([[0.0, 0.0, 0.0], [2 * r + gap, 0.0, 0.3], [5.0, 5.0, 0.0]])
+        obstacle = [Body(-1, np.array([0.0, -(r + 0.3 + gap)]), np.zeros(2), 0.3)]
+        plant = PybulletPlant([sc.model()] * 3, q, np.zeros((3, 3)), None, [r] * 3, [1, 2, 3],
+                              obstacle, 4)
+        plant._discs = ()
+        plant.step(0.0, 0.001, np.zeros((3, 4)), None)
+        assert len(pb.getContactPoints(physicsClientId=plant._cid)) == points, gap
+        plant.close()
 
 
 # -- 5. determinism, 6. validation and isolation ---------------------------------------
