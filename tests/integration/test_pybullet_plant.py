@@ -654,6 +654,40 @@ def test_sub_steps_clear_of_every_body_skip_bullets_contact_query_and_change_not
     assert CONTACT_QUERY_GAP_M >= 5 * 0.02
 
 
+def test_bullet_finds_contacts_from_a_sub_steps_start_so_a_jump_over_the_gap_changes_nothing():
+    """What skipping the query rests on: Bullet looks for contact points at the positions a
+    sub-step starts from, not along its motion. A robot at rest 0.12 m from obstacles all
+    round (clear by the 0.1 m gap), kicked by wheel torques that carry it ~0.3 m in its
+    first sub-step (the paper's law peaks at 4.6e5 N m at its start): the contact is found
+    at the second sub-step's start, asking at every sub-step or not, and the states and
+    contact events are the same both ways."""
+    sc = load_scenario("lab")
+    r, gap = 0.25, 0.12
+    ring = [Body(-(k + 1), np.array([(r + 0.3 + gap) * c, (r + 0.3 + gap) * s_]), np.zeros(2), 0.3)
+            for k, (c, s_) in enumerate(((1, 0), (-1, 0), (0, 1), (0, -1)))]
+    plants = []
+    for discs in (True, False):
+        q = np.array([[0.0, 0.0, 0.0], [6.0, 0.0, 0.0], [-6.0, 0.0, 0.0]])
+        plant = PybulletPlant([sc.model()] * 3, q, np.zeros((3, 3)), None, [r] * 3, [1, 2, 3],
+                              ring, sc.spec.plant.substeps)
+        if not discs:
+            plant._discs = ()
+        plants.append(plant)
+    kick = np.zeros((3, 4))
+    kick[0] = (2.5e4, 2.5e4, 2.5e4, 2.5e4)  # ~0.3 m in its first sub-step, along +x
+    for k in range(3):
+        for plant in plants:
+            plant.step(k * sc.dt, sc.dt, kick if k == 0 else np.zeros((3, 4)), None)
+        assert plants[0].q.tolist() == plants[1].q.tolist(), k
+        assert plants[0].q_dot.tolist() == plants[1].q_dot.tolist(), k
+    touched = [asdict(e) for e in plants[1].contacts]
+    assert touched and [asdict(e) for e in plants[0].contacts] == touched
+    h = sc.dt / sc.spec.plant.substeps
+    assert touched[0]["t_start"] == h  # found at the second sub-step's start
+    for plant in plants:
+        plant.close()
+
+
 def test_bodies_0_019_m_apart_have_no_contact_point_and_0_01_m_apart_have():
     """Bullet's contact breaking threshold, which the skipped contact query relies on."""
     sc = load_scenario("lab")
