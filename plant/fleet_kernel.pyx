@@ -20,11 +20,11 @@ import numpy as np
 
 # disturbance kinds, as make_disturbance names them (plant/disturbance.py)
 DISTURBANCE_KINDS = ("none", "constant", "paper")
-# Bullet keeps a contact point while its bodies are within its contact breaking threshold
-# (0.02 m; measured: none at 0.019 m, tests/integration/test_pybullet_plant.py): a
-# sub-step that starts with every robot farther than this from every other body finds
-# none, and its contact query (~33k instructions, an eighth of the in-process loop's) is
-# not made
+# Bullet keeps a contact point only while its bodies are within its contact breaking
+# threshold (0.02 m; measured: none at 0.019 m, tests/integration/test_pybullet_plant.py):
+# a sub-step that starts with every robot more than this gap (5x that threshold) from
+# every other body finds none, and its contact query (~33k instructions, an eighth of the
+# in-process loop's) is not made
 CONTACT_QUERY_GAP_M = 0.1
 
 
