@@ -22,6 +22,7 @@ bytes that decoded as a command.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -58,6 +59,7 @@ from deploy.runtime.node_runtime import (
     publish_report,
 )
 from deploy.runtime.plants import contact_log, make_plant, sensor_for
+from deploy.runtime.priority import hand_over
 from deploy.runtime.step_guard import SEQ_SLACK
 from deploy.runtime.transport import Node
 from plant.command import (
@@ -98,6 +100,7 @@ class PlantNode:
         self.sent_stamps: dict[int, dict[int, int]] = {rid: {} for rid in self.ids}
         self.log_rows: list[StateRow] = []  # robot states for observers, sent in batches
         self.log_every = log_rows_per_batch(sc.n)
+        self.after_samples: Callable[[], None] = lambda: None  # lockstep: hand_over
         self.peers = [r for r in run_roles(self.ids) if r != PLANT_ROLE]
         if with_recorder:
             self.peers.append(LAUNCHER_ROLE)
@@ -208,6 +211,7 @@ class PlantNode:
                 if len(stamps) > SENT_STAMPS_KEPT:
                     del stamps[next(iter(stamps))]  # the oldest (dicts keep insertion order)
         self.published_k = k
+        self.after_samples()  # lockstep: the agents first (priority.hand_over)
         # lists of 3 floats as they come (the wire writes a list as it writes a tuple)
         self.log_rows.append(StateRow(k, t, q, qd, [False] * len(self.ids)))
         if len(self.log_rows) >= self.log_every:
@@ -226,6 +230,7 @@ class PlantNode:
 
     # -- lockstep -------------------------------------------------------------------
     def run_lockstep(self, steps: int, step_deadline_s: float) -> None:
+        self.after_samples = hand_over
         box, dt, stop, commands, ids = self.node.mailbox, self.sc.dt, self.stop, self.commands, self.ids
         k = 0
 

@@ -1,0 +1,88 @@
+"""The launcher's filing of the fleet's batched logs (deploy/run/collector.py): every
+cell written once, by the first row for it; rows outside the run, ahead of it, or for a
+cell already filled counted and dropped; the leader's overlapping batches kept first."""
+
+from __future__ import annotations
+
+import pytest
+
+from deploy.contract.scenario import load_scenario
+from deploy.contract.wire import WIRE_VERSION, LeaderState, StateLog, StateRow
+from deploy.run.collector import Collector
+
+STEPS = 20
+
+
+@pytest.fixture()
+def collector() -> Collector:
+    return Collector(load_scenario("paper"), STEPS)
+
+
+def _row(k: int, robots: int = 3, x: float | None = None) -> StateRow:
+    x = float(k) if x is None else x
+    return StateRow(k, k * 0.001, [(x, 10.0 * j, -x) for j in range(robots)],
+                    [(x + 0.5, j + 0.25, 0.0) for j in range(robots)], [j == 1 for j in range(robots)])
+
+
+def _log(rows: list[StateRow], robots: list[int] | None = None) -> StateLog:
+    return StateLog(WIRE_VERSION, 0, 0, 0, robots=robots or [1, 2, 3], rows=rows)
+
+
+def test_a_state_log_fills_its_steps_cells_and_flags(collector):
+    collector.add(_log([_row(k) for k in range(4, 15)]))
+    ts = collector.ts
+    assert collector.have_state[4:15].all() and not collector.have_state[:4].any()
+    assert not collector.have_state[15:].any()
+    assert ts.q[7, 2].tolist() == [7.0, 20.0, -7.0]
+    assert ts.q_dot[14, 0].tolist() == [14.5, 0.25, 0.0]
+    assert collector.faulted[4:15, 1].all() and not collector.faulted[4:15, [0, 2]].any()
+    assert collector.newest_k == 14 and collector.refused == {} and collector.out_of_range == 0
+
+
+def test_rows_outside_the_run_ahead_of_it_or_for_filled_cells_are_counted_and_dropped(collector):
+    collector.add(_log([_row(k) for k in range(0, 5)]))
+    collector.horizon = lambda: 10
+    collector.add(_log([_row(k, x=99.0) for k in (-2, 3, 4, 5, 6, 11, 12, STEPS, STEPS + 5)]))
+    assert collector.out_of_range == 3  # -2, STEPS, STEPS + 5
+    assert collector.refused == {"second state row for a step": 2,  # 3, 4
+                                 "state row ahead of the run": 2}  # 11, 12
+    q = collector.ts.q[:, 0, 0]
+    assert q[3] == 3.0 and q[4] == 4.0  # the first row stays
+    assert q[5] == q[6] == 99.0 and collector.have_state[5:7].all()
+    assert not collector.have_state[7:].any() and collector.newest_k == 6
+
+
+def test_a_step_twice_in_one_log_keeps_the_first_row(collector):
+    collector.add(_log([_row(2, x=1.0), _row(3), _row(2, x=2.0), _row(1)]))
+    assert collector.ts.q[2, 0, 0] == 1.0 and collector.have_state[1:4].all()
+    assert collector.refused == {"second state row for a step": 1}
+
+
+def test_a_bridges_log_fills_its_own_robots_column_only(collector):
+    collector.add(_log([_row(k, robots=1, x=5.0) for k in range(3)], robots=[3]))
+    assert collector.have_state[:3, 2].all() and not collector.have_state[:, :2].any()
+    assert collector.ts.q[1, 2].tolist() == [5.0, 0.0, -5.0]
+    collector.add(_log([_row(1, robots=3, x=7.0)]))  # robot 3 of step 1 is filled already
+    assert collector.refused == {"second state row for a step": 1}
+    assert not collector.have_state[1, :2].any()
+
+
+def test_leader_batches_overlap_and_the_first_state_of_a_step_stays(collector):
+    def batch(k: int, n: int, x: float) -> LeaderState:
+        return LeaderState(WIRE_VERSION, 0, 0, 0, k=k, t=k * 0.001,
+                           q=[(x + i, 0.0, 0.0) for i in range(n)],
+                           q_dot=[(0.0, x + i, 0.0) for i in range(n)])
+
+    collector.add(batch(0, 8, 100.0))
+    collector.add(batch(4, 8, 200.0))  # steps 4..7 heard already
+    collector.add(batch(STEPS - 2, 5, 300.0))  # 3 past the run's end
+    collector.add(batch(-3, 2, 400.0))  # before it
+    ts = collector.ts
+    assert ts.leader_q[:8, 0].tolist() == [100.0 + i for i in range(8)]
+    assert ts.leader_q[8:12, 0].tolist() == [204.0, 205.0, 206.0, 207.0]
+    assert ts.leader_v[11, 1] == 207.0
+    assert ts.leader_q[STEPS - 2:, 0].tolist() == [300.0, 301.0]
+    assert collector.have_leader[:12].all() and collector.have_leader[STEPS - 2:].all()
+    assert not collector.have_leader[12:STEPS - 2].any()
+    assert collector.out_of_range == 3 + 2
+    assert not ts.leader_q[12:STEPS - 2].any()  # never written (zeros, as allocated)
