@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import msgspec
@@ -97,10 +96,6 @@ def realtime_ages(state: Sample, leader: LeaderPoint | None,
     leader_s = 0.0 if leader is None else max(0.0, state.t - leader.t - dt)
     return InputAges(0.0, leader_s, {j: max(0.0, (state.k - 1 - m.k) * dt)
                                      for j, m in shares.items()})
-
-
-def _nothing() -> None:
-    pass
 
 
 def _no_clock() -> float:
@@ -201,7 +196,6 @@ class AgentNode:
         self.overloaded_steps = 0  # realtime: steps of a loop slower than its period (pace.py)
         self.steps_done = 0
         self.telemetry_every = 1  # realtime decimates (see run_realtime)
-        self.after_reply: Callable[[], None] = _nothing  # lockstep: hand_over
         self.telemetry_batch = TELEMETRY_BATCH_MAX
         self._rows: list[TelemetryRow] = []
         self.peers = [plant_role, *(agent_role(j) for j in self.neighbours),
@@ -331,7 +325,7 @@ class AgentNode:
     def _publish_step(self, k: int, t: float, state: Sample, out: AgentOutput,
                       plan: list[Vec4], stale: int) -> None:
         self._publish_reply(k, t, state, out, out.share, plan)
-        self.after_reply()  # lockstep: the next link of the chain first (priority.hand_over)
+        hand_over()  # the receivers it woke first, then telemetry (priority.hand_over)
         if out.nonfinite:  # the law gave NaN/Inf: zero torques went out instead
             self.nonfinite_commands += 1
             self.node.note_nonfinite(f"command at t = {t:.3f} s (step {k}): the control law "
@@ -422,7 +416,6 @@ class AgentNode:
             return True
 
         heard_all = not neighbours
-        self.after_reply = hand_over
         while not stop():
             if not ready():
                 # wait for the plant's step k or a later one (with no deadline: the plant
