@@ -32,13 +32,44 @@ def test_holds_a_child_until_interrupted():
 '''
 
 
+# tests/suite.py started as from a terminal: SIGINT and SIGTERM neither blocked nor ignored.
+# The test runs inside a pytest(-xdist) worker, and a blocked or ignored signal is
+# inherited through fork and exec (Python then installs no KeyboardInterrupt at all).
+AS_FROM_A_TERMINAL = """
+import os, signal, sys
+for s in (signal.SIGINT, signal.SIGTERM):
+    signal.signal(s, signal.SIG_DFL)
+signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+os.execv(sys.executable, [sys.executable, *sys.argv[1:]])
+"""
+
+
+def signal_states(root: int) -> list[str]:
+    """Each process of ``root``'s session: its state, what it waits in, and its blocked
+    and ignored signals (/proc)."""
+    out = []
+    for pid in sorted(int(d) for d in os.listdir("/proc") if d.isdigit()):
+        try:
+            if os.getsid(pid) != root:
+                continue
+            status = Path(f"/proc/{pid}/status").read_text().splitlines()
+            wchan = Path(f"/proc/{pid}/wchan").read_text()
+        except OSError:
+            continue
+        keep = [ln.replace("\t", " ") for ln in status
+                if ln.startswith(("Name", "State", "SigBlk", "SigIgn", "SigCgt"))]
+        out.append(f"{pid} ({', '.join(keep)}, wchan {wchan})")
+    return out
+
+
 @pytest.mark.parametrize(("sig", "status"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
 def test_a_signal_ends_the_phase_with_its_processes_and_starts_no_other(
         tmp_path: Path, sig: signal.Signals, status: int) -> None:
     (tmp_path / "test_sleeper.py").write_text(SLEEPER)
     pids = tmp_path / "pids"
     suite = subprocess.Popen(
-        [sys.executable, str(SUITE), str(tmp_path), "-p", "no:cacheprovider", "-q"],
+        [sys.executable, "-c", AS_FROM_A_TERMINAL, str(SUITE), str(tmp_path),
+         "-p", "no:cacheprovider", "-q"],
         cwd=tmp_path, env={**os.environ, "SUITE_PIDS": str(pids)},
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
@@ -51,7 +82,11 @@ def test_a_signal_ends_the_phase_with_its_processes_and_starts_no_other(
             os.killpg(suite.pid, signal.SIGINT)
         else:
             suite.send_signal(sig)
-        out, _ = suite.communicate(timeout=60.0)
+        try:
+            out, _ = suite.communicate(timeout=60.0)
+        except subprocess.TimeoutExpired as exc:  # say what each process was doing
+            raise AssertionError(f"the suite did not end within 60 s of {sig.name}: "
+                                 f"{signal_states(suite.pid)}; its output: {exc.output}") from None
         assert suite.returncode == status, out
         assert f"== tests: {SERIAL}" not in out  # the second phase never started
         assert not running(pytest_pid) and not running(child_pid), out
