@@ -225,7 +225,10 @@ def _listening_here(port: int) -> bool:
 def test_live_serves_the_scene_while_the_run_goes_and_ends_cleanly(tmp_path):
     sc = load_scenario("paper")
     tag = f"live-{tmp_path.name}"
-    proc = start("run", "paper", "--in-process", "--plant", "model", "--duration", "10",
+    # long enough for the client to connect and subscribe while the run goes: the view
+    # stops with the run, and 10 s simulated (~0.6 s of loop) once ended before a client
+    # under CI's load had its scene (the connection closed under it); 40 s is ~2.5 s
+    proc = start("run", "paper", "--in-process", "--plant", "model", "--duration", "40",
                  "--no-figures", "--no-record", "--live", "127.0.0.1:0", "--out", str(tmp_path / tag))
     try:
         line = proc.stderr.readline()
