@@ -22,7 +22,6 @@ bytes that decoded as a command.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 
 import numpy as np
 
@@ -100,7 +99,6 @@ class PlantNode:
         self.sent_stamps: dict[int, dict[int, int]] = {rid: {} for rid in self.ids}
         self.log_rows: list[StateRow] = []  # robot states for observers, sent in batches
         self.log_every = log_rows_per_batch(sc.n)
-        self.after_samples: Callable[[], None] = lambda: None  # lockstep: hand_over
         self.peers = [r for r in run_roles(self.ids) if r != PLANT_ROLE]
         if with_recorder:
             self.peers.append(LAUNCHER_ROLE)
@@ -184,7 +182,9 @@ class PlantNode:
             raise TimeoutError(f"plant: no sign of {', '.join(sorted(missing))} "
                                f"after {timeout_s:.0f} s")
 
-    def _publish_world(self, k: int, t: float) -> None:
+    def _publish_world(self, k: int, t: float, hand_over_after: bool = False) -> None:
+        """Step k's samples; ``hand_over_after`` (lockstep): the agents they woke get the
+        core before the state log's bookkeeping (priority.hand_over)."""
         node = self.node
         plant_q, plant_qd = self.plant.q, self.plant.q_dot
         # the whole state within the wire's bound, checked once: every float of the
@@ -211,7 +211,8 @@ class PlantNode:
                 if len(stamps) > SENT_STAMPS_KEPT:
                     del stamps[next(iter(stamps))]  # the oldest (dicts keep insertion order)
         self.published_k = k
-        self.after_samples()  # lockstep: the agents first (priority.hand_over)
+        if hand_over_after:
+            hand_over()
         # lists of 3 floats as they come (the wire writes a list as it writes a tuple)
         self.log_rows.append(StateRow(k, t, q, qd, [False] * len(self.ids)))
         if len(self.log_rows) >= self.log_every:
@@ -230,7 +231,6 @@ class PlantNode:
 
     # -- lockstep -------------------------------------------------------------------
     def run_lockstep(self, steps: int, step_deadline_s: float) -> None:
-        self.after_samples = hand_over
         box, dt, stop, commands, ids = self.node.mailbox, self.sc.dt, self.stop, self.commands, self.ids
         k = 0
 
@@ -248,7 +248,7 @@ class PlantNode:
             t = k * dt
             if k % TICK_EVERY == 0:  # paces the leader's batches (deploy/nodes/leader.py)
                 self._control("tick", k, t)
-            self._publish_world(k, t)
+            self._publish_world(k, t, hand_over_after=True)
             box.wait_until(answered, step_deadline_s, ready_first=True)
             self._take_lockstep_commands(k)
             self.plant.step(t, dt, self.torques, self.v_cmd)
