@@ -20,6 +20,7 @@ from deploy.contract.options import EXIT_BAD_INPUT, add_option, check_duration
 from deploy.contract.scenario import PLANT_KINDS, Scenario, load_scenario
 from deploy.contract.wire import LEADER_ROLE, PLANT_ROLE, Codec, Keys, agent_role
 from deploy.runtime.datagrams import DatagramError, DatagramPath
+from deploy.runtime.heap import freeze_startup_heap
 from deploy.runtime.node_runtime import (
     CLOCKS,
     LOOP,
@@ -139,6 +140,7 @@ def run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, 
                     batch_scheduling()
                 lockstep(obj, sc)
             else:
+                freeze_startup_heap()  # no collection burst in the first steps (heap.py)
                 realtime(obj, sc)
         obj.finish()
     finally:
