@@ -20,7 +20,7 @@ from deploy.contract.wire import FleetNameError
 from deploy.nodes.cli import CLOCKS, add_node_commands
 from deploy.run.run_cli import cmd_run
 from deploy.runtime.plants import CAN_EMULATED, PLANTS
-from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
+from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY, WORLD_ABOVE_AGENTS
 from deploy.runtime.transport import TransportError
 
 
@@ -103,8 +103,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_option(run, "--priority", default=REALTIME_PRIORITY,
                help="realtime: raise every node's CPU priority by N (nice -N and its "
                "session's autogroup; needs CAP_SYS_NICE, else each node says so), so "
-               "other work on the host does not stall the control loops; 0 leaves them "
-               f"at normal priority; the driver emulator always asks for {EMULATOR_PRIORITY}")
+               "other work on the host does not stall the control loops, and the "
+               f"simulated plant's by N + {WORLD_ABOVE_AGENTS} (it is the fleet's clock); 0 "
+               "leaves them at normal priority; the driver emulator always asks for "
+               f"{EMULATOR_PRIORITY}")
     run.add_argument("--faults", metavar="PLAN",
                      help="inject the faults of a fault plan (TOML; docs/faults.md): lossy, "
                      "delayed or partitioned links, killed and restarted processes, CAN frame "

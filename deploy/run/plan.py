@@ -24,7 +24,7 @@ from deploy.contract.options import DEFAULT_STARTUP_TIMEOUT_S, DEFAULT_STEP_DEAD
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, LEADER_ROLE, PLANT_ROLE, agent_role, bridge_role
 from deploy.runtime.plants import CAN_EMULATED
-from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY
+from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY, world_priority
 
 ENCODER_RATE_HZ = 100.0  # the driver emulator's encoder estimates (can-emulated)
 TAIL_LINES = 15
@@ -135,18 +135,20 @@ def plan_run(sc: Scenario, a: LaunchOptions, launcher_endpoint: str,
     logs = out / "logs"
     on_can = a.plant == CAN_EMULATED
     truth: dict[int, Path] = {}
-    plan = [Child(LEADER_ROLE, None, [*cmd, "leader", *common,
+    others = _priority(a, a.realtime_priority)
+    plan = [Child(LEADER_ROLE, None, [*cmd, "leader", *common, *others,
                                       *(["--plant-role", LAUNCHER_ROLE] if on_can else [])],
                   logs / "leader.log")]
     if on_can:
         plan += _can_plan(sc, a, cmd, common, out, truth)
     else:
         plan.append(Child(PLANT_ROLE, None, [*cmd, "plant", *common, "--plant", a.plant,
+                                             *_priority(a, world_priority(a.realtime_priority)),
                                              *(["--gui"] if a.gui else [])],
                           logs / "plant.log"))
     for r in sc.robot_ids:
         source = ["--plant-role", bridge_role(r)] if on_can else []
-        plan.append(Child(agent_role(r), r, [*cmd, "agent", *common, "--robot", str(r),
+        plan.append(Child(agent_role(r), r, [*cmd, "agent", *common, *others, "--robot", str(r),
                                              *source, *a.extra_agent_args],
                           logs / f"{agent_role(r)}.log"))
     _links(sc, plan, on_can, run_dir, a.datagrams)
@@ -199,9 +201,12 @@ def _common_args(sc: Scenario, a: LaunchOptions, endpoint: str) -> list[str]:
         args += ["--control-rate", repr(a.control_rate_hz)]
     if a.faults is not None:
         args += ["--faults", str(Path(a.faults.path).resolve())]
-    if a.clock == "realtime" and a.realtime_priority:
-        args += ["--priority", str(a.realtime_priority)]
     return args
+
+
+def _priority(a: LaunchOptions, n: int) -> list[str]:
+    """A realtime node's ``--priority``: ``n`` (none on the lockstep clock, or 0)."""
+    return ["--priority", str(n)] if a.clock == "realtime" and n else []
 
 
 def _links(sc: Scenario, plan: list[Child], on_can: bool, run_dir: Path | None,
@@ -269,7 +274,8 @@ def _can_plan(sc: Scenario, a: LaunchOptions, cmd: list[str], common: list[str],
         emulate += ["--robot", str(r), "--can-channel", group, "--can-arg", port,
                     "--truth-out", str(truth[r])]
         plan.append(Child(bridge_role(r), r, [
-            *cmd, "bridge", *common, "--robot", str(r), *driver, "--can-interface", "udp_multicast",
+            *cmd, "bridge", *common, *_priority(a, a.realtime_priority), "--robot", str(r),
+            *driver, "--can-interface", "udp_multicast",
             "--can-channel", group, "--can-arg", port], logs / f"{bridge_role(r)}.log"))
     plan.insert(0, Child("emulator", None, [*emulate, *_can_faults(a.faults)],
                          logs / "emulator.log", zenoh=False, stop_after_run=True))

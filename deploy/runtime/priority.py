@@ -16,12 +16,26 @@ from __future__ import annotations
 import argparse
 import os
 
-from deploy.contract.options import add_option
+from deploy.contract.options import MAX_PRIORITY, add_option
 
 EMULATOR_PRIORITY = 10  # nice -10 for the driver emulator (can-emulated): it plays the world
 # nice -5 for every node on the realtime clock (``omnifleet run --priority``): below the
 # emulator, above whatever else the host runs
 REALTIME_PRIORITY = 5
+# the simulated plant that many more above the other realtime nodes (``world_priority``)
+WORLD_ABOVE_AGENTS = 5
+
+
+def world_priority(n: int) -> int:
+    """The realtime plant's priority when the other nodes of the run have ``n`` (0: none
+    raised, nor the plant's): it plays the world and its period is the fleet's clock, as
+    the driver emulator's is on CAN (EMULATOR_PRIORITY above REALTIME_PRIORITY). At the
+    same priority 30 agents woken at once by its samples shared the two cores with it
+    and held it back: the agents' state-to-command latency p50 ~5-6 ms at 100 Hz; with
+    the plant above them 2.4-3.1 ms (pybullet and model, 10 s runs, 4 pairs each), p99
+    ~7-14 -> 6-8 ms; ``lab`` at 1 kHz latency p99 0.63-0.67 -> 0.60-0.64 ms
+    (docs/bench.md)."""
+    return 0 if n <= 0 else min(n + WORLD_ABOVE_AGENTS, MAX_PRIORITY)
 
 
 def raise_priority(n: int) -> str:

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from deploy.contract.scenario import load_scenario
 from deploy.run.plan import LaunchOptions, endpoint_of, plan_run, restart_of
 
@@ -118,3 +120,26 @@ def test_endpoints_json_is_never_seen_half_written(tmp_path, monkeypatch):
     where = json.loads(path.read_text())
     assert where["launcher"] == LAUNCHER and where["plant"] == endpoint_of(RUN_DIR, "plant")
     assert [p.name for p in path.parent.iterdir()] == ["endpoints.json"]
+
+
+def _priorities(plan) -> dict[str, str | None]:
+    return {c.role: c.argv[c.argv.index("--priority") + 1] if "--priority" in c.argv else None
+            for c in plan.children}
+
+
+@pytest.mark.parametrize("plant", ["model", "can-emulated"])
+def test_on_the_realtime_clock_the_world_runs_above_the_agents(plant):
+    """The plant (or, on CAN, the drive emulator) plays the world: its period is the fleet's
+    clock, so it asks for a higher priority than the agents, the leader and the bridges,
+    which ask for the run's --priority; none is raised on the lockstep clock or with 0."""
+    sc = load_scenario("lab")
+    for n, world, others in ((5, "10", "5"), (18, "20", "18"), (0, None, None)):
+        opts = LaunchOptions("lab", plant, "realtime", Path("/tmp/out"), realtime_priority=n)
+        got = _priorities(plan_run(sc, opts, LAUNCHER, RUN_DIR))
+        world_role = "plant" if plant == "model" else "emulator"
+        if plant == "can-emulated":  # the emulator's own, whatever the run's
+            world = "10"
+        assert got.pop(world_role) == world, n
+        assert set(got.values()) == {others}, (n, got)
+    lockstep = _priorities(_plan("lab")[1])
+    assert set(lockstep.values()) == {None}
