@@ -101,9 +101,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="--out already holds a run: remove its outputs first (without it "
                      "such a folder is refused: a run never mixes its outputs with another's)")
     add_option(run, "--priority", default=REALTIME_PRIORITY,
-               help="realtime: raise every node's CPU priority by N (nice -N and its "
-               "session's autogroup; needs CAP_SYS_NICE, else each node says so), so "
-               "other work on the host does not stall the control loops, and the "
+               help="realtime: run every node's loop under SCHED_FIFO at priority N and "
+               "at nice -N (its session's autogroup too; needs CAP_SYS_NICE, else each "
+               "node says so), so other work on the host does not stall the control "
+               "loops, and the "
                f"simulated plant's by N + {WORLD_ABOVE_AGENTS} (it is the fleet's clock); 0 "
                "leaves them at normal priority; the driver emulator always asks for "
                f"{EMULATOR_PRIORITY}")

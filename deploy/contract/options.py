@@ -138,9 +138,10 @@ OPTIONS: dict[str, Option] = {o.flag: o for o in (
            DEFAULT_COMMAND_TIMEOUT_S),
     Option("--heartbeat-timeout", WAIT, "S", "a driver silent this long faults the robot", 0.35),
     Option("--priority", Bound(0, MAX_PRIORITY, integer=True), "N",
-           "raise this process's CPU priority by N (nice -N, and its session's autogroup "
-           "where Linux groups processes by session); needs CAP_SYS_NICE or RLIMIT_NICE, "
-           "without it the process says so and runs at normal priority; 0 leaves it", 0),
+           "run this process's loop under SCHED_FIFO at priority N, and at nice -N (its "
+           "session's autogroup too, where Linux groups processes by session); needs "
+           "CAP_SYS_NICE or RLIMIT_RTPRIO and RLIMIT_NICE, without it the process says so "
+           "and runs at normal priority; 0 leaves it", 0),
     Option("--encoder-rate", RATE, "HZ", "ODrive: Get_Encoder_Estimates rate per axis (CiA 402: "
            "the TPDOs follow the host's SYNC); the rate of the ground truth", 200.0),
     Option("--heartbeat-rate", RATE, "HZ", "heartbeat rate per axis (CiA 402: at power-up; the "

@@ -32,6 +32,7 @@ from deploy.runtime.priority import (
     REALTIME_PRIORITY,
     add_priority_argument,
     batch_scheduling,
+    leave_realtime_scheduling,
     raise_priority,
 )
 from deploy.runtime.transport import Node, zenoh_config
@@ -141,7 +142,10 @@ def run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, 
                 lockstep(obj, sc)
             else:
                 freeze_startup_heap()  # no collection burst in the first steps (heap.py)
-                realtime(obj, sc)
+                try:
+                    realtime(obj, sc)
+                finally:  # the loops still going keep their cores (priority.py)
+                    leave_realtime_scheduling()
         obj.finish()
     finally:
         node.close()

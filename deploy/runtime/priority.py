@@ -1,14 +1,33 @@
 """A process's CPU priority on a shared host (Linux): what ``--priority N`` does
 for the driver emulator and for every node on the realtime clock.
 
-On Linux with autogroups every session is one scheduling group of equal weight, so
-a process's own nice value counts only against its session's other processes; the
-launcher starts every child in a session of its own, and one busy program elsewhere
-on a 2-core host then takes as much CPU as any control loop. Raising the autogroup's
-nice too is what gives the loop the CPU (docs/hardware.md: one busy-loop process
-beside a can-emulated lab run stalled agents ~100 ms and failed the settling bound).
-Needs CAP_SYS_NICE or RLIMIT_NICE; without it the process says so and runs at
-normal priority.
+Two things, each where the host permits it:
+
+- **SCHED_FIFO at priority N** for the process's main thread and every thread it
+  starts afterwards (zenoh's, opened later): a runnable control loop then takes a core
+  from anything under the normal policy (the launcher, the figures, the host's other
+  programs) at once, and loops of one priority run in the order they woke (the order
+  the plant sent its samples) instead of the fair scheduler's order, which changed from
+  period to period. 30 agents at 100 Hz on 2 cores (10 s runs, pybullet, 3 pairs, nice
+  alone against SCHED_FIFO): commands the plant did not have by its next step 1,254,
+  2,438, 388 -> 367, 45, 38; state-to-command latency p99 13.6, 15.4, 9.4 -> 8.4, 6.9,
+  7.1 ms; the agents' deadline misses 111, 155, 57 -> 53, 5, 6 (docs/bench.md). The
+  kernel's limit on realtime tasks (``sched_rt_runtime_us``, 95 % of each second by
+  default) leaves the host a share should a loop never sleep. A node leaves the policy
+  when its loop ends (``leave_realtime_scheduling``): its report and last flushes ran
+  at the priority of the loops still going and held them back (every agent of such a
+  run missed the run's last sample).
+- **nice -N, and its autogroup too**: the fallback where SCHED_FIFO is refused, and
+  the process's priority after its loop. On Linux with autogroups every session is one
+  scheduling group of equal weight, so a process's own nice value counts only against
+  its session's other processes; the launcher starts every child in a session of its
+  own, and one busy program elsewhere on a 2-core host then takes as much CPU as any
+  control loop. Raising the autogroup's nice too is what gives the loop the CPU
+  (docs/hardware.md: one busy-loop process beside a can-emulated lab run stalled agents
+  ~100 ms and failed the settling bound).
+
+Both need CAP_SYS_NICE (or RLIMIT_RTPRIO and RLIMIT_NICE); without it the process says
+so and runs at normal priority.
 """
 
 from __future__ import annotations
@@ -39,9 +58,17 @@ def world_priority(n: int) -> int:
 
 
 def raise_priority(n: int) -> str:
-    """nice -n for this process and, on Linux with autogroups, for its autogroup too;
-    what was done, as a sentence."""
+    """SCHED_FIFO at priority ``n`` for this thread and the threads it starts after,
+    nice -n for it and, on Linux with autogroups, for its autogroup too; what was done,
+    as a sentence."""
     done, refused = [], []
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(n))
+        done.append(f"SCHED_FIFO {n}")
+    except AttributeError:  # not Linux
+        pass
+    except OSError as exc:
+        refused.append(f"SCHED_FIFO {n} ({exc.strerror})")
     try:
         os.setpriority(os.PRIO_PROCESS, 0, -n)
         done.append(f"nice -{n}")
@@ -57,6 +84,16 @@ def raise_priority(n: int) -> str:
         refused.append(f"autogroup nice -{n} ({exc.strerror})")
     return ("priority raised: " + ", ".join(done) if done else "priority not raised") + (
         "; refused: " + ", ".join(refused) if refused else "")
+
+
+def leave_realtime_scheduling() -> None:
+    """Back to the normal policy (its nice value kept) for this thread, if it ran under
+    SCHED_FIFO: a node whose loop has ended (its report, its last flushes)."""
+    try:
+        if os.sched_getscheduler(0) == os.SCHED_FIFO:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (AttributeError, OSError):  # not Linux: nothing was raised
+        pass
 
 
 def batch_scheduling() -> bool:
