@@ -37,9 +37,9 @@ import os
 
 from deploy.contract.options import MAX_PRIORITY, add_option
 
-EMULATOR_PRIORITY = 10  # nice -10 for the driver emulator (can-emulated): it plays the world
-# nice -5 for every node on the realtime clock (``omnifleet run --priority``): below the
-# emulator, above whatever else the host runs
+EMULATOR_PRIORITY = 10  # the driver emulator's (can-emulated): it plays the world
+# every other node's on the realtime clock (``omnifleet run --priority``): below the
+# emulator and the plant, above whatever else the host runs
 REALTIME_PRIORITY = 5
 # the simulated plant that many more above the other realtime nodes (``world_priority``)
 WORLD_ABOVE_AGENTS = 5
@@ -92,7 +92,7 @@ def leave_realtime_scheduling() -> None:
     try:
         if os.sched_getscheduler(0) == os.SCHED_FIFO:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except (AttributeError, OSError):  # not Linux: nothing was raised
+    except (AttributeError, OSError):  # not Linux, or refused: the policy stays
         pass
 
 

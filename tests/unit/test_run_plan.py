@@ -136,10 +136,10 @@ def test_on_the_realtime_clock_the_world_runs_above_the_agents(plant):
     for n, world, others in ((5, "10", "5"), (18, "20", "18"), (0, None, None)):
         opts = LaunchOptions("lab", plant, "realtime", Path("/tmp/out"), realtime_priority=n)
         got = _priorities(plan_run(sc, opts, LAUNCHER, RUN_DIR))
-        world_role = "plant" if plant == "model" else "emulator"
-        if plant == "can-emulated":  # the emulator's own, whatever the run's
-            world = "10"
-        assert got.pop(world_role) == world, n
+        if plant == "model":
+            assert got.pop("plant") == world, n
+        else:  # the emulator asks for its own, whatever the run's
+            assert got.pop("emulator") == "10", n
         assert set(got.values()) == {others}, (n, got)
     lockstep = _priorities(_plan("lab")[1])
     assert set(lockstep.values()) == {None}
