@@ -51,8 +51,8 @@ def world_priority(n: int) -> int:
     the driver emulator's is on CAN (EMULATOR_PRIORITY above REALTIME_PRIORITY). At the
     same priority 30 agents woken at once by its samples shared the two cores with it
     and held it back: the agents' state-to-command latency p50 ~5-6 ms at 100 Hz; with
-    the plant above them 2.4-3.1 ms (pybullet and model, 10 s runs, 4 pairs each), p99
-    ~7-14 -> 6-8 ms; ``lab`` at 1 kHz latency p99 0.63-0.67 -> 0.60-0.64 ms
+    the plant above them 2.3-3.2 ms (10 s runs, 4 pairs with the model plant, 3 with
+    pybullet), p99 7-14 -> 6-8 ms; ``lab`` at 1 kHz latency p99 0.63-0.67 -> 0.60-0.64 ms
     (docs/bench.md)."""
     return 0 if n <= 0 else min(n + WORLD_ABOVE_AGENTS, MAX_PRIORITY)
 
