@@ -23,8 +23,8 @@ DISTURBANCE_KINDS = ("none", "constant", "paper")
 # Bullet keeps a contact point only while its bodies are within its contact breaking
 # threshold (0.02 m; measured: none at 0.019 m, tests/integration/test_pybullet_plant.py):
 # a sub-step that starts with every robot more than this gap (5x that threshold) from
-# every other body finds none, and its contact query (~33k instructions, an eighth of the
-# in-process loop's) is not made
+# every other body finds none, so no constraint acts in it: it is the free step of (P2),
+# computed without calling Bullet (FleetDynamics.bullet_step)
 CONTACT_QUERY_GAP_M = 0.1
 
 
@@ -210,6 +210,9 @@ cdef class FleetDynamics:
     cdef object _keep
     cdef double* _mass  # M_q's diagonal (P1), robot after robot: what Bullet's joints carry
     cdef object _keep_mass
+    # Bullet's joints hold an older state than the plant's q, qd: sub-steps with nothing
+    # near ran here without Bullet (bullet_step); catch_up_bullet sets them
+    cdef public bint bullet_behind
 
     def __cinit__(self, models, str disturbance_kind, double disturbance_scale,
                   disturbance_constant, int substeps):
@@ -320,9 +323,30 @@ cdef class FleetDynamics:
         semi-implicit Euler step v += h M_q^-1 F, q += h v of (P2) with the forces ``forces``
         (the flat list the sub-step applied), in place. Bullet's articulated-body pass
         rounds M_q^-1 F its own way: the velocities agree to ~1e-13 relative, not bit for
-        bit (docs/bench.md); the step's last sub-step is always read back from Bullet."""
+        bit (docs/bench.md). :meth:`bullet_step` takes it for every sub-step without a
+        contact, with Bullet stepped or not."""
         self._check_state(q, qd)
         self._free(forces, h, q, qd)
+
+    cdef void _put_states(self, object put_states, list bodies, int cid,
+                          const double[:, ::1] q, const double[:, ::1] qd) except *:
+        """q, qd into Bullet's joints (x, y, yaw of each robot in turn), one
+        resetJointStatesMultiDof a body; Bullet's collision shapes move with them."""
+        cdef tuple body
+        cdef int first, end, r
+        for body in bodies:
+            first, end = <int> body[2], <int> body[3]
+            put_states(body[0], body[1],
+                       [[q[r // 3, r % 3]] for r in range(first, end)],
+                       [[qd[r // 3, r % 3]] for r in range(first, end)], cid)
+        self.bullet_behind = False
+
+    def catch_up_bullet(self, tuple bullet, list bodies, double[:, ::1] q, double[:, ::1] qd):
+        """Bullet's joints to q, qd when sub-steps ran without it (:meth:`bullet_step`);
+        nothing otherwise. Before anything reads Bullet's world (its queries, its view)."""
+        self._check_state(q, qd)
+        if self.bullet_behind:
+            self._put_states(bullet[6], bodies, <int> bullet[5], q, qd)
 
     def bullet_step(self, tuple bullet, list bodies, const double[:, ::1] torques,
                     object other, double[:, ::1] wheel_torques, double t, double h,
@@ -331,22 +355,25 @@ cdef class FleetDynamics:
         """A pybullet plant's whole step (plant/pybullet_plant.py ``step``), ``substeps``
         sub-steps of ``h`` from the state (q, qd) at ``t``, in place. Each sub-step: the
         wheels' forces (P3)-(P5) from the torques (plus ``other(ts)``, a disturbance other
-        than this kernel's, added into ``wheel_torques``, when given) into Bullet's joints;
-        Bullet's step; its contact points. The state after a sub-step in which Bullet found
-        a contact point, and after the last, is read back from Bullet; after one without,
-        it is Bullet's free step, predicted (:meth:`bullet_free_substep`). ``bullet``:
-        pybullet's (setJointMotorControlArray, stepSimulation, getContactPoints,
-        getJointStates, TORQUE_CONTROL, client id), so that this module needs no pybullet;
-        ``bodies``: (body, joint indices, first, end) per multibody, its slice of the
-        forces. Returns each sub-step's contact points. Compiled, the loop costs ~6 µs a
-        step less than as Python around the same calls (docs/bench.md). Torques that are not
-        all finite raise ValueError before Bullet is called.
+        than this kernel's, added into ``wheel_torques``, when given); then, where a
+        contact can happen, Bullet: its joints caught up when earlier sub-steps ran without
+        it, the forces into its joints, its step, its contact points; the state after a
+        sub-step in which Bullet found a contact point, and after the last, read back from
+        Bullet. After one without, the state is Bullet's free step, computed
+        (:meth:`bullet_free_substep`). ``bullet``: pybullet's (setJointMotorControlArray,
+        stepSimulation, getContactPoints, getJointStates, TORQUE_CONTROL, client id,
+        resetJointStatesMultiDof), so that this module needs no pybullet; ``bodies``:
+        (body, joint indices, first, end) per multibody, its slice of the forces. Returns
+        each sub-step's contact points. Torques that are not all finite raise ValueError
+        before Bullet is called.
 
         ``radii`` (each robot's collision radius) and ``discs`` (rows x, y, radius: every
         other body of the world, static discs), when given: a sub-step that starts with
         every robot more than ``CONTACT_QUERY_GAP_M`` from every other body (Bullet finds
-        contact points at the sub-step's start) has none, and Bullet is not asked for
-        them. Without them (a world with other shapes), every sub-step asks."""
+        contact points at the sub-step's start, within its 0.02 m breaking threshold) has
+        no contact, so no constraint acts: it is the free step, and Bullet is not called
+        (:attr:`bullet_behind` is set). Without them (a world with other shapes), Bullet
+        steps every sub-step."""
         cdef int k, last = substeps - 1
         cdef const double[:, ::1] u = torques
         cdef tuple states = None
@@ -360,7 +387,7 @@ cdef class FleetDynamics:
         if (radii is None) != (discs is None) or radii is not None and (
                 radii.shape[0] != self.n or discs.shape[1] != 3):
             raise ValueError("radii and discs: both or neither, (n,) and (m, 3)")
-        set_forces, step_bullet, contact_points, joint_states, mode, cid = bullet
+        set_forces, step_bullet, contact_points, joint_states, mode, cid, put_states = bullet
         for k in range(substeps):
             ts = t + k * h
             if states is not None:
@@ -369,13 +396,21 @@ cdef class FleetDynamics:
                 np.add(torques, other(ts), out=np.asarray(wheel_torques))
                 u = wheel_torques
             forces = self._forces(u, ts, q, qd)
+            if radii is not None:  # where the robots are as this sub-step starts
+                query = not _apart(q, radii, discs, CONTACT_QUERY_GAP_M)
+            if not query:  # nothing near: the free step, (P2), without Bullet
+                self._free(forces, h, q, qd)
+                states = None
+                seen[k] = ()
+                self.bullet_behind = True
+                continue
+            if self.bullet_behind:  # the sub-steps before ran without Bullet
+                self._put_states(put_states, bodies, cid, q, qd)
             for body in bodies:
                 f = forces[<int> body[2]:<int> body[3]]
                 set_forces(body[0], body[1], mode, f, f, f, f, f, cid)
-            if radii is not None:  # where the robots are as this sub-step starts
-                query = not _apart(q, radii, discs, CONTACT_QUERY_GAP_M)
             step_bullet(cid)
-            points = contact_points(-1, -1, -2, -2, cid) if query else ()
+            points = contact_points(-1, -1, -2, -2, cid)
             seen[k] = points
             if points or k == last:  # Bullet's own state: a contact acted, or the step's end
                 states = ()
@@ -384,7 +419,8 @@ cdef class FleetDynamics:
             else:  # no contact point, no constraint: Bullet's free step, (P2), predicted
                 self._free(forces, h, q, qd)
                 states = None
-        self._read_states(states, q, qd)
+        if states is not None:
+            self._read_states(states, q, qd)
         return seen
 
     def step(self, double t, double dt, double[:, ::1] q, double[:, ::1] qd,

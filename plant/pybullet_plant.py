@@ -66,22 +66,30 @@ sub-step, v += h M_q^-1 F, q += h v, against RK4 in ModelPlant). The pure force
 law (P3)-(P5) is :class:`ForceLaw` / :func:`generalised_force`, with no
 pybullet in it.
 
-Stepping. ``step(t, dt, ...)`` calls stepSimulation ``substeps`` times with
-fixedTimeStep h = dt / substeps; before each call the forces are recomputed from
-the state after the previous sub-step (TORQUE_CONTROL forces last one
-stepSimulation), with h_d evaluated at the sub-step's start time. A sub-step is
-one setJointMotorControlArray per body, one stepSimulation and one
-getContactPoints, and then the state: read back from Bullet (getJointStates, one
-per body) when Bullet found a contact point in the sub-step, and always after the
-step's last one; otherwise no constraint acted, and the state is Bullet's own free
-step of (P2), v += h M_q^-1 F, q += h v, computed by the kernel
-(:attr:`ForceLaw.free_substep`; 3 getJointStates of 4 saved, ~9 % of the
-in-process run). Bullet's articulated-body pass rounds M_q^-1 F its own way, so
-such a predicted state agrees with the one Bullet holds to ~1e-13 relative, not
-bit for bit (docs/bench.md); the state a step ends on is always Bullet's. The
-arithmetic between the calls (the states Bullet returned into q, q_dot, then h_d
-and (P3)-(P5) into the next forces) is one call of the plant kernel
-(:attr:`ForceLaw.substep`). Deterministic settings:
+Stepping. ``step(t, dt, ...)`` advances ``substeps`` sub-steps of h = dt / substeps;
+before each the forces are recomputed from the state after the previous sub-step
+(TORQUE_CONTROL forces last one stepSimulation), with h_d evaluated at the sub-step's
+start time. **Bullet is stepped only where a contact can happen.** Bullet looks for
+contact points at the positions a sub-step starts from and keeps none farther apart than
+its 0.02 m breaking threshold, so a sub-step that starts with every robot more than
+``CONTACT_QUERY_GAP_M`` (0.1 m) from every other body, surface to surface, has no
+contact and no constraint acts on the joints: it is Bullet's free step of (P2),
+v += h M_q^-1 F, q += h v, and the kernel computes it without calling Bullet
+(:attr:`ForceLaw.free_substep`). Bullet's joints are set to the plant's state
+(resetJointStatesMultiDof, one call per body) before the next sub-step that needs
+Bullet (a body within the gap), before its closest-point queries (:meth:`perceive`),
+and after every step with the GUI. A sub-step near a body is one
+setJointMotorControlArray per body, one stepSimulation and one getContactPoints, and
+then the state: read back from Bullet (getJointStates, one per body) when Bullet found
+a contact point, and after the step's last sub-step; otherwise the free step again.
+Bullet's articulated-body pass rounds M_q^-1 F its own way, so a computed free step
+agrees with Bullet's own to ~1e-13 relative, not bit for bit; through collisions the
+states stay within ~1e-10 of a plant that steps Bullet at every sub-step and the
+contact events are the same (tests/integration/test_pybullet_plant.py). A world with
+walls or polygons (prisms, not discs) steps Bullet at every sub-step. The sub-steps'
+loop and the arithmetic between the calls (the states Bullet returned into q, q_dot,
+then h_d and (P3)-(P5) into the next forces) run in the plant kernel
+(:attr:`ForceLaw.step_in_bullet`, :attr:`ForceLaw.substep`). Deterministic settings:
 deterministicOverlappingPairs=1, numSubSteps=1, sleeping disabled, one physics
 client per plant (several plants coexist in one process).
 
@@ -230,6 +238,12 @@ class ForceLaw:
         return self._fleet.bullet_step
 
     @property
+    def catch_up_bullet(self) -> Callable[[tuple, list, np.ndarray, np.ndarray], None]:
+        """``catch_up_bullet(bullet, bodies, q, q_dot)``: Bullet's joints set to q, q_dot
+        when the last sub-steps ran without Bullet (``FleetDynamics.catch_up_bullet``)."""
+        return self._fleet.catch_up_bullet
+
+    @property
     def free_substep(self) -> Callable[[list[float], float, np.ndarray, np.ndarray], None]:
         """``free_substep(forces, h, q, q_dot)``: a sub-step without contact as Bullet
         integrates it, v += h M_q^-1 F, q += h v, in place (``FleetDynamics.
@@ -256,8 +270,9 @@ class PybulletPlant:
     """Robots as planar Featherstone multibodies driven by computed wheel forces.
 
     See the module docstring for the model, (P1)-(P5). ``q`` and ``q_dot`` are
-    (n,3) world [x, y, phi] and their rates, read back from Bullet after every
-    step; ``contacts`` lists every contact event so far.
+    (n,3) world [x, y, phi] and their rates after the last step (Bullet's, or its free
+    step computed: see the module docstring); ``contacts`` lists every contact event so
+    far.
     """
 
     kind = "pybullet"
@@ -304,6 +319,7 @@ class PybulletPlant:
         if gui and not os.environ.get("DISPLAY"):
             # pybullet's GUI would end the whole process on a failed X connection
             raise GuiUnavailable("--gui needs a display, and DISPLAY is not set")
+        self._gui = gui
         self._cid = pb.connect(pb.GUI if gui else pb.DIRECT)
         if self._cid < 0:
             raise RuntimeError("could not connect to a pybullet physics server")
@@ -315,7 +331,7 @@ class PybulletPlant:
         # forces in TORQUE_CONTROL: the forces stand in for the target positions, velocities
         # and gains; getContactPoints(-1, -1, -2, -2): no body or link filter (its defaults)
         self._bullet = (pb.setJointMotorControlArray, pb.stepSimulation, pb.getContactPoints,
-                        pb.getJointStates, pb.TORQUE_CONTROL, cid)
+                        pb.getJointStates, pb.TORQUE_CONTROL, cid, pb.resetJointStatesMultiDof)
         pb.setGravity(0.0, 0.0, 0.0, physicsClientId=cid)
         pb.setPhysicsEngineParameter(numSubSteps=1, deterministicOverlappingPairs=1,
                                      physicsClientId=cid)
@@ -449,7 +465,10 @@ class PybulletPlant:
     def step(self, t: float, dt: float, torques: np.ndarray, v_cmd: np.ndarray) -> None:
         """Advance by dt with wheel torques u held; ``v_cmd`` is ignored. Torques of
         another shape, or not all finite, raise ValueError and change nothing (the
-        kernel's first sub-step checks their values before Bullet is called)."""
+        kernel's first sub-step checks their values before Bullet is called); a closed
+        plant raises RuntimeError."""
+        if not self._finalizer.alive:  # a sub-step without Bullet would not notice
+            raise RuntimeError("this plant is closed (its physics client disconnected)")
         u = np.ascontiguousarray(torques, dtype=float)
         if u.shape != self._wheel_torques.shape:
             raise ValueError(f"torques must be ({len(self._chassis)}, 4), got {u.shape}")
@@ -462,12 +481,15 @@ class PybulletPlant:
             self._h = h
         # new arrays each step (whoever kept the last state keeps it unchanged), written in
         # place by every sub-step: the kernel runs the sub-steps' loop, Bullet's calls
-        # included (FleetDynamics.bullet_step: the forces in, Bullet's step, its contact
-        # points, its state read back after a contact and at the end, else predicted)
+        # included (FleetDynamics.bullet_step: the forces in; where a body is near, Bullet's
+        # joints caught up, its step, its contact points, its state read back after a
+        # contact and at the end; elsewhere the free step computed, Bullet not called)
         q, qd = self.q.copy(), self.q_dot.copy()
         seen = self._law.step_in_bullet(self._bullet, self._bodies, u, self._other,
                                         self._wheel_torques, t, h, self.substeps, q, qd,
                                         *self._discs)
+        if self._gui:  # the view shows Bullet's bodies
+            self._law.catch_up_bullet(self._bullet, self._bodies, q, qd)
         for k, points in enumerate(seen):
             if points or self._ongoing:
                 self._record_contacts(t + k * h, points)
@@ -505,6 +527,7 @@ class PybulletPlant:
         scenario's radius 0). Positions, velocities and radii are the plant's
         state and the scenario's radii.
         """
+        self._law.catch_up_bullet(self._bullet, self._bodies, self.q, self.q_dot)
         cid, (me, link) = self._cid, self._chassis[i]
         reach = float(detection_range_m) - self.robot_radii[i]
         robots: list[Body] = []

@@ -288,12 +288,12 @@ def test_one_bullet_substep_has_eq4_acceleration(scenario):
 
 @pytest.mark.parametrize("scenario", ["paper", "lab"])
 def test_a_substep_without_contact_is_predicted_as_bullet_integrates_it(scenario):
-    """The sub-steps in which Bullet found no contact point are not read back
-    (ForceLaw.free_substep predicts them, v += h M_q^-1 F, q += h v): one such sub-step
-    against Bullet's own, and a step of 4 sub-steps (3 predicted) against 4 steps of one
-    sub-step each (every one read back), over 200 steps of random torques. Bullet's
-    articulated-body pass rounds M_q^-1 F its own way: equal to ~1e-13 relative, and
-    the last sub-step of a step is always Bullet's (bit for bit with itself)."""
+    """A sub-step without contact is Bullet's free step, v += h M_q^-1 F, q += h v,
+    computed (ForceLaw.free_substep): one such sub-step against Bullet's own, and robots
+    clear of every body stepped without Bullet (4 sub-steps a step) against a plant that
+    steps Bullet at every sub-step and reads each back (4 steps of one sub-step), over
+    200 steps of random torques. Bullet's articulated-body pass rounds M_q^-1 F its own
+    way: equal to ~1e-13 relative, not bit for bit."""
     sc = load_scenario(scenario)
     model, d, n = sc.model(), _disturbance(sc), 4
     rng = np.random.default_rng(11)
@@ -302,6 +302,7 @@ def test_a_substep_without_contact_is_predicted_as_bullet_integrates_it(scenario
     h = sc.dt / 4
     with PybulletPlant([model] * n, q, q_dot, d, [0.5] * n, list(range(1, n + 1)), [],
                        substeps=1) as plant:
+        plant._discs = ()  # Bullet steps every sub-step
         u = rng.uniform(-1, 1, (n, 4))
         forces = plant._law.substep(None, u, 1.0, q.copy(), q_dot.copy())
         plant.step(1.0, h, u, None)  # its one sub-step is its last: read back
@@ -314,6 +315,8 @@ def test_a_substep_without_contact_is_predicted_as_bullet_integrates_it(scenario
                        substeps=4) as four, \
             PybulletPlant([model] * n, q, q_dot, d, [0.5] * n, list(range(1, n + 1)), [],
                           substeps=1) as one:
+        one._discs = ()  # Bullet steps every sub-step, each read back
+        stepped = _counted(four, 1)
         for k in range(len(torques)):
             t = k * sc.dt
             four.step(t, sc.dt, torques[k], None)
@@ -324,6 +327,7 @@ def test_a_substep_without_contact_is_predicted_as_bullet_integrates_it(scenario
         assert np.abs(four.q - one.q).max() <= 1e-12 * scale
         assert np.abs(four.q_dot - one.q_dot).max() <= 1e-12 * max(np.abs(one.q_dot).max(), 1.0)
         assert four.q_dot.any()  # it moved
+        assert stepped[0] == 0  # never near a body: Bullet was never stepped
 
 
 @pytest.mark.parametrize("scenario", ["paper", "lab"])
@@ -605,8 +609,22 @@ def test_fleet_perception_reads_a_plants_state_as_it_is_and_refuses_short_rows()
         sense_fleet(q[:3].copy(), q_dot[:3].copy(), *args)
 
 
+def _counted(plant, index: int) -> list[int]:
+    """Count the calls the plant's kernel makes of one of pybullet's functions (its index
+    in ``plant._bullet``: 1 stepSimulation, 2 getContactPoints, 6 resetJointStatesMultiDof)."""
+    calls, fn = [0], plant._bullet[index]
+
+    def counted(*args):
+        calls[0] += 1
+        return fn(*args)
+
+    plant._bullet = (*plant._bullet[:index], counted, *plant._bullet[index + 1:])
+    return calls
+
+
 def _colliding_plants(discs: bool):
-    """Robots 1 and 2 meet head on, robot 3 runs into an obstacle, each at 1 m/s."""
+    """Robots 1 and 2 meet head on, robot 3 runs into an obstacle, each at 1 m/s; the calls
+    of stepSimulation and resetJointStatesMultiDof counted."""
     sc = load_scenario("lab")
     q = np.array([[-0.6, 0.0, 0.0], [0.6, 0.0, 0.5], [0.0, 2.0, 0.0]])
     q_dot = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -614,44 +632,62 @@ def _colliding_plants(discs: bool):
     plant = PybulletPlant([sc.model()] * 3, q, q_dot, _disturbance(sc), [0.25] * 3, [1, 2, 3],
                           obstacle, sc.spec.plant.substeps)
     if not discs:
-        plant._discs = ()  # the kernel asks Bullet for contact points at every sub-step
-    asked = [0]
-    contact_points = plant._bullet[2]
-
-    def counted(*args):
-        asked[0] += 1
-        return contact_points(*args)
-
-    plant._bullet = (*plant._bullet[:2], counted, *plant._bullet[3:])
-    return sc, plant, asked
+        plant._discs = ()  # the kernel steps Bullet at every sub-step
+    return sc, plant, _counted(plant, 1), _counted(plant, 6)
 
 
-def test_sub_steps_clear_of_every_body_skip_bullets_contact_query_and_change_nothing():
+def test_sub_steps_clear_of_every_body_run_without_bullet_and_change_no_contact():
     """A sub-step that starts with every robot more than CONTACT_QUERY_GAP_M from every
-    other body is not asked for contact points (Bullet would find none: it keeps points
-    within its 0.02 m breaking threshold, the test below). Through two collisions, the
-    states and the contact events are bit for bit those of the plant that asks at every
-    sub-step, and it asks only near a contact."""
+    other body has no contact (Bullet keeps points within its 0.02 m breaking threshold,
+    the test below), so it is the free step, computed without Bullet; Bullet's joints are
+    caught up before it is stepped again. Through two collisions against a plant that
+    steps Bullet at every sub-step: the same contact events (times, bodies; depths to
+    1e-12 m), the states within 1e-9 (the free step's rounding, ~1e-13 a sub-step, carried
+    through the contacts), and Bullet stepped only near a contact."""
     from plant.fleet_kernel import CONTACT_QUERY_GAP_M
 
-    sc, skipping, asked = _colliding_plants(discs=True)
-    _, every, asked_every = _colliding_plants(discs=False)
+    sc, skipping, stepped, caught_up = _colliding_plants(discs=True)
+    _, every, stepped_every, caught_up_every = _colliding_plants(discs=False)
     rng = np.random.default_rng(2)
     steps = 600
     for k in range(steps):
         u = rng.uniform(-0.2, 0.2, (3, 4))
         skipping.step(k * sc.dt, sc.dt, u, None)
         every.step(k * sc.dt, sc.dt, u, None)
-        assert skipping.q.tolist() == every.q.tolist(), k
-        assert skipping.q_dot.tolist() == every.q_dot.tolist(), k
-        if k == 0:  # every robot 0.7 m or more from every body: not one query
-            assert asked[0] == 0
-    assert [asdict(e) for e in skipping.contacts] == [asdict(e) for e in every.contacts]
+        assert np.abs(skipping.q - every.q).max() <= 1e-9, k
+        assert np.abs(skipping.q_dot - every.q_dot).max() <= 1e-9, k
+        if k == 0:  # every robot 0.7 m or more from every body: Bullet not stepped
+            assert stepped[0] == 0
+    assert skipping.q.tolist() != every.q.tolist()  # computed, not Bullet's own
+    ours, theirs = ([asdict(e) for e in p.contacts] for p in (skipping, every))
+    assert [{**e, "max_depth_m": 0} for e in ours] == [{**e, "max_depth_m": 0} for e in theirs]
+    assert np.allclose([e["max_depth_m"] for e in ours], [e["max_depth_m"] for e in theirs],
+                       rtol=0, atol=1e-12)
     assert {(e.body_a, e.body_b) for e in every.contacts} == {(1, 2), (3, -1)}
-    assert asked_every[0] == steps * sc.spec.plant.substeps
-    assert 0 < asked[0] < asked_every[0]  # the sub-steps near a body (they end touching)
+    assert stepped_every[0] == steps * sc.spec.plant.substeps and caught_up_every[0] == 0
+    assert 0 < stepped[0] < stepped_every[0]  # the sub-steps near a body (they end touching)
+    assert 0 < caught_up[0] <= stepped[0]
     skipping.close(), every.close()
     assert CONTACT_QUERY_GAP_M >= 5 * 0.02
+
+
+def test_bullet_is_caught_up_before_its_queries():
+    """After steps without Bullet (nothing near), its closest-point queries see the robots
+    where the plant's state has them: perceive() agrees with the perception kernel."""
+    sc = load_scenario("lab")
+    q = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [0.0, 3.0, 0.0]])
+    q_dot = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    with PybulletPlant([sc.model()] * 3, q, q_dot, None, [0.25] * 3, [1, 2, 3], [],
+                       sc.spec.plant.substeps) as plant:
+        stepped = _counted(plant, 1)
+        for k in range(100):  # robots 1 and 2 close from 3 m to ~1 m: no contact
+            plant.step(k * sc.dt, sc.dt, np.zeros((3, 4)), None)
+        assert stepped[0] == 0 and 0.5 < plant.q[1, 0] - plant.q[0, 0] < 2.5
+        # robot 2 is seen when its surface is within the range of robot 1's centre; Bullet
+        # left at the start (3 m apart) would see it in neither
+        surface = plant.q[1, 0] - plant.q[0, 0] - 0.25
+        assert [b.ident for b in plant.perceive(0, surface + 0.01)[0]] == [2]
+        assert plant.perceive(0, surface - 0.01)[0] == []
 
 
 def test_bullet_finds_contacts_from_a_sub_steps_start_so_a_jump_over_the_gap_changes_nothing():
@@ -773,8 +809,10 @@ def test_close_disconnects_its_own_client_only():
     with _lab_plant() as other:
         with _lab_plant() as plant:
             plant.step(0.0, 0.005, np.zeros((3, 4)), None)
-        with pytest.raises(pb.error):
+        with pytest.raises(RuntimeError, match="closed"):
             plant.step(0.005, 0.005, np.zeros((3, 4)), None)
+        with pytest.raises(pb.error):
+            plant.perceive(0, 1.0)
         plant.close()  # idempotent
         other.step(0.0, 0.005, np.zeros((3, 4)), None)
 
