@@ -277,7 +277,7 @@ class BridgeNode:
                 break
             report = self.protocol.decode(frame)
             if report is not None:
-                self.monitor.feed(report, at)
+                self.monitor.feed(report, at, frame.timestamp)
         # the wheels' rotation from the drives' angle estimates: a lost or late encoder
         # frame adds no drift (the next carries the whole rotation); see Odometry.follow
         self.odometry.follow(self.monitor.wheel_positions_rev(), self.monitor.first_positions_rev(),
