@@ -346,7 +346,8 @@ cdef class FleetDynamics:
         nothing otherwise. Before anything reads Bullet's world (its queries, its view)."""
         self._check_state(q, qd)
         if self.bullet_behind:
-            self._put_states(bullet[6], bodies, <int> bullet[5], q, qd)
+            *_, cid, put_states = bullet  # as bullet_step unpacks it
+            self._put_states(put_states, bodies, cid, q, qd)
 
     def bullet_step(self, tuple bullet, list bodies, const double[:, ::1] torques,
                     object other, double[:, ::1] wheel_torques, double t, double h,
