@@ -271,7 +271,10 @@ class McapRecorder:
             except Exception as exc:  # noqa: BLE001
                 self._break(f"finishing the file: {type(exc).__name__}: {exc}")
             finally:
-                self._file.close()
+                try:  # its buffer's last flush: a full disk says so here too
+                    self._file.close()
+                except OSError as exc:
+                    self._break(f"closing the file: {type(exc).__name__}: {exc}")
         self._closed = True
         if self.broken is not None:  # the count is what the file holds, read back
             self.written = messages_in(self.path)

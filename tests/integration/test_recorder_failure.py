@@ -10,6 +10,7 @@ and metrics.recording.messages still counted them.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 from mcap.reader import make_reader
 from mcap.writer import Writer
@@ -106,3 +107,15 @@ def test_a_run_whose_recording_fails_exits_non_zero_and_is_not_a_pass(tmp_path, 
     assert m["recording"]["lost"] > 0
     assert not m["verdict"]["pass"] and not m["verdict"]["complete"]
     assert any("recording failed" in r for r in m["verdict"]["reasons"])
+
+
+def test_a_disk_full_at_the_last_flush_is_a_broken_recording_not_a_crash(capsys):
+    """The file's buffer is flushed last by ``close``: on a full disk (``/dev/full``) that
+    raised out of the recorder (the run's outputs never written) instead of failing it."""
+    rec = McapRecorder(Path("/dev/full"))
+    for k in range(3):  # less than a chunk and a buffer: nothing reaches the disk before close
+        rec.add(KEY, 1, tick(k, k))
+    rec.close()
+    assert rec.broken is not None and "No space left" in rec.broken
+    assert rec.summary()["error"] == rec.broken
+    assert "recorder: FAILED" in capsys.readouterr().err
