@@ -44,6 +44,7 @@ __all__ = ["Interrupted", "LaunchOptions", "Launcher", "RunFailed", "observing"]
 
 Progress = Callable[[int, int], None] | None
 HEAR_SWITCH_INTERVAL_S = 2e-4
+HEAR_EVERY_S = 0.002  # while the fleet's frames keep coming (Mailbox.wait_until)
 
 
 def make_observer(sc: Scenario, opts: LaunchOptions, keyring: Keyring | None) -> Observer:
@@ -196,8 +197,11 @@ class Launcher:
                 self.supervisor.apply_kills(self.kills, time.monotonic() - obs.run_t0)
             if progress is not None:
                 progress(obs.progress_k + 1, self.steps)
+            # the fleet heard in batches (not woken by each frame), but a kill of the fault
+            # plan carried out to the millisecond
             node.mailbox.wait_until(lambda: obs.ended or self.stop(),
-                                    0.05 if not self.kills.pending else 0.005, bounded=True)
+                                    0.05 if not self.kills.pending else 0.005, bounded=True,
+                                    coalesce_s=0.0 if self.kills.pending else HEAR_EVERY_S)
 
     def _announce_start(self, node: Node) -> None:
         start_unix_ns = time.time_ns() + int(START_LEAD_S * 1e9)

@@ -215,3 +215,80 @@ def test_a_node_sends_data_on_the_path_and_refuses_a_forgery_there_as_on_zenoh(r
     finally:
         agent.close()
         plant.close()
+
+
+class _Looks:
+    """Counts how a coalescing listener looks for frames: blocking waits and pauses."""
+
+    def __init__(self, rx: DatagramPath, monkeypatch) -> None:
+        self.blocking = self.pauses = 0
+        real_wait = rx.recv_wait
+
+        def recv_wait(timeout_s: float):
+            self.blocking += timeout_s > 0.0
+            return real_wait(timeout_s)
+        rx.recv_wait = recv_wait  # the mailbox reads it when it waits
+        real_sleep = time.sleep
+
+        def sleep(s: float) -> None:
+            self.pauses += 1
+            real_sleep(s)
+        monkeypatch.setattr("deploy.runtime.transport.time.sleep", sleep)
+
+
+def test_a_coalescing_listener_hears_every_frame_in_order_and_looks_once_a_pause(
+        run_dir, monkeypatch):
+    """The launcher's way of hearing a busy fleet (``Mailbox.wait_until(coalesce_s=...)``):
+    every frame handled, in order; it pauses at most once per ``coalesce_s`` of the wait,
+    and waits to be woken only after a pause that found nothing (or first), however the
+    frames are spread (a loaded machine only spreads them more). Without coalescing it
+    was woken by nearly every frame."""
+    from deploy.runtime.transport import Mailbox
+
+    tx, rx = _pair(run_dir)
+    box = Mailbox(rx)
+    got: list[bytes] = []
+    box.on_datagram = got.append
+    pace = time.sleep  # the sender's own, not the listener's counted one
+    looks = _Looks(rx, monkeypatch)
+    payloads = [i.to_bytes(2, "big") for i in range(200)]
+
+    def send() -> None:
+        for p in payloads:
+            assert tx.send(KEY, p) == 0
+            pace(0.0002)  # a frame every ~0.2 ms, for ~40 ms or more
+    sender = threading.Thread(target=send)
+    t0 = time.monotonic()
+    sender.start()
+    assert box.wait_until(lambda: len(got) == len(payloads), 10.0, coalesce_s=0.002)
+    took = time.monotonic() - t0
+    sender.join()
+    head = bytes((len(KEY),)) + KEY.encode()
+    assert got == [head + p for p in payloads]
+    assert looks.pauses <= took / 0.002 + 1, (looks.pauses, took)
+    assert looks.blocking <= looks.pauses + 1, (looks.blocking, looks.pauses)
+    tx.close()
+    rx.close()
+
+
+def test_a_quiet_coalescing_listener_waits_for_the_next_frame_without_polling(
+        run_dir, monkeypatch):
+    """Nothing coming: one blocking wait for the whole timeout, no pauses (coalescing costs
+    a quiet listener nothing), and the first frame after the quiet is handled by it."""
+    from deploy.runtime.transport import Mailbox
+
+    tx, rx = _pair(run_dir)
+    box = Mailbox(rx)
+    got: list[bytes] = []
+    box.on_datagram = got.append
+    tx.send(KEY, b"0")  # connected and accepted before the quiet part
+    assert box.wait_until(lambda: bool(got), 10.0)
+    got.clear()
+    looks = _Looks(rx, monkeypatch)
+    assert not box.wait_until(lambda: bool(got), 0.1, coalesce_s=0.002)
+    assert looks.pauses == 0 and looks.blocking == 1
+    threading.Timer(0.05, lambda: tx.send(KEY, b"x")).start()
+    assert box.wait_until(lambda: bool(got), 10.0, coalesce_s=0.002)
+    assert looks.pauses == 0 and looks.blocking == 2
+    tx.close()
+    rx.close()
