@@ -53,6 +53,7 @@ WIRE_PREFIX = re.compile(r"^omr/[^/]+/")  # Keys.root: omr/<fleet>/
 UINT32 = 0xFFFF_FFFF
 UINT64_MAX = 2**64 - 1
 LIBRARY = "omnifleet"
+MAX_KEYS_KEPT = 4096  # wire keys whose channel is remembered
 
 
 def wire_topic(key: str) -> str:
@@ -76,6 +77,7 @@ class McapRecorder:
         self._json: dict[type, tuple[StructJson, int]] = {}  # type -> (codec, schema id)
         self._schemas: dict[str, int] = {}  # protobuf schema name -> id
         self._channels: dict[str, int] = {}
+        self._by_key: dict[tuple[str, type], tuple[StructJson, int]] = {}  # the wire's keys
         self._sequence: dict[int, int] = {}  # channel -> next sequence (messages without seq)
         self._queue: deque[tuple[str, int, Any]] = deque()
         self._wake = threading.Event()
@@ -131,7 +133,12 @@ class McapRecorder:
             self.lost += 1
             return
         try:  # the value: what cannot be encoded is refused and counted
-            codec, ch = self._json_channel(wire_topic(key), type(msg))
+            found = self._by_key.get((key, type(msg)))
+            if found is None:
+                found = self._json_channel(wire_topic(key), type(msg))
+                if len(self._by_key) < MAX_KEYS_KEPT:  # a forger's made-up keys stay bounded
+                    self._by_key[(key, type(msg))] = found
+            codec, ch = found
             data = codec.encode(msg)
             seq = getattr(msg, "seq", None)
             if not isinstance(seq, int) or isinstance(seq, bool):
