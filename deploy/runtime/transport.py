@@ -203,9 +203,9 @@ class Mailbox:
         Why: recording ``paper``, the launcher hears ~11,000 frames a second and was
         woken ~5,900 times a second, each wake-up a context switch here and in the
         sender that woke it, and on 2 cores often a run process of the chain put off
-        the CPU. Looking every 2 ms: the launcher's CPU 9.2-9.6 -> 7.0-7.6 s, every
-        process's 25.1-26.3 -> 21.8-23.5 s, the run 13.6-14.2 -> 12.5-13.4 s (3
-        alternating pairs; 5 ms did no better, docs/bench.md)."""
+        the CPU. Looking every 2 ms (3 alternating pairs of ``run paper --no-figures``):
+        the launcher's CPU 9.6-9.9 -> 7.6-8.2 s, every process's 25.9-27.2 -> 23.4-24.4
+        s, the run 13.9-14.6 -> 13.2-13.7 s; 5 ms did no better (docs/bench.md)."""
         if ready_first and ready():
             return True
         deadline = time.monotonic() + timeout_s
