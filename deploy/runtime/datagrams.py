@@ -51,7 +51,15 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from deploy.contract.wire import LeaderState, Reply, Sample, StateLog, Telemetry
+from deploy.contract.wire import (
+    LAUNCHER_ROLE,
+    LeaderState,
+    Reply,
+    Sample,
+    StateLog,
+    Telemetry,
+    agent_role,
+)
 
 # the message kinds of the control path and of its observers' series
 DATA_KINDS = (Sample, Reply, LeaderState, Telemetry, StateLog)
@@ -120,6 +128,13 @@ class _Peer:
             self.sock.close()
             self.sock = None
 
+
+AGENT_PREFIX = agent_role(0)[:-1]  # "agent-"
+
+
+def _send_order(role: str) -> tuple[int, str]:
+    """Agents, then the rest (plant, bridges, leader), then the launcher."""
+    return (0 if role.startswith(AGENT_PREFIX) else 2 if role == LAUNCHER_ROLE else 1, role)
 
 class DatagramPath:
     """One node's end of the run's local data path: its listening socket and the
@@ -296,10 +311,16 @@ class DatagramPath:
             if role not in seen:
                 old.close()
                 self._behind.discard(old)
-        self._peers = seen
+        # the order a frame goes out in: the agents first, the listeners off the fleet's
+        # path last. A plant (or bridge) acts on an agent's reply by stepping and sending
+        # (at the run's end, ``end``): every agent that hears the same reply has it by
+        # then (in the order of the directory, an agent that ended with the run could
+        # report one share short: its neighbour's last reply still on its way)
+        self._peers = dict(sorted(seen.items(), key=lambda kv: _send_order(kv[0])))
         self._routes.clear()
 
     def receivers(self, key: str) -> list[str]:
+        """The roles ``key`` goes to, in the order it is sent to them."""
         return [p.role for p in self._route(key)]
 
     def _route(self, key: str) -> list[_Peer]:

@@ -292,3 +292,19 @@ def test_a_quiet_coalescing_listener_waits_for_the_next_frame_without_polling(
     assert looks.pauses == 0 and looks.blocking == 2
     tx.close()
     rx.close()
+
+
+def test_a_frame_goes_to_the_agents_first_and_to_the_launcher_last(run_dir):
+    """Whatever the directory's order: the plant acts on an agent's reply (it steps, or
+    ends the run), so every agent that hears the same reply must have it first (an agent
+    that ended with the run once reported its neighbour's last share missing)."""
+    nodes = []
+    for role in ("launcher", "plant", "agent-3", "leader", "agent-2"):
+        d = DatagramPath(run_dir, role, True)
+        d.hear(["omr/t/robot/*/cmd"])
+        nodes.append(d)
+    tx = DatagramPath(run_dir, "agent-1", True)
+    tx.refresh()
+    assert tx.receivers(KEY) == ["agent-2", "agent-3", "leader", "plant", "launcher"]
+    for d in (tx, *nodes):
+        d.close()
