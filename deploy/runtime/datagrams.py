@@ -136,6 +136,7 @@ def _send_order(role: str) -> tuple[int, str]:
     """Agents, then the rest (plant, bridges, leader), then the launcher."""
     return (0 if role.startswith(AGENT_PREFIX) else 2 if role == LAUNCHER_ROLE else 1, role)
 
+
 class DatagramPath:
     """One node's end of the run's local data path: its listening socket and the
     connections of its senders (what it hears), the peers it sends to, and the counts
