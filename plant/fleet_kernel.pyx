@@ -344,8 +344,8 @@ cdef class FleetDynamics:
     def catch_up_bullet(self, tuple bullet, list bodies, double[:, ::1] q, double[:, ::1] qd):
         """Bullet's joints to q, qd when sub-steps ran without it (:meth:`bullet_step`);
         nothing otherwise. Before anything reads Bullet's world (its queries, its view)."""
-        self._check_state(q, qd)
         if self.bullet_behind:
+            self._check_state(q, qd)
             *_, cid, put_states = bullet  # as bullet_step unpacks it
             self._put_states(put_states, bodies, cid, q, qd)
 

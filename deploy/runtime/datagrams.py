@@ -51,15 +51,8 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from deploy.contract.wire import (
-    LAUNCHER_ROLE,
-    LeaderState,
-    Reply,
-    Sample,
-    StateLog,
-    Telemetry,
-    agent_role,
-)
+from deploy.contract.audience import robot_of
+from deploy.contract.wire import LAUNCHER_ROLE, LeaderState, Reply, Sample, StateLog, Telemetry
 
 # the message kinds of the control path and of its observers' series
 DATA_KINDS = (Sample, Reply, LeaderState, Telemetry, StateLog)
@@ -129,12 +122,10 @@ class _Peer:
             self.sock = None
 
 
-AGENT_PREFIX = agent_role(0)[:-1]  # "agent-"
-
-
 def _send_order(role: str) -> tuple[int, str]:
     """Agents, then the rest (plant, bridges, leader), then the launcher."""
-    return (0 if role.startswith(AGENT_PREFIX) else 2 if role == LAUNCHER_ROLE else 1, role)
+    agent = robot_of(role, "agent-") is not None
+    return (0 if agent else 2 if role == LAUNCHER_ROLE else 1, role)
 
 
 class DatagramPath:
