@@ -21,13 +21,8 @@ from deploy.contract.scenario import PLANT_KINDS, Scenario, load_scenario
 from deploy.contract.wire import LEADER_ROLE, PLANT_ROLE, Codec, Keys, agent_role
 from deploy.runtime.datagrams import DatagramError, DatagramPath
 from deploy.runtime.heap import freeze_startup_heap
-from deploy.runtime.node_runtime import (
-    CLOCKS,
-    LOOP,
-    StopFlag,
-    die_with_parent,
-    install_signal_handlers,
-)
+from deploy.runtime.node_runtime import CLOCKS, LOOP, StopFlag, install_signal_handlers
+from deploy.runtime.parent_death import die_with_parent
 from deploy.runtime.priority import (
     REALTIME_PRIORITY,
     add_priority_argument,

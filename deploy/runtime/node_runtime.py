@@ -4,7 +4,6 @@ and the end-of-run report."""
 
 from __future__ import annotations
 
-import ctypes
 import heapq
 import itertools
 import resource
@@ -50,17 +49,6 @@ def install_signal_handlers(stop: StopFlag, node: Node | None = None) -> None:
 
     signal.signal(signal.SIGTERM, handler)
     signal.signal(signal.SIGINT, handler)
-
-
-def die_with_parent() -> None:
-    """Linux: get SIGTERM when the launching process dies (no orphans, even
-    after a SIGKILL of the launcher). Called by the child itself at start-up
-    (a preexec_fn is unsafe in the launcher, which runs zenoh threads)."""
-    try:
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except OSError:
-        pass
 
 
 @dataclass
