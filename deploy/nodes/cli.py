@@ -220,7 +220,7 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     def build(sc, node, stop):
         return PlantNode(sc, args.plant or sc.spec.plant.kind, node, stop,
                          _waits_for_recorder(args), args.command_timeout, gui=args.gui,
-                         faults=plan, realtime=args.clock == "realtime")
+                         faults=plan, realtime=args.clock == "realtime", spool_dir=args.spool)
 
     return run_node(args, PLANT_ROLE, 0, build,
                      lambda obj, sc: obj.run_lockstep(steps_of(sc, args), args.step_deadline),
@@ -315,6 +315,10 @@ def add_node_commands(sub: argparse._SubParsersAction) -> None:
     plant.add_argument("--gui", action="store_true",
                        help="pybullet: open the simulator's window (needs a display)")
     add_option(plant, "--command-timeout")
+    plant.add_argument("--spool", metavar="DIR",
+                       help="keep every sample sent and every reply heard in a file of DIR "
+                       "(on this host) for the run's recording: `omnifleet run` gives its run "
+                       "directory when it records, and then does not hear them on the wire")
     plant.set_defaults(func=_cmd_plant)
 
     leader = sub.add_parser("leader", help="run the virtual leader (reference generator)")

@@ -61,6 +61,7 @@ from deploy.runtime.plants import contact_log, make_plant, sensor_for
 from deploy.runtime.priority import hand_over
 from deploy.runtime.step_guard import SEQ_SLACK
 from deploy.runtime.transport import Node
+from deploy.runtime.wire_spool import SpoolWriter, spool_path
 from plant.command import (
     CommandBounds,
     ZeroTorqueSpans,
@@ -77,12 +78,17 @@ class PlantNode:
                  with_recorder: bool = False,
                  command_timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S,
                  gui: bool = False, faults: FaultPlan | None = None,
-                 realtime: bool = False) -> None:
+                 realtime: bool = False, spool_dir: str | None = None) -> None:
+        """``spool_dir``: keep a record of every sample sent and every reply heard
+        there, for the recording of the launcher on this host (wire_spool.py)."""
         self.sc, self.node, self.stop, self.kind = sc, node, stop, kind
         self.plant = make_plant(sc, kind, gui=gui)
         self.sense = sensor_for(self.plant, sc)
         self.ids = sc.robot_ids
         self.sample_keys = [node.keys.sample(rid) for rid in self.ids]
+        if spool_dir is not None:
+            node.spool = SpoolWriter(spool_path(spool_dir, PLANT_ROLE), {
+                *self.sample_keys, *(node.keys.cmd(rid) for rid in self.ids)})
         self.torques = np.zeros((sc.n, 4))
         self.v_cmd = np.zeros((sc.n, 3))
         self.commands: dict[tuple[int, int], Reply] = {}

@@ -80,6 +80,7 @@ class McapRecorder:
         self._by_key: dict[tuple[str, type], tuple[StructJson, int]] = {}  # the wire's keys
         self._sequence: dict[int, int] = {}  # channel -> next sequence (messages without seq)
         self._queue: deque[tuple[str, int, Any]] = deque()
+        self._sources: list[Any] = []  # more wire messages, read by the writer (add_source)
         self._wake = threading.Event()
         self._closing = False
         self._closed = False
@@ -99,6 +100,12 @@ class McapRecorder:
             self.lost += 1  # nothing queued for a writer that cannot write (flat memory)
             return
         self._queue.append((key, arrival_unix_ns, msg))
+
+    def add_source(self, source: Any) -> None:
+        """Wire messages this recorder reads itself, on its writer's thread:
+        ``source.read()`` returns the (key, wall clock ns, message) that came since the
+        last read; ``source.close()`` is called when the recording closes."""
+        self._sources.append(source)
 
     def _json_channel(self, topic: str, kind: type) -> tuple[StructJson, int]:
         entry = self._json.get(kind)
@@ -182,6 +189,9 @@ class McapRecorder:
     def _drain(self) -> None:
         q = self._queue
         with self._lock:
+            for source in self._sources:
+                for item in source.read():
+                    self._write_wire(*item)
             while q:
                 self._write_wire(*q.popleft())
 
@@ -283,6 +293,8 @@ class McapRecorder:
                 except OSError as exc:
                     self._break(f"closing the file: {type(exc).__name__}: {exc}")
         self._closed = True
+        for source in self._sources:
+            source.close()
         if self.broken is not None:  # the count is what the file holds, read back
             self.written = messages_in(self.path)
 

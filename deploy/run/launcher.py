@@ -31,14 +31,15 @@ from deploy.contract.keyring import Keyring, keyring_text, new_master
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, Keys, control
 from deploy.run.kill_schedule import KillSchedule
-from deploy.run.observer import Observer
-from deploy.run.plan import LaunchOptions, endpoint_of, key_roles, plan_run
+from deploy.run.observer import Observer, SpooledWire
+from deploy.run.plan import LaunchOptions, endpoint_of, key_roles, plan_run, spools
 from deploy.run.run_figures import run_figures
 from deploy.run.supervisor import Interrupted, RunFailed, Supervisor
 from deploy.runtime.datagrams import DatagramPath
 from deploy.runtime.node_runtime import START_LEAD_S, LoopClock, StopFlag
 from deploy.runtime.plants import CAN_EMULATED
 from deploy.runtime.transport import Node, zenoh_config
+from deploy.runtime.wire_spool import SpoolReader
 
 __all__ = ["Interrupted", "LaunchOptions", "Launcher", "RunFailed", "observing"]
 
@@ -49,7 +50,7 @@ HEAR_EVERY_S = 0.002  # while the fleet's frames keep coming (Mailbox.wait_until
 
 def make_observer(sc: Scenario, opts: LaunchOptions, keyring: Keyring | None) -> Observer:
     return Observer(sc, Keys(opts.fleet or sc.name), opts.clock, opts.plant, opts.steps(sc),
-                    keyring, record_all=opts.record)
+                    keyring, record_all=opts.record, spooled=spools(opts))
 
 
 @contextmanager
@@ -100,6 +101,7 @@ class Launcher:
         self.kills = KillSchedule(opts.faults.kills if opts.faults else ())
         self.truth_files: dict[int, Path] = {}  # can-emulated: each emulator's ground truth
         self.loop_clock = LoopClock()
+        self.spool: SpoolReader | None = None  # the plant's samples and replies (recording)
 
     def run(self, progress: Progress = None) -> dict[str, Any]:
         """Run to the end; returns the figures the launcher adds to metrics.json.
@@ -134,10 +136,15 @@ class Launcher:
         obs.on_report = node.declare_filed  # its node may close: the report is in hand
         try:
             with observing(obs, o, node, self.stop):
+                if obs.spooled and obs.recorder is not None:
+                    self.spool = SpoolReader(run_dir)
+                    obs.recorder.add_source(SpooledWire(self.sc, obs.keys, self.spool))
                 try:
                     wall = self._run_fleet(node, endpoint, run_dir, progress)
                 finally:
                     sup.stop_all()  # by pid, before the launcher leaves the fleet
+                    if self.spool is not None:  # readable after the run's directory is gone
+                        self.spool.open_all()
         finally:
             shutil.rmtree(run_dir, ignore_errors=True)
         return run_figures(obs, sup.children, zid, wall, o.faults, self.kills.events,

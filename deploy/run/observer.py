@@ -29,6 +29,7 @@ from deploy.run.collector import Collector
 from deploy.runtime.plants import CAN_EMULATED
 from deploy.runtime.step_guard import CLOCK_SKEW_S
 from deploy.runtime.transport import WHAT
+from deploy.runtime.wire_spool import SpoolReader
 
 MAX_KINDS_KEPT = 4096  # keys whose message type is remembered
 
@@ -39,7 +40,8 @@ class Observer:
     lockstep), whether it has ended or been stopped, and what it refused."""
 
     def __init__(self, sc: Scenario, keys: Keys, clock: str, plant: str, steps: int,
-                 keyring: Keyring | None, recorder: Any = None, record_all: bool = False) -> None:
+                 keyring: Keyring | None, recorder: Any = None, record_all: bool = False,
+                 spooled: bool = False) -> None:
         self.sc, self.keys, self.clock, self.plant = sc, keys, clock, plant
         self.codec = Codec(sc.robot_ids)
         # the launcher's keys: what it hears is taken only from a sender of its key, tagged
@@ -48,6 +50,9 @@ class Observer:
         self.keyring = keyring
         self.recorder = recorder  # McapRecorder or None
         self.record_all = record_all  # subscribe to every key (recording)
+        # the plant keeps its samples and replies for the recording (SpooledWire): they
+        # are not heard here
+        self.spooled = spooled
         self.steps = steps
         self.collector = Collector(sc, steps)
         self.collector.horizon = self.horizon
@@ -66,10 +71,11 @@ class Observer:
         self._kinds: dict[str, tuple[type, int | None]] = {}  # key -> Keys.kind_of(key)
 
     def listened_keys(self) -> list[str]:
-        """Recording: every key of the fleet. Otherwise only what the series and
-        the metrics need (each message heard costs CPU in every listener)."""
+        """Recording: every key of the fleet, but the samples and replies when the plant
+        keeps them (``spooled``: what is left is the list below). Otherwise only what the
+        series and the metrics need (each message heard costs CPU in every listener)."""
         k = self.keys
-        if self.record_all:
+        if self.record_all and not self.spooled:
             return [k.everything]
         return [k.leader_state, k.state_log_all, f"{k.root}/agent/*/telemetry",
                 k.ctl_all, f"{k.root}/report/*"]
@@ -190,3 +196,30 @@ class Observer:
         for why, n in self.collector.refused.items():
             out[f"launcher: {why}"] = n
         return out
+
+
+class SpooledWire:
+    """The plant's own record of the samples it sent and the replies it heard
+    (deploy/runtime/wire_spool.py), decoded for the recorder: a source of
+    ``McapRecorder.add_source``, read on the recorder's thread (with a codec of its own).
+    A record that does not decode (none should: the plant wrote what it sent or had
+    decoded) is counted in ``invalid``."""
+
+    def __init__(self, sc: Scenario, keys: Keys, reader: SpoolReader) -> None:
+        self.keys, self.reader = keys, reader
+        self.codec = Codec(sc.robot_ids)
+        self.invalid = 0
+
+    def read(self) -> list[tuple[str, int, Any]]:
+        out = []
+        for key, unix_ns, payload in self.reader.read():
+            found = self.keys.kind_of(key)
+            msg = None if found is None else self.codec.decode(found[0], payload, found[1])
+            if msg is None:
+                self.invalid += 1
+                continue
+            out.append((key, unix_ns, msg))
+        return out
+
+    def close(self) -> None:
+        self.reader.close()

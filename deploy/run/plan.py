@@ -87,6 +87,10 @@ class LaunchOptions:
     # the per-step data as unix datagrams between the nodes of the run's directory
     # (deploy/runtime/datagrams.py); off: everything on zenoh
     datagrams: bool = True
+    # a recording run: the plant keeps the samples it sends and the replies it hears in
+    # the run's directory for the recording (deploy/runtime/wire_spool.py); off: the
+    # launcher hears them on the wire like the rest
+    spool: bool = True
     # a McapRecorder made (and closed) by the caller, who adds the run's scene to it at
     # the end; None: the launcher makes its own and closes it
     recorder: Any = None
@@ -144,7 +148,9 @@ def plan_run(sc: Scenario, a: LaunchOptions, launcher_endpoint: str,
     else:
         plan.append(Child(PLANT_ROLE, None, [*cmd, "plant", *common, "--plant", a.plant,
                                              *_priority(a, world_priority(a.realtime_priority)),
-                                             *(["--gui"] if a.gui else [])],
+                                             *(["--gui"] if a.gui else []),
+                                             *(["--spool", str(run_dir or _unstarted())]
+                                               if spools(a) else [])],
                           logs / "plant.log"))
     for r in sc.robot_ids:
         source = ["--plant-role", bridge_role(r)] if on_can else []
@@ -153,6 +159,12 @@ def plan_run(sc: Scenario, a: LaunchOptions, launcher_endpoint: str,
                           logs / f"{agent_role(r)}.log"))
     _links(sc, plan, on_can, run_dir, a.datagrams)
     return RunPlan(plan, truth)
+
+
+def spools(a: LaunchOptions) -> bool:
+    """Whether the plant keeps its samples and replies for the launcher's recording
+    (a CAN run has no plant: its bridges' messages are heard on the wire)."""
+    return a.record and a.spool and a.plant != CAN_EMULATED
 
 
 def key_roles(sc: Scenario, plant: str) -> list[str]:

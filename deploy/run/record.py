@@ -159,7 +159,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
                          out=Path(args.out), duration_s=args.duration,
                          control_rate_hz=args.control_rate,
                          startup_timeout_s=args.startup_timeout, fleet=args.fleet or sc.name,
-                         record=not args.no_record)
+                         record=not args.no_record, spool=False)
     recording = None
     if not args.no_record:  # ours, so that the scene joins it at the end (docs/foxglove.md)
         from deploy.report.recorder import McapRecorder

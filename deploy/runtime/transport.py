@@ -48,6 +48,7 @@ from deploy.contract.wire import (
     encode,
 )
 from deploy.runtime.datagrams import DATA_KINDS, DatagramPath, Dispatch
+from deploy.runtime.wire_spool import SpoolWriter
 
 MAX_PEER_EVENTS = 10_000
 # distinct keys counted in Node.received: a wildcard subscription (ctl/*) hears any key a
@@ -301,6 +302,9 @@ class Node:
         self.links_noted: list[str] | None = None
         self.refused: dict[str, int] = {}  # messages refused on arrival, by reason
         self.keyring = keyring
+        # this node's own record of what it sends and hears on some keys, for the run's
+        # recording on this host (deploy/runtime/wire_spool.py); None: no record
+        self.spool: SpoolWriter | None = None
         try:
             self.session = zenoh.open(config)
         except Exception as exc:
@@ -420,6 +424,7 @@ class Node:
             data = encode(msg)
             if not checked:
                 self.codec.check(type(msg), data)  # the receivers' schema: NaN never leaves
+            plain = data
             if self.keyring is not None:
                 data = self.keyring.seal(data, key)
             if by_datagram:
@@ -427,6 +432,9 @@ class Node:
             else:
                 pub.put(data)
             self.counters.sent += 1
+            spool = self.spool
+            if spool is not None and key in spool.keys:
+                spool.write(key, plain)
         except Exception as exc:
             self.counters.dropped += 1
             if self.counters.dropped <= 5:
@@ -485,6 +493,9 @@ class Node:
             if on not in received and len(received) >= MAX_RECEIVED_KEYS:
                 on = key  # made-up keys under a wildcard: counted under the wildcard
             received[on] = received.get(on, 0) + 1
+            spool = self.spool
+            if spool is not None and on in spool.keys:
+                spool.write(on, data)
             on_message(msg)
 
         if "*" in key:  # a wildcard: the key each sample came on
@@ -566,6 +577,8 @@ class Node:
                   f"{self.datagrams.lossless_wait_s:g} s", file=sys.stderr, flush=True)
 
     def close(self) -> None:
+        if self.spool is not None:
+            self.spool.close()
         for t in self._tokens:
             t.undeclare()
         self._tokens.clear()

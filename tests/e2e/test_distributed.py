@@ -84,6 +84,49 @@ def test_run_reports_processes_messages_and_a_recording(distributed_run):
     assert robots >= {"robot-1", "robot-2", "robot-3"}
 
 
+def _robot_messages(path: Path) -> dict[str, list[tuple[int, int, str]]]:
+    """Each sample and reply topic's messages: (sequence, log time, the message but the
+    monotonic clock stamps of its sender and of the state it answers) in order."""
+    from mcap.reader import make_reader
+
+    out: dict[str, list[tuple[int, int, str]]] = {}
+    with open(path, "rb") as f:
+        for _s, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            if channel.topic.startswith("/robot/"):
+                value = json.loads(message.data)
+                for stamp in ("stamp_ns", "state_stamp_ns"):  # each run's clock its own
+                    value.pop(stamp, None)
+                out.setdefault(channel.topic, []).append(
+                    (message.sequence, message.log_time, json.dumps(value, sort_keys=True)))
+    return {topic: sorted(msgs) for topic, msgs in out.items()}
+
+
+def test_the_plants_record_of_samples_and_replies_is_what_the_launcher_heard(
+        distributed_run, tmp_path):
+    """The recording's samples and replies come from the plant's record of them
+    (deploy/runtime/wire_spool.py): the same messages, field for field, as a launcher
+    that hears them on the wire records, in the same lockstep run."""
+    from deploy.contract.scenario import load_scenario
+    from deploy.report.recorder import McapRecorder
+    from deploy.run.launcher import Launcher, LaunchOptions
+
+    sc = load_scenario("paper")
+    recorder = McapRecorder(tmp_path / "recording.mcap", sim_dt=sc.dt)  # as `omnifleet run`'s
+    opts = LaunchOptions("paper", "model", "lockstep", tmp_path, duration_s=float(DURATION),
+                         fleet=f"t-heard-{os.getpid()}", spool=False, recorder=recorder)
+    try:
+        Launcher(sc, opts).run()
+    finally:
+        recorder.close()
+    heard = _robot_messages(tmp_path / "recording.mcap")
+    spooled = _robot_messages(distributed_run / "recording.mcap")
+    assert sorted(heard) == [f"/robot/{r}/{kind}" for r in (1, 2, 3) for kind in ("cmd", "sample")]
+    for r in (1, 2, 3):  # every step's sample; every step's reply and the initial share
+        assert len(spooled[f"/robot/{r}/sample"]) == 300
+        assert len(spooled[f"/robot/{r}/cmd"]) == 301
+    assert spooled == heard
+
+
 def test_each_agent_hears_only_its_graph_neighbours(distributed_run):
     """paper.toml: a = [[0,0,0],[1,0,0],[1,1,0]], b = [1,0,0] (self loop dropped)."""
     m = json.loads((distributed_run / "metrics.json").read_text())
