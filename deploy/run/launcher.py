@@ -109,9 +109,14 @@ class Launcher:
         # this thread hears the fleet while the recorder's thread encodes: every receive
         # gives the interpreter up, and getting it back took up to the default switch
         # interval (5 ms) while the encoder ran: ~200 messages a second, where a
-        # recorded lockstep run sends thousands (the fleet's frames for it piled up)
+        # recorded lockstep run sends thousands (the fleet's frames for it piled up).
+        # Not when the plant keeps its samples and replies for the recording: a tenth
+        # of the frames are heard here then, and the short interval's hand-overs cost
+        # more than they bought (README command 1: 15.0-16.4 s against 14.5-15.6 s with
+        # the default interval, 6 pairs side by side; docs/bench.md)
         switch = sys.getswitchinterval()
-        sys.setswitchinterval(HEAR_SWITCH_INTERVAL_S)
+        if self.observer.record_all and not self.observer.spooled:
+            sys.setswitchinterval(HEAR_SWITCH_INTERVAL_S)
         try:
             return self._run(progress)
         finally:
