@@ -259,13 +259,20 @@ def warm_up() -> None:
     plt.close(fig)
 
 
-def write_figures(sc: Scenario, ts: TimeSeries, out_dir: Path) -> list[Path]:
-    """The three figures, each with its caption under it, and CAPTIONS.md beside them."""
+def write_figures(sc: Scenario, ts: TimeSeries, out_dir: Path,
+                  only: tuple[int, ...] = (0, 1, 2), notes: bool = True) -> list[Path]:
+    """The three figures, each with its caption under it, and CAPTIONS.md beside them.
+    ``only``: which of the figures (0: Fig. 4, 1: Fig. 5, 2: Fig. 6); ``notes``: whether
+    CAPTIONS.md too (two processes drawing a run's figures share them out)."""
     paths = [out_dir / name for name in FIGURE_FILES[:3]]
     caps: Captions = captions(sc, ts, body_scale(sc, _extent(sc, ts), MIN_BODY_FRACTION))
-    for fn, p, text in zip((fig_trajectories, fig_errors, fig_distances), paths,
-                           (caps.fig4, caps.fig5, caps.fig6), strict=True):
-        fn(sc, ts, p, text)
-    notes = out_dir / FIGURE_FILES[3]
-    notes.write_text(caps.markdown(sc.name))
-    return [*paths, notes]
+    drawn = []
+    for n, (fn, p, text) in enumerate(zip((fig_trajectories, fig_errors, fig_distances), paths,
+                                          (caps.fig4, caps.fig5, caps.fig6), strict=True)):
+        if n in only:
+            fn(sc, ts, p, text)
+            drawn.append(p)
+    if notes:
+        drawn.append(out_dir / FIGURE_FILES[3])
+        drawn[-1].write_text(caps.markdown(sc.name))
+    return drawn

@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import os
 import signal
+import time
+from pathlib import Path
 
 import pytest
-from procs import finish, in_group, running, start
+from procs import finish, in_group, running, start, stat_fields
 
 from deploy.contract.scenario import load_scenario
 from deploy.report.figure_process import FigureProcess
@@ -60,6 +62,64 @@ def test_a_prepared_child_that_died_is_replaced_by_one_spawned_then(tmp_path, la
     finally:
         drawing.stop()
     assert (tmp_path / FIGURE_FILES[0]).stat().st_size > 0
+
+
+def _children_of(pid: int) -> list[int]:
+    return [int(d.name) for d in Path("/proc").iterdir() if d.name.isdigit()
+            and (f := stat_fields(d.name)) is not None and int(f[1]) == pid and f[0] != "Z"]
+
+
+def test_a_fork_that_dies_leaves_its_figure_to_the_process_that_forked_it(tmp_path, lab_run,
+                                                                            monkeypatch):
+    """Two processes draw the figures (a fork draws Fig. 6): should the fork fail, its
+    figure is drawn after the others, and every figure is there."""
+    from deploy.report import figure_process, figures
+
+    sc, series = lab_run
+    real, me = figures.write_figures, os.getpid()
+
+    def dies_in_the_fork(*args, **kw):
+        if os.getpid() != me:
+            os._exit(9)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(figures, "write_figures", dies_in_the_fork)
+    figure_process._draw(sc, series, str(tmp_path))
+    for name in FIGURE_FILES:
+        assert (tmp_path / name).stat().st_size > 0, name
+
+
+def test_the_fork_that_draws_ends_with_the_figure_process(tmp_path, lab_run, monkeypatch):
+    """The figure process ended by pid mid-drawing (Ctrl-C, an error in the run's
+    process) takes the fork drawing beside it along: no orphan draws on. Here both
+    would draw for an hour."""
+    import multiprocessing
+
+    from deploy.report import figure_process, figures
+
+    sc, series = lab_run
+    monkeypatch.setattr(figures, "write_figures", lambda *a, **kw: time.sleep(3600))
+    child = multiprocessing.get_context("fork").Process(
+        target=figure_process._draw, args=(sc, series, str(tmp_path)), daemon=True)
+    child.start()
+    forks: list[int] = []
+    try:
+        deadline = time.monotonic() + 60.0
+        while not (forks := _children_of(child.pid)) and time.monotonic() < deadline:
+            time.sleep(0.01)  # polls for the fork to exist; the test judges what follows
+        assert forks, "the figure process never forked"
+    finally:
+        child.kill()
+        child.join()
+    deadline = time.monotonic() + 10.0
+    while any(running(f) for f in forks) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    try:
+        assert not any(running(f) for f in forks), "the fork outlived the figure process"
+    finally:
+        for f in forks:
+            if running(f):
+                os.kill(f, signal.SIGKILL)
 
 
 def test_a_run_that_never_gets_to_its_figures_ends_the_prepared_child(lab_run):
