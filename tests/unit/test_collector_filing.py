@@ -86,3 +86,24 @@ def test_leader_batches_overlap_and_the_first_state_of_a_step_stays(collector):
     assert not collector.have_leader[12:STEPS - 2].any()
     assert collector.out_of_range == 3 + 2
     assert not ts.leader_q[12:STEPS - 2].any()  # never written (zeros, as allocated)
+
+
+def test_a_realtime_series_fills_each_gap_forward_from_the_step_before_and_counts_it(collector):
+    """Realtime: a step whose state, telemetry or leader never came repeats the step
+    before it (the first step: NaN), and every robot-step filled is counted."""
+    collector.add(_log([_row(k) for k in range(8) if k != 5]))  # step 5's states lost
+    collector.add(LeaderState(WIRE_VERSION, 0, 0, 0, k=0, t=0.0,
+                              q=[(float(k), 0.0, 0.0) for k in range(8)],
+                              q_dot=[(1.0, 0.0, 0.0)] * 8))
+    collector.have_leader[3] = False  # the leader's step 3 lost
+    collector.ts.leader_q[3] = 99.0
+    collector.have_telemetry[:8] = True
+    collector.have_telemetry[6, 1] = False  # robot 2's telemetry of step 6 lost
+    collector.ts.e[6, 1] = 42.0
+    ts = collector.series(realtime=True)
+    assert ts.steps == 8
+    assert ts.q[5].tolist() == ts.q[4].tolist() and ts.q[5, 0, 0] == 4.0
+    assert ts.q[6, 0, 0] == 6.0  # a step heard is its own
+    assert ts.leader_q[3].tolist() == [2.0, 0.0, 0.0]
+    assert ts.e[6, 1].tolist() == ts.e[5, 1].tolist() != [42.0] * len(ts.e[6, 1])
+    assert collector.filled == 3 + 1  # step 5: three robots' states; step 6: one telemetry
