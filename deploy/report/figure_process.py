@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from deploy.contract.scenario import Scenario
+from deploy.report.run_folder import FIGURE_FILES
 from deploy.report.timeseries import TimeSeries
 from deploy.runtime.parent_death import die_with_parent
 
@@ -111,6 +112,7 @@ class FigureProcess:
     def __init__(self) -> None:
         self._proc: Any = None
         self._jobs: Connection | None = None  # to a prepared child
+        self._drawing_into: Path | None = None  # where the child was sent to draw
 
     def prepare(self) -> None:
         """Spawn the child now, to get ready while the run goes (``start`` sends it the
@@ -134,10 +136,14 @@ class FigureProcess:
 
     def start(self, sc: Scenario, series: TimeSeries, out_dir: Path) -> None:
         """Draw the figures of ``series`` into ``out_dir``: by the prepared child, or by
-        one spawned now."""
+        one spawned now. Started already for ``out_dir`` (as soon as the run's series was
+        final): nothing more."""
+        if self._proc is not None and self._drawing_into == Path(out_dir):
+            return
         if self._jobs is not None and self._proc is not None and self._proc.is_alive():
             try:
                 self._jobs.send((sc, series, str(out_dir)))
+                self._drawing_into = Path(out_dir)
                 return
             except OSError:  # the child is gone: one spawned now draws instead
                 pass
@@ -147,6 +153,7 @@ class FigureProcess:
             self._proc = ctx.Process(target=_draw, args=(sc, series, str(out_dir)),
                                      name="omnifleet-figures", daemon=True)
             self._proc.start()
+            self._drawing_into = Path(out_dir)
         except OSError as exc:  # ``finish`` says False: the figures are drawn by the caller
             print(f"omnifleet: the figure process could not start ({exc}); drawing them here",
                   file=sys.stderr, flush=True)
@@ -154,6 +161,7 @@ class FigureProcess:
 
     def finish(self) -> bool:
         self._close_jobs()
+        self._drawing_into = None
         p, self._proc = self._proc, None
         if p is None:
             return False
@@ -170,12 +178,17 @@ class FigureProcess:
         return p.exitcode == 0
 
     def stop(self) -> None:
-        """End the child by pid (an error or Ctrl-C here)."""
+        """End the child by pid (an error or Ctrl-C here); the figures it was drawing,
+        cut short, are removed (none is left half written)."""
         self._close_jobs()
         p, self._proc = self._proc, None
+        into, self._drawing_into = self._drawing_into, None
         if p is not None and p.is_alive():
             p.kill()
             p.join()
+            if into is not None:
+                for name in FIGURE_FILES:
+                    (into / name).unlink(missing_ok=True)
         if p is not None:
             _end_resource_tracker()
 

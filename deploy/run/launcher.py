@@ -30,6 +30,7 @@ from typing import Any
 from deploy.contract.keyring import Keyring, keyring_text, new_master
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, Keys, control
+from deploy.report.timeseries import TimeSeries
 from deploy.run.kill_schedule import KillSchedule
 from deploy.run.observer import Observer, SpooledWire
 from deploy.run.plan import LaunchOptions, endpoint_of, key_roles, plan_run, spools
@@ -102,6 +103,11 @@ class Launcher:
         self.truth_files: dict[int, Path] = {}  # can-emulated: each emulator's ground truth
         self.loop_clock = LoopClock()
         self.spool: SpoolReader | None = None  # the plant's samples and replies (recording)
+        # called once with the run's final series, as soon as every node's report (and so
+        # all of its data) is in, while the nodes are still leaving: a caller starts
+        # drawing the figures then
+        self.on_heard: Callable[[TimeSeries], None] = lambda series: None
+        self._series: TimeSeries | None = None
 
     def run(self, progress: Progress = None) -> dict[str, Any]:
         """Run to the end; returns the figures the launcher adds to metrics.json.
@@ -173,14 +179,35 @@ class Launcher:
         wall = time.perf_counter() - start
         if progress is not None:  # the steps the plant says it simulated, no more
             progress(self.observer.progress_k + 1, self.steps)
-        sup.wait_for_exit(self.stop, lambda s: node.mailbox.wait_until(self.stop, s))
+        reports = self.observer.collector.reports
+
+        def hear(s: float) -> None:  # while the nodes leave
+            node.mailbox.wait_until(self.stop, s)
+            if len(reports) >= len(roles):
+                self._heard_all(node)
+
+        sup.wait_for_exit(self.stop, hear)
         # reports travel before the session closes; wait for stragglers (a launcher
         # behind on a large fleet's traffic reads them late)
-        node.mailbox.wait_until(lambda: len(self.observer.collector.reports) >= len(roles), 10.0)
+        node.mailbox.wait_until(lambda: len(reports) >= len(roles), 10.0)
+        self._heard_all(node)
+        return wall
+
+    def _heard_all(self, node: Node) -> None:
+        """Once: the last of the fleet's data read, the final series built and handed
+        to ``on_heard``."""
+        if self._series is not None:
+            return
         # a node sends its data before its report, but on another socket than zenoh's:
         # what it sent is in our connections now, read it all
         node.mailbox.drain()
-        return wall
+        self.on_heard(self.final_series())
+
+    def final_series(self) -> TimeSeries:
+        """The run's series as heard (built once, after the run)."""
+        if self._series is None:
+            self._series = self.observer.collector.series(realtime=self.opts.clock == "realtime")
+        return self._series
 
     def _wait_ready(self, node: Node, roles: list[str]) -> None:
         deadline = time.monotonic() + self.opts.startup_timeout_s

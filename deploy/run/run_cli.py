@@ -207,6 +207,10 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         **({} if args.driver is None else {"driver": args.driver}),
     )
     launcher = Launcher(sc, opts)
+    if drawing is not None and not args.no_figures:
+        # the figures start drawing while the nodes are still leaving (write_run finds
+        # them started)
+        launcher.on_heard = lambda series: drawing.start(sc, series, out)
     if live is not None:
         from deploy.report.live_view import collector_rows
 
@@ -234,7 +238,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
             recorder.close()  # flushed, also after Ctrl-C
         raise
     end_unix_ns = time.time_ns()
-    series = launcher.observer.collector.series(realtime=args.clock == "realtime")
+    series = launcher.final_series()
     if args.clock == "realtime":
         extra["series_cells_filled"] = launcher.observer.collector.filled
     if launcher.truth_files and launcher.observer.t0_mono is not None:
