@@ -192,3 +192,44 @@ def test_figures_are_drawn_by_the_run_when_no_child_can_start(tmp_path, lab_run,
     for name in ("metrics.json", "timeseries.npz", *FIGURE_FILES):
         assert (tmp_path / name).stat().st_size > 0, name
     assert metrics["files"][:2] == ["metrics.json", "timeseries.npz"]
+
+
+def test_started_again_for_the_same_folder_it_draws_once(tmp_path, lab_run):
+    """The run starts the figures as soon as its series is final; writing the outputs
+    asks again for the same folder: the same child goes on, nothing is drawn twice."""
+    sc, series = lab_run
+    drawing = FigureProcess()
+    drawing.prepare()
+    try:
+        drawing.start(sc, series, tmp_path)
+        pid = drawing._proc.pid
+        drawing.start(sc, series, tmp_path)
+        assert drawing._proc.pid == pid
+        assert drawing.finish()
+    finally:
+        drawing.stop()
+    for name in FIGURE_FILES:
+        assert (tmp_path / name).stat().st_size > 0, name
+
+
+def _half_a_figure_then_wait(path: str) -> None:  # in a child
+    with open(path, "wb") as f:
+        f.write(b"\x89PNG half")
+    time.sleep(3600)
+
+
+def test_a_drawing_stopped_midway_leaves_no_half_figure(tmp_path):
+    import multiprocessing
+
+    drawing = FigureProcess()
+    half = tmp_path / FIGURE_FILES[0]
+    child = multiprocessing.get_context("fork").Process(
+        target=_half_a_figure_then_wait, args=(str(half),), daemon=True)
+    child.start()
+    deadline = time.monotonic() + 30.0
+    while not half.exists() and time.monotonic() < deadline:
+        time.sleep(0.01)  # polls for the half figure; the test judges what follows
+    drawing._proc, drawing._drawing_into = child, tmp_path  # a child drawing into tmp_path
+    drawing.stop()
+    assert not running(child.pid)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
