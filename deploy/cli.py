@@ -12,16 +12,13 @@ import argparse
 import sys
 
 from bridges.drivers import DEFAULT_DRIVER, DRIVERS
-from deploy.contract.fault_plan import FaultPlanError
-from deploy.contract.options import EXIT_BAD_INPUT, OptionError, add_option
-from deploy.contract.output_paths import OutputPathError
-from deploy.contract.scenario import ScenarioError, bundled_names
-from deploy.contract.wire import FleetNameError
+from deploy.contract.options import add_option
+from deploy.contract.scenario import bundled_names
 from deploy.nodes.cli import CLOCKS, add_node_commands
+from deploy.nodes.entry import dispatch
 from deploy.run.run_cli import cmd_run
 from deploy.runtime.plants import CAN_EMULATED, PLANTS
 from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY, WORLD_ABOVE_AGENTS
-from deploy.runtime.transport import TransportError
 
 
 def package_version() -> str:
@@ -147,32 +144,8 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _prog(args: argparse.Namespace) -> str:
-    """``omnifleet COMMAND [SUBCOMMAND]`` as the user typed it."""
-    words = [args.command] + [v for k, v in vars(args).items()
-                              if k.endswith("_command") and isinstance(v, str)]
-    return " ".join(["omnifleet", *words])
-
-
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except ScenarioError as exc:
-        print(f"omnifleet: bad scenario: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except FaultPlanError as exc:
-        print(f"omnifleet: bad fault plan: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except (TransportError, FleetNameError) as exc:
-        print(f"omnifleet: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except (OptionError, OutputPathError) as exc:
-        print(f"{_prog(args)}: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt as exc:
-        print("omnifleet: interrupted; every process of the run was stopped", file=sys.stderr)
-        return 143 if getattr(exc, "signal_name", "") == "SIGTERM" else 130
+    return dispatch(build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -133,7 +133,7 @@ def plan_run(sc: Scenario, a: LaunchOptions, launcher_endpoint: str,
              run_dir: Path | None = None) -> RunPlan:
     """The leader, the plant (or a driver emulator and a CAN bridge per robot) and
     one agent per robot, each with its arguments, log file (under ``a.out``) and links."""
-    cmd = [sys.executable, "-m", "deploy.cli"]
+    cmd = [sys.executable, "-m", "deploy.nodes"]  # the node commands alone: a lighter start
     common = _common_args(sc, a, launcher_endpoint)
     out = a.out
     logs = out / "logs"
