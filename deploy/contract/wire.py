@@ -343,12 +343,15 @@ class NodeReport(Message, frozen=True):
     # that loop's wall time, s
     cpu_s: Finite = 0.0
     loop_s: Finite = 0.0
+    # plant: samples and replies it could not keep for the run's recording (its record of
+    # them failed to write: deploy/runtime/wire_spool.py)
+    unrecorded: int = 0
 
     def __post_init__(self) -> None:
         if min(self.sent, self.dropped, self.late, self.invalid, self.steps, self.nonfinite,
                self.deadline_misses, self.law_resets, self.nonfinite_commands,
                self.stale_samples, self.contacts_total, self.overloaded_steps,
-               self.longest_late_ns, *self.unanswered) < 0:
+               self.longest_late_ns, self.unrecorded, *self.unanswered) < 0:
             raise ValueError("a negative count")  # a forged "invalid = -1000"
         if (len(self.latency_ns) > MAX_REPORT_SAMPLES or len(self.jitter_ns) > MAX_REPORT_SAMPLES
                 or len(self.received) > MAX_REPORT_KEYS or len(self.faults) > MAX_REPORT_KEYS

@@ -369,11 +369,15 @@ class PlantNode:
         self.plant.close()
         if self.gate is not None:
             self.gate.close()
+        spool = self.node.spool
+        if spool is not None:  # its record of the samples and replies, whole before the report
+            spool.flush()
         publish_report(self.node, -1, self.steps_done, self.timing, contacts=contacts,
                        contacts_total=0 if log is None else len(log),
                        faults=self.faults.report(), command_stops=self.command_stops[:1000],
                        zero_torque=self.zero_torque.close(self.steps_done * self.sc.dt),
                        torque_clipped={str(r): n for r, n in self.clipped.items()},
-                       unanswered=self.unanswered)
+                       unanswered=self.unanswered,
+                       unrecorded=0 if spool is None else spool.lost)
         others = set(self.peers) - {LAUNCHER_ROLE}
         self.node.mailbox.wait_until(lambda: not (others & self.node.peers_alive), linger_s)

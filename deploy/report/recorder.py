@@ -89,6 +89,7 @@ class McapRecorder:
         self.failed = 0  # messages that could not be encoded (counted, never raised)
         self.first_error: str | None = None
         self.broken: str | None = None  # why the writer failed (the run then fails)
+        self.incomplete: str | None = None  # why messages never reached it (the run then fails)
         self.lost = 0  # messages not written because it had failed
         self._thread = threading.Thread(target=self._drain_forever, name="mcap", daemon=True)
         self._thread.start()
@@ -106,6 +107,15 @@ class McapRecorder:
         ``source.read()`` returns the (key, wall clock ns, message) that came since the
         last read; ``source.close()`` is called when the recording closes."""
         self._sources.append(source)
+
+    def missed(self, why: str, n: int) -> None:
+        """``n`` messages that never reached this recorder (a source of them failed): the
+        recording goes on, but is incomplete, said and counted as a failure (the run fails)."""
+        import sys
+
+        self.incomplete = self.incomplete or why
+        self.lost += n
+        print(f"recorder: INCOMPLETE ({why}); the run will fail", file=sys.stderr, flush=True)
 
     def _json_channel(self, topic: str, kind: type) -> tuple[StructJson, int]:
         entry = self._json.get(kind)
@@ -304,8 +314,8 @@ class McapRecorder:
                                "failed": self.failed}
         if self.first_error:
             out["first_error"] = self.first_error
-        if self.broken is not None:
-            out["error"] = self.broken
+        if self.broken is not None or self.incomplete is not None:
+            out["error"] = self.broken or self.incomplete
             out["lost"] = self.lost
         return out
 

@@ -191,6 +191,7 @@ class Launcher:
         # behind on a large fleet's traffic reads them late)
         node.mailbox.wait_until(lambda: len(reports) >= len(roles), 10.0)
         self._heard_all(node)
+        self.observer.note_unrecorded()
         return wall
 
     def _heard_all(self, node: Node) -> None:

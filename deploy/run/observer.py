@@ -115,6 +115,16 @@ class Observer:
                 self.progress_k = max(self.progress_k, msg.rows[-1].k)
             self.collector.add(msg)
 
+    def note_unrecorded(self) -> None:
+        """Once the reports are in: the samples and replies the plant could not keep for
+        the recording (``spooled``) make the recording incomplete, and the run fail."""
+        plant = self.collector.reports.get(PLANT_ROLE)
+        if self.recorder is not None and plant is not None and plant.unrecorded:
+            self.recorder.missed(
+                f"the plant could not keep {plant.unrecorded} of its samples and replies for "
+                "the recording (its record of them failed to write: logs/plant.log)",
+                plant.unrecorded)
+
     def _on_control(self, msg: Control) -> None:
         if msg.command == "start" and self.run_t0 is None:
             self.run_t0 = time.monotonic() + (msg.start_unix_ns - time.time_ns()) * 1e-9

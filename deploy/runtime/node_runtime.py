@@ -275,8 +275,6 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
     # every data frame out first (held for a receiver that reads behind): the report must
     # not reach the launcher before the telemetry and state rows it follows
     node.flush_data()
-    if node.spool is not None:  # and its record of them, for the run's recording
-        node.spool.flush()
     c = node.counters
     timing = timing or Timing()
     node.publish(node.keys.report(node.role), lambda seq, stamp: NodeReport(

@@ -41,7 +41,8 @@ def spool_path(directory: str | Path, role: str) -> Path:
 class SpoolWriter:
     """Appends the messages of ``keys`` (exact keys) to ``path``; ``flush`` writes out
     what is held. A write that fails (a full disk) stops the spool: said once on
-    stderr and counted in ``lost``, never raised into the node's loop."""
+    stderr, every message not kept counted in ``lost`` (the node's report carries it,
+    and the run's recording is then broken), never raised into the node's loop."""
 
     def __init__(self, path: str | Path, keys: set[str], flush_bytes: int = FLUSH_BYTES) -> None:
         self.path = Path(path)
@@ -49,13 +50,17 @@ class SpoolWriter:
         self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND
                                        | os.O_CLOEXEC, 0o600)
         self._buf = bytearray()
+        self._held = 0  # records in _buf
         self._flush_bytes = flush_bytes
         self._raw_keys: dict[str, bytes] = {}
-        self.written = 0
-        self.lost = 0
+        self.written = 0  # records written to the file
+        self.lost = 0  # records that never got there (a failed write, and every one after it)
 
     def write(self, key: str, payload: bytes) -> None:
         """One message on ``key`` (one of ``keys``), stamped with the wall clock now."""
+        if self._fd is None:
+            self.lost += 1
+            return
         raw = self._raw_keys.get(key)
         if raw is None:
             raw = self._raw_keys[key] = key.encode()
@@ -63,30 +68,31 @@ class SpoolWriter:
         buf += _HEAD.pack(len(raw), time.time_ns(), len(payload))
         buf += raw
         buf += payload
-        self.written += 1
+        self._held += 1
         if len(buf) >= self._flush_bytes:
             self.flush()
 
     def flush(self) -> None:
         """Write out everything held."""
-        if not self._buf:
-            return
-        if self._fd is None:
-            self._buf.clear()
+        if not self._buf or self._fd is None:
             return
         view = memoryview(self._buf)
         try:
             while view:
                 view = view[os.write(self._fd, view):]
+            self.written += self._held
         except OSError as exc:
-            self.lost += 1
-            print(f"spool {self.path}: cannot write ({exc.strerror or exc}); what follows "
-                  "is not recorded", file=sys.stderr, flush=True)
+            # what the file got of these records is a half one at most: a reader never
+            # takes it (and none follows)
+            self.lost += self._held
+            print(f"spool {self.path}: cannot write ({exc.strerror or exc}); the samples and "
+                  "replies from here on are not recorded", file=sys.stderr, flush=True)
             os.close(self._fd)
             self._fd = None
         finally:
             view.release()
             self._buf.clear()
+            self._held = 0
 
     def close(self) -> None:
         self.flush()

@@ -95,3 +95,35 @@ def test_an_oversized_report_is_refused_at_decode(field, value):
     fields[names.index(field)] = value
     assert Codec([1, 2, 3]).decode(NodeReport, msgspec.msgpack.encode(fields)) is None
     assert Codec([1, 2, 3]).decode(NodeReport, ok) is not None
+
+
+def test_samples_and_replies_the_plant_could_not_keep_fail_the_recording(tmp_path: Path):
+    """The plant keeps the samples and replies for the recording (wire_spool.py); a
+    write of it that failed (a full disk) is in its report, and the recording is then
+    incomplete: said, counted as lost, and the run's verdict fails on it."""
+    from deploy.report.recorder import McapRecorder
+    from deploy.report.verdict import judge
+
+    sc = load_scenario("paper")
+    listener = _listener(sc, tmp_path, None)
+    listener.recorder = McapRecorder(tmp_path / "recording.mcap")
+    try:
+        listener.note_unrecorded()  # no report yet: nothing to say
+        listener.on_sample((listener.keys.report("plant"), encode(report("plant"))))
+        listener.note_unrecorded()  # a whole record: nothing to say
+        assert listener.recorder.summary().get("error") is None
+        listener.collector.reports.clear()
+        listener.on_sample((listener.keys.report("plant"),
+                            encode(report("plant", unrecorded=120))))
+        listener.note_unrecorded()
+    finally:
+        listener.recorder.close()
+    summary = listener.recorder.summary()
+    assert "could not keep 120 of its samples and replies" in summary["error"]
+    assert summary["lost"] == 120
+    from healthy_metrics import healthy_realtime
+
+    assert judge(healthy_realtime())["pass"]
+    verdict = judge(healthy_realtime(recording=summary))
+    assert not verdict["pass"]
+    assert any("the recording failed" in r for r in verdict["reasons"])

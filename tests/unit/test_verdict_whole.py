@@ -6,27 +6,14 @@ timeout, deadline misses beyond a stated share of the steps."""
 from __future__ import annotations
 
 import pytest
+from healthy_metrics import healthy_realtime
 
 from deploy.report.summary import summary
 from deploy.report.verdict import MAX_MISS_SHARE, judge, verdict_line
 
 
-def _realtime(**kw):
-    """A healthy 20 s realtime run at 500 Hz, as run_figures writes it."""
-    m = {"scenario": "lab", "robots": 3, "plant": "model", "clock": "realtime",
-         "control_rate_hz": 500.0, "settling_bound_s": 5.657,
-         "settling_time_s": [0.4, 0.5, 0.4], "min_obstacle_gap_m": 0.3,
-         "min_robot_gap_m": 0.2, "contacts": 0, "nonfinite_commands": 0,
-         "command_timeout_s": 0.1, "zero_torque_longest_s": [0.0, 0.0, 0.0],
-         "steps_asked": 10000, "steps_simulated": 9999, "steps": 9999,
-         "reports_missing": [],
-         "longest_stall": {"node": "plant", "duration_s": 0.004, "t_s": 3.0},
-         "deadline_misses_by_node": {"agent-1": 3, "leader": 0, "plant": 12}}
-    return m | kw
-
-
 def test_a_healthy_realtime_run_passes_with_a_late_last_wake():
-    v = judge(_realtime())
+    v = judge(healthy_realtime())
     assert v["pass"] and v["whole"] and v["on_time"], v["reasons"]
     assert "on time" in verdict_line(v)
 
@@ -35,7 +22,7 @@ def test_the_stalled_run_of_the_report_fails_naming_each_reason():
     """``lab --plant model --clock realtime --control-rate 500 --duration 20`` that stalled:
     2,450 steps simulated of 10,000, 15 s without a wake, more misses than steps. It said
     PASS."""
-    v = judge(_realtime(steps_simulated=2450, steps=2450,
+    v = judge(healthy_realtime(steps_simulated=2450, steps=2450,
                         longest_stall={"node": "plant", "duration_s": 15.2, "t_s": 4.9},
                         deadline_misses_by_node={"agent-1": 5000, "agent-2": 5000,
                                                  "agent-3": 5000, "leader": 3, "plant": 7600}))
@@ -48,35 +35,35 @@ def test_the_stalled_run_of_the_report_fails_naming_each_reason():
 
 
 def test_a_run_heard_for_less_than_it_simulated_fails():
-    v = judge(_realtime(steps=8000))
+    v = judge(healthy_realtime(steps=8000))
     assert not v["pass"] and "heard for 16.000 s of the 19.998 s simulated" in verdict_line(v)
 
 
 def test_a_restart_that_never_rejoined_fails_and_is_not_a_missing_report():
-    v = judge(_realtime(restarts_not_rejoined=["agent-2"]))
+    v = judge(healthy_realtime(restarts_not_rejoined=["agent-2"]))
     assert not v["pass"] and "agent-2 restarted by the fault plan but still starting" in \
         verdict_line(v)
 
 
 def test_a_missing_report_fails_naming_the_node():
-    v = judge(_realtime(reports_missing=["agent-2"]))
+    v = judge(healthy_realtime(reports_missing=["agent-2"]))
     assert not v["pass"] and "no report from agent-2" in verdict_line(v)
 
 
 @pytest.mark.parametrize("misses, passes", [(int(MAX_MISS_SHARE * 10000), True),
                                             (int(MAX_MISS_SHARE * 10000) + 1, False)])
 def test_the_miss_share_is_the_stated_one(misses, passes):
-    assert judge(_realtime(deadline_misses_by_node={"plant": misses}))["pass"] is passes
+    assert judge(healthy_realtime(deadline_misses_by_node={"plant": misses}))["pass"] is passes
 
 
 def test_a_stall_of_exactly_the_timeout_passes_and_longer_fails():
-    assert judge(_realtime(longest_stall={"node": "plant", "duration_s": 0.1, "t_s": 1.0}))["pass"]
-    assert not judge(_realtime(longest_stall={"node": "bridge-2", "duration_s": 0.11,
+    assert judge(healthy_realtime(longest_stall={"node": "plant", "duration_s": 0.1, "t_s": 1.0}))["pass"]
+    assert not judge(healthy_realtime(longest_stall={"node": "bridge-2", "duration_s": 0.11,
                                               "t_s": 1.0}))["pass"]
 
 
 def test_lockstep_allows_no_step_short():
-    m = _realtime(clock="lockstep", steps_simulated=9999, steps=9999, longest_stall=None,
+    m = healthy_realtime(clock="lockstep", steps_simulated=9999, steps=9999, longest_stall=None,
                   deadline_misses_by_node=None)
     v = judge(m)
     assert not v["pass"] and "(9999 of 10000 steps)" in verdict_line(v)
@@ -84,7 +71,7 @@ def test_lockstep_allows_no_step_short():
 
 
 def test_the_summary_says_what_was_simulated_of_what_was_asked(tmp_path):
-    m = _realtime(steps_simulated=2450, steps=2449, sim_time_s=4.898, wall_time_s=20.31,
+    m = healthy_realtime(steps_simulated=2450, steps=2449, sim_time_s=4.898, wall_time_s=20.31,
                   real_time_factor=0.24, formation_rms_whole_run_m=[1.0, 1.0, 1.0],
                   formation_rms_after_settling_m=[0.1, 0.1, 0.1], peak_torque_nm=2.0,
                   rms_torque_nm=0.4, law_resets=[0, 0, 0])

@@ -65,12 +65,18 @@ def test_every_process_file_is_read_and_stays_readable_once_its_directory_is_gon
     r.close()
 
 
-def test_a_write_that_fails_stops_the_spool_and_says_so(tmp_path, capsys):
-    w = SpoolWriter(spool_path(tmp_path, "plant"), {"k"}, flush_bytes=1)
+def test_a_write_that_fails_stops_the_spool_counts_every_record_lost_and_says_so(
+        tmp_path, capsys):
+    w = SpoolWriter(spool_path(tmp_path, "plant"), {"k"}, flush_bytes=1 << 16)
+    w.write("k", b"kept")
+    w.flush()
     os.close(w._fd)  # noqa: SLF001 - the disk gone from under it
     w._fd = os.open("/dev/full", os.O_WRONLY)  # noqa: SLF001
-    w.write("k", b"lost")
-    w.write("k", b"dropped")  # no second complaint, no raise
-    assert w.lost == 1
-    assert capsys.readouterr().err.count("cannot write") == 1
+    w.write("k", b"held")
+    w.write("k", b"held too")
+    w.flush()  # fails: both held records lost
+    w.write("k", b"after")  # no second complaint, no raise
     w.close()
+    assert (w.written, w.lost) == (1, 3)
+    assert capsys.readouterr().err.count("cannot write") == 1
+    assert [p for _k, _ns, p in SpoolReader(tmp_path).read()] == [b"kept"]
