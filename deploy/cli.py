@@ -14,8 +14,8 @@ import sys
 from bridges.drivers import DEFAULT_DRIVER, DRIVERS
 from deploy.contract.options import add_option
 from deploy.contract.scenario import bundled_names
-from deploy.nodes.cli import CLOCKS, add_node_commands
-from deploy.nodes.entry import dispatch
+from deploy.nodes.cli import CLOCKS
+from deploy.nodes.entry import add_every_node_command, dispatch
 from deploy.run.run_cli import cmd_run
 from deploy.runtime.plants import CAN_EMULATED, PLANTS
 from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY, WORLD_ABOVE_AGENTS
@@ -114,15 +114,11 @@ def build_parser() -> argparse.ArgumentParser:
                      "sqrt(2) T_p and ends at its formation position, no contact, nothing "
                      "non-finite, the whole run simulated and heard (docs/outputs.md)")
     run.set_defaults(func=cmd_run)
-    add_node_commands(sub)
+    add_every_node_command(sub)
     from deploy.bench.suite import add_bench_command
-    from deploy.nodes.bridge_cli import add_bridge_commands
     from deploy.nodes.can_check_cli import add_can_check_command
-    from deploy.nodes.emulator_cli import add_emulate_command
     from deploy.run.fault_sweep import add_faults_command
 
-    add_bridge_commands(sub)
-    add_emulate_command(sub)
     add_can_check_command(sub)
     add_bench_command(sub)
     add_faults_command(sub)

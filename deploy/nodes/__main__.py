@@ -9,20 +9,14 @@ from __future__ import annotations
 import argparse
 import sys
 
-from deploy.nodes.bridge_cli import add_bridge_commands
-from deploy.nodes.cli import add_node_commands
-from deploy.nodes.emulator_cli import add_emulate_command
-from deploy.nodes.entry import dispatch
+from deploy.nodes.entry import add_every_node_command, dispatch
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="omnifleet", description="One node of a fleet "
                                 "(`omnifleet run` starts them; `omnifleet --help` lists "
                                 "every command).")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    add_node_commands(sub)
-    add_bridge_commands(sub)
-    add_emulate_command(sub)
+    add_every_node_command(p.add_subparsers(dest="command", required=True, metavar="COMMAND"))
     return p
 
 

@@ -1,7 +1,7 @@
-"""Running a parsed ``omnifleet`` command: the errors any command can end with, said in
-one line with exit 2 (130/143 when interrupted) instead of a traceback. Shared by the
-whole command line (``deploy/cli.py``) and the nodes' own entry (``python -m
-deploy.nodes``, what ``omnifleet run`` starts)."""
+"""What the whole command line (``deploy/cli.py``) and the nodes' own entry (``python -m
+deploy.nodes``, what ``omnifleet run`` starts) share: the node commands, and running a
+parsed command, with the errors any command can end with said in one line with exit 2
+(130/143 when interrupted) instead of a traceback."""
 
 from __future__ import annotations
 
@@ -13,7 +13,17 @@ from deploy.contract.options import EXIT_BAD_INPUT, OptionError
 from deploy.contract.output_paths import OutputPathError
 from deploy.contract.scenario import ScenarioError
 from deploy.contract.wire import FleetNameError
+from deploy.nodes.bridge_cli import add_bridge_commands
+from deploy.nodes.cli import add_node_commands
+from deploy.nodes.emulator_cli import add_emulate_command
 from deploy.runtime.transport import TransportError
+
+
+def add_every_node_command(sub: argparse._SubParsersAction) -> None:
+    """agent, plant, leader, bridge and emulate."""
+    add_node_commands(sub)
+    add_bridge_commands(sub)
+    add_emulate_command(sub)
 
 
 def _prog(args: argparse.Namespace) -> str:
