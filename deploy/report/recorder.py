@@ -105,7 +105,8 @@ class McapRecorder:
     def add_source(self, source: Any) -> None:
         """Wire messages this recorder reads itself, on its writer's thread:
         ``source.read()`` returns the (key, wall clock ns, message) that came since the
-        last read; ``source.close()`` is called when the recording closes."""
+        last read (message None: one that did not decode, counted as failed);
+        ``source.close()`` is called when the recording closes."""
         self._sources.append(source)
 
     def missed(self, why: str, n: int) -> None:
@@ -200,8 +201,12 @@ class McapRecorder:
         q = self._queue
         with self._lock:
             for source in self._sources:
-                for item in source.read():
-                    self._write_wire(*item)
+                for key, arrival_ns, msg in source.read():
+                    if msg is None:
+                        self.failed += 1
+                        self.first_error = self.first_error or f"{key}: does not decode"
+                        continue
+                    self._write_wire(key, arrival_ns, msg)
             while q:
                 self._write_wire(*q.popleft())
 

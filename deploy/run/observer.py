@@ -213,22 +213,18 @@ class SpooledWire:
     (deploy/runtime/wire_spool.py), decoded for the recorder: a source of
     ``McapRecorder.add_source``, read on the recorder's thread (with a codec of its own).
     A record that does not decode (none should: the plant wrote what it sent or had
-    decoded) is counted in ``invalid``."""
+    decoded) comes as None, which the recorder counts as failed."""
 
     def __init__(self, sc: Scenario, keys: Keys, reader: SpoolReader) -> None:
         self.keys, self.reader = keys, reader
         self.codec = Codec(sc.robot_ids)
-        self.invalid = 0
 
     def read(self) -> list[tuple[str, int, Any]]:
         out = []
         for key, unix_ns, payload in self.reader.read():
             found = self.keys.kind_of(key)
-            msg = None if found is None else self.codec.decode(found[0], payload, found[1])
-            if msg is None:
-                self.invalid += 1
-                continue
-            out.append((key, unix_ns, msg))
+            out.append((key, unix_ns, None if found is None else
+                        self.codec.decode(found[0], payload, found[1])))
         return out
 
     def close(self) -> None:

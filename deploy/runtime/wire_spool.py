@@ -162,6 +162,7 @@ def _records(held: bytearray, out: list[tuple[str, int, bytes]]) -> None:
         if end > size:
             break
         k0 = at + head
-        out.append((held[k0:k0 + key_len].decode(), unix_ns, bytes(held[k0 + key_len:end])))
+        out.append((held[k0:k0 + key_len].decode(errors="replace"), unix_ns,
+                    bytes(held[k0 + key_len:end])))
         at = end
     del held[:at]

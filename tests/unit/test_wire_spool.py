@@ -80,3 +80,24 @@ def test_a_write_that_fails_stops_the_spool_counts_every_record_lost_and_says_so
     assert (w.written, w.lost) == (1, 3)
     assert capsys.readouterr().err.count("cannot write") == 1
     assert [p for _k, _ns, p in SpoolReader(tmp_path).read()] == [b"kept"]
+
+
+def test_a_record_that_does_not_decode_is_counted_failed_by_the_recording(tmp_path):
+    """The launcher's side: the plant's record decoded (SpooledWire) and written by the
+    recorder; a record that does not decode is counted, never written, never raised."""
+    from deploy.contract.scenario import load_scenario
+    from deploy.contract.wire import WIRE_VERSION, Keys, Sample, encode
+    from deploy.report.recorder import McapRecorder, messages_in
+    from deploy.run.observer import SpooledWire
+
+    sc, keys = load_scenario("paper"), Keys("paper")
+    w = SpoolWriter(spool_path(tmp_path, "plant"), {keys.sample(1)})
+    sample = Sample(WIRE_VERSION, 0, 0, 5, 1, 0, 0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), [], [])
+    w.write(keys.sample(1), encode(sample))
+    w.write(keys.sample(1), b"\xc1 not msgpack")
+    w.close()
+    rec = McapRecorder(tmp_path / "recording.mcap", sim_dt=sc.dt)
+    rec.add_source(SpooledWire(sc, keys, SpoolReader(tmp_path)))
+    rec.close()
+    assert (rec.written, rec.failed) == (1, 1) and "does not decode" in rec.first_error
+    assert messages_in(tmp_path / "recording.mcap") == 1
