@@ -218,11 +218,20 @@ class SpooledWire:
     def __init__(self, sc: Scenario, keys: Keys, reader: SpoolReader) -> None:
         self.keys, self.reader = keys, reader
         self.codec = Codec(sc.robot_ids)
+        # key -> Keys.kind_of(key), parsed once: the plant's record holds its robots'
+        # sample and reply keys only
+        self._kinds: dict[str, tuple[type, int | None] | None] = {}
 
     def read(self) -> list[tuple[str, int, Any]]:
         out = []
+        kinds = self._kinds
         for key, unix_ns, payload in self.reader.read():
-            found = self.keys.kind_of(key)
+            if key in kinds:
+                found = kinds[key]
+            else:
+                found = self.keys.kind_of(key)
+                if len(kinds) < MAX_KINDS_KEPT:
+                    kinds[key] = found
             out.append((key, unix_ns, None if found is None else
                         self.codec.decode(found[0], payload, found[1])))
         return out
