@@ -29,6 +29,7 @@ from typing import Any
 from deploy.contract.options import EXIT_BAD_INPUT, add_option
 from deploy.contract.output_paths import check_folder
 from deploy.contract.scaled_scenarios import scale_scenario
+from deploy.runtime.own_python import child_env, python_module
 
 BENCH_VERSION = 4  # 4: the local data path against zenoh, CPU per step of each process
 # 3: compiled kernels: in-process wall, per robot-step CPU, lab and CAN at speed
@@ -139,11 +140,13 @@ class Bench:
         out = self.work / f"run-{len(list(self.work.iterdir()))}"
         if "--in-process" not in args:
             self.fleet_runs += 1
-        cmd = [sys.executable, "-m", "deploy.cli", "run", scenario, "--out", str(out),
+        cmd = [*python_module("deploy.cli"), "run", scenario, "--out", str(out),
                *([] if figures else ["--no-figures"]), *([] if record else ["--no-record"]),
                *args]
         started = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        # the launcher as a user starts it (its BLAS threads too), this installation's code
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                env=child_env(one_blas_thread=False))
         try:
             _, err = proc.communicate(timeout=timeout_s)
         finally:

@@ -32,6 +32,7 @@ from deploy.contract.fault_plan import uniform_drop_plan
 from deploy.contract.options import add_option, check_duration
 from deploy.contract.output_paths import check_folder
 from deploy.contract.scenario import load_scenario
+from deploy.runtime.own_python import child_env, python_module
 
 
 @dataclass(frozen=True)
@@ -92,14 +93,15 @@ def _run_distributed(scenario: str, drop: float, seed: int, run_dir: Path,
     run_dir.mkdir(parents=True, exist_ok=True)
     plan = run_dir / "faults.toml"
     plan.write_text(plan_text(drop, seed))
-    cmd = [sys.executable, "-m", "deploy.cli", "run", scenario, "--faults", str(plan),
+    cmd = [*python_module("deploy.cli"), "run", scenario, "--faults", str(plan),
            "--out", str(run_dir), "--overwrite", "--no-figures", "--no-record"]
     if duration is not None:
         cmd += ["--duration", repr(duration)]
     if plant is not None:
         cmd += ["--plant", plant]
     with open(run_dir / "run.log", "wb") as log:
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
+                                env=child_env(one_blas_thread=False))
         try:
             code = proc.wait()
         finally:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 import socket
-import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +22,7 @@ from deploy.contract.fault_plan import FaultPlan
 from deploy.contract.options import DEFAULT_STARTUP_TIMEOUT_S, DEFAULT_STEP_DEADLINE_S
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, LEADER_ROLE, PLANT_ROLE, agent_role, bridge_role
+from deploy.runtime.own_python import python_module
 from deploy.runtime.plants import CAN_EMULATED
 from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY, world_priority
 
@@ -133,7 +133,7 @@ def plan_run(sc: Scenario, a: LaunchOptions, launcher_endpoint: str,
              run_dir: Path | None = None) -> RunPlan:
     """The leader, the plant (or a driver emulator and a CAN bridge per robot) and
     one agent per robot, each with its arguments, log file (under ``a.out``) and links."""
-    cmd = [sys.executable, "-m", "deploy.nodes"]  # the node commands alone: a lighter start
+    cmd = python_module("deploy.nodes")  # the node commands alone: a lighter start
     common = _common_args(sc, a, launcher_endpoint)
     out = a.out
     logs = out / "logs"

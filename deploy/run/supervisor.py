@@ -21,6 +21,7 @@ from deploy.contract.wire import PLANT_ROLE
 from deploy.run.kill_schedule import PAUSE, RESUME, KillSchedule
 from deploy.run.plan import Child, restart_of
 from deploy.runtime.node_runtime import StopFlag
+from deploy.runtime.own_python import child_env
 
 STOP_GRACE_S = 3.0
 REJOIN_GRACE_S = 3.0  # a restarted node may exit this long after the others
@@ -77,7 +78,7 @@ class Supervisor:
     def spawn(self, child: Child) -> None:
         child.log_path.parent.mkdir(parents=True, exist_ok=True)
         child.log = open(child.log_path, "wb")  # noqa: SIM115 - closed in reap
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        env = child_env({**os.environ, "PYTHONUNBUFFERED": "1"})
         env.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
         argv, fds = child.argv, ()
         if child.zenoh and self.keyring_of is not None:
