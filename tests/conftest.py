@@ -7,7 +7,12 @@ the markers, applied here by where a test lives and what it needs (one place):
   with tests/realtime_clock.py (skipped only when other programs measurably took the
   CPU), or marked so explicitly;
 - ``root``: network namespaces (tests/netns.py; skipped without root);
-- ``slow``: integration modules whose runs take tens of seconds here.
+- ``slow``: integration modules whose runs take tens of seconds here;
+- ``load_safe``: an e2e test whose assertions hold however busy the machine is
+  (``LOAD_SAFE``): its fleets run on the lockstep clock (a step waits up to 2 s for a
+  late input), or it claims nothing of their timing (the bench's smoke run), and its
+  waits are generous bounds; tests/suite.py runs it beside the others. A realtime test
+  (above) in such a module stays ``realtime``: the suite runs those one at a time.
 """
 
 from __future__ import annotations
@@ -59,6 +64,17 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
             terminalreporter.write_line(line)
 
 
+# e2e modules, or single tests (module::test), that start lockstep fleets only (or no fleet,
+# or claim nothing of a fleet's timing: the bench's smoke run checks that every figure is
+# written) and hold no port, name or host setting another test could take meanwhile: fleet
+# names and run directories are their own, TCP ports the kernel's free ones, namespaces
+# random. Not here: CAN bridges and emulators judged on the wall clock, a cut link (a
+# liveliness lease measured in wall time), realtime runs.
+LOAD_SAFE = {"test_bench", "test_cli", "test_compromised", "test_distributed", "test_fault_runs",
+             "test_forged", "test_pybullet_runs", "test_run_outputs", "test_security",
+             "test_wall_gap",
+            "test_netns::test_lockstep_across_namespaces_equals_the_single_host_run",
+            "test_netns::test_an_agent_with_valid_credentials_commands_no_other_robot"}
 SLOW_MODULES = {"test_safety_scenarios", "test_paper_consistent", "test_closed_loop",
                 "test_pybullet_plant", "test_look_ahead", "test_faults", "test_anti_windup"}
 
@@ -70,6 +86,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         if path.parent.name == "e2e":
             item.add_marker(pytest.mark.e2e)
             item.add_marker(pytest.mark.slow)
+            if {path.stem, f"{path.stem}::{item.originalname}"} & LOAD_SAFE:
+                item.add_marker(pytest.mark.load_safe)
         if path.stem in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
         if path.parent.name != "unit" and _judges_the_clock(item):
