@@ -8,6 +8,7 @@ wrong type or non-finite, and the array may be cut short or run long.
 
 from __future__ import annotations
 
+import functools
 import types
 import typing
 from typing import Any
@@ -78,22 +79,34 @@ def _of_type(tp: Any, name: str, sane: bool) -> st.SearchStrategy[Any]:
     raise TypeError(f"no strategy for {tp!r}")
 
 
+@functools.cache
+def _field_strategies(kind: type[msgspec.Struct], sane: bool) -> tuple[st.SearchStrategy[Any], ...]:
+    """One strategy per field of ``kind``, built once: a strategy built anew at every draw
+    had hypothesis work out its properties again each time, most of a fuzz test's time."""
+    hints = typing.get_type_hints(kind)
+    return tuple(_of_type(hints[name], name, sane) for name in kind.__struct_fields__)
+
+
+ONE_IN_12 = st.integers(0, 11)
+SHAPES = st.sampled_from(["keep"] * 6 + ["cut", "extend"])
+EXTRA_FIELDS = st.lists(any_msgpack, min_size=1, max_size=3)
+
+
 @st.composite
 def struct_fields(draw: st.DrawFn, kind: type[msgspec.Struct], sane: bool) -> list[Any]:
     """The field list of one ``kind`` value (what its msgpack array holds)."""
-    hints = typing.get_type_hints(kind)
     values = []
-    for name in kind.__struct_fields__:
-        if not sane and draw(st.integers(0, 11)) == 0:
+    for field_values in _field_strategies(kind, sane):
+        if not sane and draw(ONE_IN_12) == 0:
             values.append(draw(any_msgpack))  # any type at all
         else:
-            values.append(draw(_of_type(hints[name], name, sane)))
+            values.append(draw(field_values))
     if not sane:
-        shape = draw(st.sampled_from(["keep"] * 6 + ["cut", "extend"]))
+        shape = draw(SHAPES)
         if shape == "cut":
             values = values[:draw(st.integers(0, len(values)))]
         elif shape == "extend":
-            values += draw(st.lists(any_msgpack, min_size=1, max_size=3))
+            values += draw(EXTRA_FIELDS)
     return values
 
 

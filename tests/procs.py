@@ -27,6 +27,15 @@ def finish(proc: subprocess.Popen, timeout: float = 240) -> tuple[int, str, str]
         kill_run(proc)
 
 
+def interrupt(proc: subprocess.Popen, timeout: float = 60) -> tuple[int, str, str]:
+    """Ctrl-C for a process that runs until its --duration or a signal (a driver
+    emulator once the bridge it played for has ended): it ends as it does at the end of
+    its duration, exit 130 (0 when it had ended already), then :func:`finish`."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    return finish(proc, timeout)
+
+
 def kill_run(proc: subprocess.Popen, fleet: str | None = None) -> None:
     """End a run started by :func:`start`, by pid, whatever state it is in: its process
     group if it still lives, then any process left whose command line names ``fleet``."""
