@@ -187,6 +187,17 @@ class Mailbox:
                 if until is not None and n % 32 == 0 and time.monotonic() >= until:
                     return
 
+    def _ready_at_deadline(self, ready: Callable[[], bool]) -> bool:
+        """``ready()`` once what had already arrived is handled (at most a batch, as
+        ``drain(until=now)`` takes): a wait's deadline can pass while this process waits
+        for a core with its inputs in the socket, and a frame handled just before it (a
+        neighbour's share) left the sample behind it unread. 30 agents at 100 Hz on 2
+        cores counted such samples as deadline misses."""
+        if ready():
+            return True
+        self.drain(time.monotonic())
+        return ready()
+
     def wait_until(self, ready: Callable[[], bool], timeout_s: float, bounded: bool = False,
                    ready_first: bool = False, coalesce_s: float = 0.0) -> bool:
         """Handle arrivals until ``ready()`` holds (True) or ``timeout_s`` passes
@@ -220,7 +231,7 @@ class Mailbox:
             while True:
                 left = deadline - time.monotonic()
                 if left <= 0:
-                    return ready()
+                    return self._ready_at_deadline(ready)
                 if dgram.behind:  # frames held for a slow receiver: send them first,
                     dgram.flush()  # and look again soon if it is still behind
                     if dgram.behind:
@@ -247,11 +258,11 @@ class Mailbox:
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
-                return ready()
+                return self._ready_at_deadline(ready)
             try:
                 entry = get(timeout=left)
             except queue.Empty:
-                return ready()
+                return self._ready_at_deadline(ready)
             self._run(entry)
             self.drain(deadline if bounded else None)
             if ready():

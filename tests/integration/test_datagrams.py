@@ -308,3 +308,37 @@ def test_a_frame_goes_to_the_agents_first_and_to_the_launcher_last(run_dir):
     assert tx.receivers(KEY) == ["agent-2", "agent-3", "leader", "plant", "launcher"]
     for d in (tx, *nodes):
         d.close()
+
+
+def test_a_frame_that_came_before_the_deadline_counts_though_the_wait_looked_too_late(run_dir):
+    """A realtime agent handles a neighbour's share and waits for a core past its deadline,
+    while its sample arrives (30 agents at 100 Hz on 2 cores): the sample in the socket
+    is handled before the wait says it did not come, not counted as a deadline miss."""
+    from deploy.runtime.transport import Mailbox
+
+    rx = DatagramPath(run_dir, "agent", True)
+    rx.hear(["omr/t/**"])
+    neighbour, plant = DatagramPath(run_dir, "neighbour", True), DatagramPath(run_dir, "plant", True)
+    neighbour.refresh()
+    plant.refresh()
+    box = Mailbox(rx)
+    handled: list[str] = []
+
+    def on(frame: bytes) -> None:
+        key = frame[1:1 + frame[0]].decode()
+        handled.append(key)
+        if key.endswith("share") and len(handled) > 2:  # the sample comes meanwhile, and
+            assert plant.send("omr/t/robot/1/sample", b"x") == 0  # the deadline passes
+            time.sleep(0.6)
+
+    box.on_datagram = on
+    for sender, key in ((plant, "omr/t/robot/1/sample"), (neighbour, "omr/t/robot/2/share")):
+        assert sender.send(key, b"x") == 0  # both linked, as in a run
+    assert box.wait_until(lambda: len(handled) == 2, 5.0)
+    share = threading.Timer(0.002, neighbour.send, ("omr/t/robot/2/share", b"x"))
+    share.start()  # during the wait
+    try:
+        assert box.wait_until(lambda: handled[2:][-1:] == ["omr/t/robot/1/sample"], 0.5)
+    finally:
+        share.join()
+    assert handled[2:] == ["omr/t/robot/2/share", "omr/t/robot/1/sample"]
