@@ -103,6 +103,24 @@ class FleetRunFailed(RuntimeError):
     pass
 
 
+def stolen_s() -> float | None:
+    """CPU time the hypervisor has taken from this machine's processors so far
+    (``steal`` in /proc/stat), s; None where it cannot be read. A virtual machine whose
+    processors the host takes away stalls every loop at once, whatever their priority:
+    on the 2-core development VM every deadline miss of 30 agents at 100 Hz fell in a
+    burst of it (2-10 ms stalls, docs/bench.md)."""
+    try:
+        with open("/proc/stat") as f:
+            fields = f.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _ms(s: float | None) -> float | None:
+    return None if s is None else s * 1e3
+
+
 def cpu_per_step(m: dict[str, Any]) -> dict[str, float | None]:
     """CPU per step of a distributed run's processes (metrics.json ``processes[].cpu_s``,
     µs): the plant, the busiest agent, the leader, the launcher, all of them."""
@@ -144,7 +162,7 @@ class Bench:
         cmd = [*python_module("deploy.cli"), "run", scenario, "--out", str(out),
                *([] if figures else ["--no-figures"]), *([] if record else ["--no-record"]),
                *args]
-        started = time.perf_counter()
+        started, stolen = time.perf_counter(), stolen_s()
         # the launcher as a user starts it (its BLAS threads too), this installation's code
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                                 env=child_env(one_blas_thread=False))
@@ -163,6 +181,8 @@ class Bench:
                                  f"{proc.returncode}: {err.strip()[-600:]}")
         metrics = json.loads((out / "metrics.json").read_text())
         metrics["command_wall_s"] = time.perf_counter() - started
+        now_stolen = stolen_s()
+        metrics["stolen_s"] = None if stolen is None or now_stolen is None else now_stolen - stolen
         if "--in-process" not in args:
             self.agent_rss_mb += [p["peak_rss_mb"] for p in metrics["processes"]
                                   if p["role"].startswith("agent-") and p["peak_rss_mb"]]
@@ -405,9 +425,14 @@ class Bench:
                                      f"{n} robots at 100 Hz, realtime, model plant: deadline "
                                      "misses, every node", ("<=", 0.0) if n == 30 else None)
 
+            stolen = self.figure(f"scale.n{n}.realtime_stolen_ms", "ms",
+                                 f"{n} robots at 100 Hz, realtime, both plants: CPU time the "
+                                 "hypervisor took from this machine during each run (steal), "
+                                 "the cause of deadline misses no priority prevents")
+
             def body(path: Path = path, rtf: Figure = rtf, miss: Figure = miss,
                      touch: Figure = touch, unsettled: Figure = unsettled,
-                     model_miss: Figure = model_miss) -> None:
+                     model_miss: Figure = model_miss, stolen: Figure = stolen) -> None:
                 for _ in range(self.s.repeats):
                     m = self.run_fleet(str(path), "--duration", str(self.s.scale_lockstep_s),
                                        "--startup-timeout", "180")
@@ -415,6 +440,7 @@ class Bench:
                     m = self.run_fleet(str(path), "--clock", "realtime", "--duration",
                                        str(self.s.scale_realtime_s), "--startup-timeout", "180")
                     miss.samples.append(float(m["deadline_misses"]))
+                    stolen.add(_ms(m["stolen_s"]), "/proc/stat unreadable")
                     touch.samples.append(float(m["contacts"]))
                     unsettled.samples.append(float(sum(
                         x is None or x > m["settling_bound_s"] for x in m["settling_time_s"])))
@@ -422,6 +448,7 @@ class Bench:
                                        "--duration", str(self.s.scale_realtime_s),
                                        "--startup-timeout", "180")
                     model_miss.samples.append(float(m["deadline_misses"]))
+                    stolen.add(_ms(m["stolen_s"]), "/proc/stat unreadable")
 
             self.measure(f"scale N={n} (lockstep, realtime)", body, rtf.name, miss.name,
                          touch.name, unsettled.name, model_miss.name)

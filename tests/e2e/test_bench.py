@@ -34,6 +34,7 @@ EXPECTED = {
     "realtime.paper_1khz_contacts", "realtime.paper_1khz_unsettled_robots",
     "scale.largest_n_zero_misses",
     *(f"scale.n{n}.realtime_contacts" for n in SMOKE_SIZES),
+    *(f"scale.n{n}.realtime_stolen_ms" for n in SMOKE_SIZES),
     *(f"cost.codec_{m}_us" for m in ("Sample", "Reply", "LeaderState", "Telemetry",
                                      "StateLog")),
     *(f"scale.n{n}.lockstep_real_time_factor" for n in SMOKE_SIZES),
