@@ -30,7 +30,10 @@ per second. ``decode`` never raises (``None`` + a counter), as the ODrive codec.
 
 from __future__ import annotations
 
+import functools
 import math
+import os
+import pickle
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -124,9 +127,24 @@ class _Drive:
 
 def load_od(eds: str | Path, node: int) -> Any:
     """The object dictionary of ``eds`` for ``node``, checked for what the bridge
-    needs (ValueError naming the file and what is missing)."""
+    needs (ValueError naming the file and what is missing); a copy of its own.
+
+    The file is parsed once per node id and version of the file, then copied
+    (pickle): 5.6 ms to parse against 0.7 ms to copy, and a driver or an emulator reads
+    it for each of its drives (a fuzz test built 884 drivers' drives)."""
     try:
-        od = canopen.import_od(str(eds), node)
+        stat = os.stat(eds)
+        return pickle.loads(_parsed_od(str(eds), stat.st_mtime_ns, stat.st_size, node))
+    except OSError as exc:
+        raise ValueError(f"EDS {eds}: cannot be read as an object dictionary: "
+                         f"{type(exc).__name__}: {exc}") from None
+
+
+@functools.lru_cache(maxsize=64)
+def _parsed_od(eds: str, _mtime_ns: int, _size: int, node: int) -> bytes:
+    """:func:`load_od`'s parse and checks, pickled (an error is raised, not cached)."""
+    try:
+        od = canopen.import_od(eds, node)
     except Exception as exc:  # configparser, KeyError, ValueError, OSError: all mean a bad file
         raise ValueError(f"EDS {eds}: cannot be read as an object dictionary: "
                          f"{type(exc).__name__}: {exc}") from None
@@ -134,7 +152,7 @@ def load_od(eds: str | Path, node: int) -> Any:
     if missing:
         raise ValueError(f"EDS {eds}: not a CiA 402 drive for this bridge: no object "
                          f"{', '.join(missing)}")
-    return od
+    return pickle.dumps(od)
 
 
 class Cia402Driver:
