@@ -654,7 +654,8 @@ def add_bench_command(sub: argparse._SubParsersAction) -> None:
         "README command 1 with and without recording, the realtime loop (lab at 500 Hz, paper "
         "at 1 kHz), scale to 3/10/20/30 robots, agent memory, and the costs underneath (agent "
         "math, plant step, codec, one zenoh hop by the runtime's path and the old one vs one "
-        "UDP hop). Writes bench.json and bench.md to --out. Takes ~30 min; --quick ~3 min.")
+        "UDP hop). Writes bench.json and bench.md to --out. Takes ~30 min; --quick a few "
+        "minutes (~30 s with --scale-sizes 3).")
     p.add_argument("--quick", action="store_true",
                    help="short runs, one repeat: a smoke run that still writes every figure")
     p.add_argument("--out", default="runs/bench", help="output folder (default: runs/bench)")
