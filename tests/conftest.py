@@ -66,15 +66,27 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
 
 # e2e modules, or single tests (module::test), that start lockstep fleets only (or no fleet,
 # or claim nothing of a fleet's timing: the bench's smoke run checks that every figure is
-# written) and hold no port, name or host setting another test could take meanwhile: fleet
-# names and run directories are their own, TCP ports the kernel's free ones, namespaces
-# random. Not here: CAN bridges and emulators judged on the wall clock, a cut link (a
-# liveliness lease measured in wall time), realtime runs.
-LOAD_SAFE = {"test_bench", "test_cli", "test_compromised", "test_distributed", "test_fault_runs",
-             "test_forged", "test_pybullet_runs", "test_run_outputs", "test_security",
-             "test_wall_gap",
-            "test_netns::test_lockstep_across_namespaces_equals_the_single_host_run",
-            "test_netns::test_an_agent_with_valid_credentials_commands_no_other_robot"}
+# written), whose waits are bounds, not races, and that hold no port, name or host setting
+# another test could take meanwhile: fleet names and run directories are their own, TCP
+# ports the kernel's free ones, namespaces random. Not here: CAN bridges and emulators
+# judged on the wall clock, a cut link (a liveliness lease measured in wall time),
+# realtime runs, and the probes that must act while a run of fixed length goes (forgeries,
+# floods, garbage, a stop: on a busy machine a probe that came up late found the run over,
+# and a stop of the plant's was not heard within its 5 s of tries).
+LOAD_SAFE = {"test_bench", "test_cli", "test_fault_runs", "test_pybullet_runs", "test_run_outputs",
+             "test_security", "test_wall_gap",
+             *(f"test_distributed::{t}" for t in (
+                 "test_lockstep_run_equals_the_in_process_reference",
+                 "test_run_reports_processes_messages_and_a_recording",
+                 "test_the_plants_record_of_samples_and_replies_is_what_the_launcher_heard",
+                 "test_each_agent_hears_only_its_graph_neighbours",
+                 "test_sigint_stops_every_process_of_the_run",
+                 "test_an_agent_for_an_unknown_robot_fails_fast",
+                 "test_a_bad_zenoh_config_is_a_clear_error",
+                 "test_a_node_that_dies_fails_the_run_and_is_named",
+                 "test_a_bad_fleet_name_is_refused_before_anything_starts",
+                 "test_each_node_links_only_to_the_nodes_it_talks_to")),
+             "test_netns::test_lockstep_across_namespaces_equals_the_single_host_run"}
 SLOW_MODULES = {"test_safety_scenarios", "test_paper_consistent", "test_closed_loop",
                 "test_pybullet_plant", "test_look_ahead", "test_faults", "test_anti_windup"}
 

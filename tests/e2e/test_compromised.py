@@ -205,7 +205,10 @@ def test_only_the_plant_or_the_launcher_can_stop_a_run_and_it_says_so(tmp_path: 
         session = zenoh.open(zenoh_config(connect=[f.plant_endpoint]))
         stop_msg = plant.seal(encode(Control(WIRE_VERSION, 0, 1 << 20, 0, command="stop")),
                               keys.ctl("stop"))
-        for _ in range(50):  # until a subscriber of ours is known to the fleet (then once)
+        # until a subscriber of ours is known to the fleet (then once), or the run ended
+        # by itself (a failure, below); on a busy machine that took more than 5 s once
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
             session.put(keys.ctl("stop"), stop_msg)
             if all(p.poll() is not None for r, p in f.procs.items() if r != "recorder"):
                 break
