@@ -10,8 +10,9 @@ the markers, applied here by where a test lives and what it needs (one place):
 - ``slow``: integration modules whose runs take tens of seconds here;
 - ``load_safe``: an e2e test whose assertions hold however busy the machine is
   (``LOAD_SAFE``): its fleets run on the lockstep clock (a step waits up to 2 s for a
-  late input), or it claims nothing of their timing (the bench's smoke run), and its
-  waits are generous bounds; tests/suite.py runs it beside the others. A realtime test
+  late input), or it claims nothing of their timing (the bench's smoke run), its waits
+  are generous bounds, and no probe of it must act while a run of fixed length goes;
+  tests/suite.py runs it beside the others. A realtime test
   (above) in such a module stays ``realtime``: the suite runs those one at a time.
 """
 

@@ -7,10 +7,11 @@
    assert does not depend on the scheduler (on 2 cores they take about half the time
    they take one after the other, docs/layout.md).
 2. The realtime tests and the other fleets (CAN bridges and their emulators judged on
-   the wall clock, realtime runs, a cut link), one at a time: a realtime run judged beside
-   another test would be judged on a scheduler that test starves
-   (tests/realtime_clock.py), and the fleets that no judge marks still run on the wall
-   clock with timeouts that assume their cores.
+   the wall clock, realtime runs, a cut link, probes that must act while a lockstep run
+   of fixed length goes), one at a time: a realtime run judged beside another test would
+   be judged on a scheduler that test starves (tests/realtime_clock.py), the fleets that
+   no judge marks still run on the wall clock with timeouts that assume their cores, and
+   a busy machine changes how fast a probe comes up against its fleet.
 
 Both phases let Python keep the bytecode it compiles (``__pycache__``, which git
 ignores) even where ``PYTHONDONTWRITEBYTECODE`` is set, as on the CI machine: there
