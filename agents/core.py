@@ -137,6 +137,7 @@ class AgentCore:
                             _vec3(np.asarray(v0_hat_init, dtype=float)),
                             q)  # the CLIK reference starts at the robot
         self._neighbours = tuple(j for j, _ in cfg.neighbours)
+        self._last_h: float | None = None  # the step the observer last integrated over
         zeta, zeta_dot = self._law.offsets(0.0)
         self.initial_share = Share(self.q0_hat_vec, self.v0_hat_vec, q,
                                    _vec3(np.asarray(q_dot_init, dtype=float)), zeta, zeta_dot)
@@ -147,6 +148,7 @@ class AgentCore:
         other.cfg, other._neighbours, other.initial_share = (
             self.cfg, self._neighbours, self.initial_share)
         other._law = self._law.fork()
+        other._last_h = self._last_h
         return other
 
     @property
@@ -195,6 +197,7 @@ class AgentCore:
         ages: InputAges | None = None,
         horizon: float | None = None,
         speed_cap: float = 1.0,
+        own_torques: bool = True,
     ) -> AgentOutput:
         """One control step. ``dt`` is the time to the next step: the configured
         period unless given (a realtime agent passes the time its plant actually
@@ -204,6 +207,10 @@ class AgentCore:
         avoidance engagement and the safety filter's barrier use it; at least ``dt``;
         agents/pace.py measures it on a realtime loop); ``speed_cap``: a planar speed
         scale for a loop that cannot keep its period (1: none).
+        ``own_torques``: whether the robot reached this state under the torques this law
+        computed at its previous step (False: a look-ahead, held or zero torques acted,
+        its command late or lost; ``Sample.own_torques``). Either that, or a ``dt`` other
+        than the previous step's, restarts the observer's z1_hat from this measurement.
         ``obstacles``, ``robots``: what perception sees (Body objects, or rows
         (ident, x, y, vx, vy, radius) as plant/perception.py gives them).
 
@@ -213,6 +220,17 @@ class AgentCore:
         nbr, kernel_ages = self.kernel_inputs(shares, ages)
         lead = None if leader is None else (_vec3(leader[0]), _vec3(leader[1]))
         h = self.cfg.dt if dt is None else dt
+        last_h, self._last_h = self._last_h, h
+        if not own_torques or (last_h is not None and abs(h - last_h) > 1e-9 * h):
+            # eq. (39) advanced z1_hat over last_h with the Gamma of the previous step:
+            # if those torques never acted, or this sample came after h and not last_h
+            # (a realtime agent that skipped one, or the step after), the innovation
+            # z1 - z1_hat is that input's effect, not a disturbance, and z2_hat integrates
+            # it until z1_hat has crept back (`paper` at 1 kHz, a first command of
+            # 1.9e5 N m a period late: 211 m/s off, ~8 s at mu1 = 0.6, r1 = 0.7, the robot
+            # never settling meanwhile). Ours, not the paper's: z1_hat restarts from this
+            # measurement, as at the first one; z2_hat is kept (docs/errata.md)
+            self._law.restore("z1_hat", None)
         raw = self._law.step(t, qv, qdv, nbr, kernel_ages, lead, _bodies(obstacles),
                              _bodies(robots), h, h if horizon is None else horizon, speed_cap)
         (torques, v_cmd, e, s, q_d, q_fd, zeta, zeta_dot, q0h, v0h, z2, order, errors,

@@ -35,8 +35,8 @@ from agents.degradation import MAX_COMMAND_HORIZON
 
 # 2: Sample, Reply, batched LeaderState/Telemetry, StateLog; 3: safety in Telemetry; 4: no MAC
 # fields in Control and NodeReport (every message of a keyed node is authenticated by its
-# envelope, deploy/contract/mac.py); 5: a node's CPU time in NodeReport
-WIRE_VERSION = 5
+# envelope, deploy/contract/mac.py); 5: a node's CPU time in NodeReport; 6: Sample.own_torques
+WIRE_VERSION = 6
 MAX_BODIES = 256  # bodies per perception message
 MAX_ORDER_CHARS = 32
 MAX_ROLE_CHARS = 32
@@ -141,6 +141,11 @@ class Sample(Message, frozen=True):
     robots: list[SensedBody]
     obstacles: list[SensedBody]
     faulted: bool = False  # a bridge reports driver errors / lost heartbeats here
+    # the robot moved from the previous sample to this one under the torques its agent
+    # computed for that sample; False when they were a look-ahead, held or zero torques
+    # (a command late or lost): the agent's observer, eq. (39), then restarts from this
+    # measurement instead of integrating an input that never acted (agents/core.py)
+    own_torques: bool = True
 
     def __post_init__(self) -> None:
         if len(self.robots) > MAX_BODIES or len(self.obstacles) > MAX_BODIES:

@@ -379,7 +379,7 @@ class AgentNode:
             lead = (self.core.q0_hat_vec, self.core.v0_hat_vec)
         q, q_dot = state.q, state.q_dot
         out = self.core.step(t, q, q_dot, self.last_shares, lead, obstacles, robots, dt, ages,
-                             horizon, speed_cap)
+                             horizon, speed_cap, state.own_torques)
         plan = [] if self.look_ahead is None else self.look_ahead.plan(
             self.core, out, t, q, q_dot, self.last_shares, lead, obstacles, robots, ages)
         return out, plan

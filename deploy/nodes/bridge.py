@@ -92,6 +92,7 @@ class BridgeNode:
         self.last_reason = ""
         self.frames_sent = 0
         self.torque_sent_at = -1.0
+        self.fallback_period = False  # this period's torques were a look-ahead or held
         self.zeroed_at = -1.0
         self.armed_at = -1.0
         self.arm_sent_at: dict[int, float] = {}  # each drive's newest arming frames
@@ -330,6 +331,7 @@ class BridgeNode:
                         # last period is overdue; play the newest command's look-ahead
                         # torques for it, or hold them (which feeds the watchdog)
                         self._apply(self.gate.decide(now, faulted, due_step=k - 1))
+                        self.fallback_period = True
                     elif not d.armed and self.last_reason != d.reason:
                         self._apply(d)  # zeros, once per reason
                 self._cycle(now)
@@ -362,10 +364,13 @@ class BridgeNode:
         robots, obstacles = sense(i, pos, vel, self.radii, self.sc.robot_ids, self.obstacles,
                                   self.sc.spec.behaviors.detection_range_m, self.shapes)
         self.published_k = max(self.published_k, k)
+        # the robot moved on its agent's command for our previous sample (Sample.own_torques)
+        own = self.armed and self.command_k == k - 1 and not self.fallback_period
+        self.fallback_period = False
         node.publish(keys.sample(self.rid), lambda seq, stamp: Sample(
             WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, q=tuple(q.tolist()),
             q_dot=tuple(qd.tolist()), robots=sensed_bodies(robots),
-            obstacles=sensed_bodies(obstacles), faulted=faulted))
+            obstacles=sensed_bodies(obstacles), faulted=faulted, own_torques=own))
         self.log_rows.append(StateRow(k, t, [tuple(q.tolist())], [tuple(qd.tolist())], [faulted]))
         if len(self.log_rows) >= LOG_ROWS:
             self.flush_log()

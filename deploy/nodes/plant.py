@@ -90,6 +90,9 @@ class PlantNode:
             node.spool = SpoolWriter(spool_path(spool_dir, PLANT_ROLE), {
                 *self.sample_keys, *(node.keys.cmd(rid) for rid in self.ids)})
         self.torques = np.zeros((sc.n, 4))
+        # per robot: every step integrated since its last sample ran on the torques its
+        # agent computed for that step (Sample.own_torques)
+        self.own_torques = [True] * sc.n
         self.v_cmd = np.zeros((sc.n, 3))
         self.commands: dict[tuple[int, int], Reply] = {}
         self.published_k = -1  # the newest step whose samples went out
@@ -198,6 +201,7 @@ class PlantNode:
         q, qd = plant_q.tolist(), plant_qd.tolist()
         checked = within_wire_bound(q, qd)
         stamps_of, last_seq = self.sent_stamps, self.last_state_seq
+        own, self.own_torques = self.own_torques, [True] * len(self.ids)
         for i, (rid, key, (robots, obstacles)) in enumerate(
                 zip(self.ids, self.sample_keys, self.sense(), strict=True)):
             if self.unpowered:  # a robot nobody drives is an obstacle to the others
@@ -206,7 +210,7 @@ class PlantNode:
                 robots = robots[~off]
             msg = node.publish(key, lambda seq, stamp, i=i, rid=rid, r=robots, o=obstacles: Sample(
                 WIRE_VERSION, 0, seq, stamp, rid, k, t, tuple(q[i]), tuple(qd[i]),
-                sensed_bodies(r), sensed_bodies(o)), checked)
+                sensed_bodies(r), sensed_bodies(o), False, own[i]), checked)
             if msg is None and not np.isfinite(q[i] + qd[i]).all():
                 node.note_nonfinite(f"state of robot {rid} at t = {t:.3f} s (the plant "
                                     "diverged; its sample is not sent)")
@@ -278,6 +282,7 @@ class PlantNode:
                 if cmd is None:
                     self.node.counters.late += 1
                 cmd, age = links[i].take(k, lambda idx, rid=rid: commands.get((rid, idx)))
+                self.own_torques[i] = cmd is not None and age == 0
                 if cmd is None:
                     continue
                 k_cmd = k - age
@@ -311,6 +316,7 @@ class PlantNode:
                 self._apply_newest_commands(time.monotonic())
                 for _ in range(k - k_prev):
                     self._play_plans(self.steps_done)
+                    self._note_own_torques(self.steps_done)
                     self.plant.step(self.steps_done * dt, dt, self.torques, self.v_cmd)
                     self.steps_done += 1
             self._publish_world(k, k * dt)
@@ -360,6 +366,16 @@ class PlantNode:
                     continue
                 planned = torques_at(cmd.k, cmd.torques, cmd.plan, k)
                 self.torques[i], self.v_cmd[i] = self.bounds.applied(planned, cmd.v_cmd)
+
+    def _note_own_torques(self, k: int) -> None:
+        """Realtime: which robots integrate step k on their agent's own command for it
+        (a newest command of an earlier step plays its look-ahead; none, or a stale one,
+        zero torque)."""
+        with self.node.mailbox.lock:
+            for i, rid in enumerate(self.ids):
+                cmd = self.newest.get(rid)
+                if cmd is None or cmd.k != k or rid in self.unpowered:
+                    self.own_torques[i] = False
 
     def finish(self, linger_s: float = 5.0) -> None:
         """Report, then stay until the other nodes have left after ``end``, so

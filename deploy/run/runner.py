@@ -102,7 +102,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     targets = FormationTargets(sc)
     # what was sent, by step: the links pick from these (a delay reaches back)
     keep = model.max_lag_steps + 2
-    worlds: dict[int, list[tuple]] = {}  # k -> per robot (q, q_dot, robots, obstacles)
+    worlds: dict[int, list[tuple]] = {}  # k -> per robot (q, q_dot, robots, obstacles, own)
     leaders: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     shares: dict[int, dict[int, Share]] = {  # k -> robot id -> its share of step k
         -1: {rid: a.initial_share for rid, a in zip(ids, agents, strict=True)}}
@@ -117,6 +117,8 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     horizon = sc.spec.degradation.command_horizon if model.plan is not None else 0
     look_ahead = [LookAhead(a, horizon) for a in agents] if horizon else None
     law_resets = [0] * sc.n
+    # per robot: the previous step ran on its agent's own command (Sample.own_torques)
+    own_torques = [True] * sc.n
     # without a fault plan every link delivers step k's sample (the neighbours' of k-1) at
     # once: the links' bookkeeping is skipped, with the same inputs (AgentLinks.take)
     fault_free = model.plan is None
@@ -131,8 +133,10 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
             q0, v0 = leader.state_floats()
             leaders[k] = (q0, v0)
             qs, qds = plant.q.tolist(), plant.q_dot.tolist()
-            worlds[k] = world_k = [(tuple(q), tuple(qd), *seen)
-                                   for q, qd, seen in zip(qs, qds, sense(), strict=True)]
+            # each robot's sample as the plant sends it, with its own_torques flag
+            worlds[k] = world_k = [(tuple(q), tuple(qd), *seen, own)
+                                   for q, qd, seen, own in zip(qs, qds, sense(), own_torques,
+                                                               strict=True)]
             shares_k, commands_k, shares_before = {}, {}, shares.get(k - 1, {})
             shares[k], commands[k] = shares_k, commands_k
             for i, agent in enumerate(agents):
@@ -145,8 +149,9 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                     world, lead, shs, ages = links[i].take(
                         k, lambda idx, i=i: worlds[idx][i] if idx in worlds else None,
                         leaders.get, lambda jk: shares.get(jk[1], {}).get(jk[0]), dt)
-                q, q_dot, robots_seen, obstacles_seen = world
-                out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
+                q, q_dot, robots_seen, obstacles_seen, own = world
+                out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages,
+                                 own_torques=own)
                 plan = [] if look_ahead is None else look_ahead[i].plan(
                     agent, out, t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
                 tq = out.torques
@@ -163,6 +168,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
                 v_cmd[:] = [commands_k[rid][1] for rid in ids]
             for i, rid in enumerate(() if fault_free else ids):
                 cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get(idx, {}).get(rid))
+                own_torques[i] = cmd is not None and age == 0
                 if cmd is None:
                     continue
                 planned = torques_at(k - age, cmd[0], cmd[2], k, "zero" if zero_missed else "hold")

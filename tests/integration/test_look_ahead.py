@@ -120,7 +120,8 @@ def test_bad_horizon_is_a_clear_error(value: str) -> None:
 @pytest.mark.parametrize("clock", ["lockstep", "realtime"])
 def test_plant_node_plays_the_newest_plan_for_missing_steps(clock: str) -> None:
     """Only the command of step 5 arrives: the plant applies it at step 5, its
-    look-ahead at steps 6 and 7, then holds (lab: missed_command = "hold")."""
+    look-ahead at steps 6 and 7, then holds (lab: missed_command = "hold"); the samples
+    after steps 6-8 tell the agent its own torques did not act (Sample.own_torques)."""
     import time
 
     from fuzz_fakes import FakeNode
@@ -138,16 +139,21 @@ def test_plant_node_plays_the_newest_plan_for_missing_steps(clock: str) -> None:
         WIRE_VERSION, 1, 0, 0, robot=1, k=5, t=0.025, torques=own, v_cmd=zero,
         state_seq=0, state_stamp_ns=0, share=ShareData(zero, zero, zero, zero, zero, zero),
         plan=plan)))
-    applied = []
+    applied, own_flags = [], []
     for k in range(5, 9):
+        p.own_torques = [True] * sc.n  # as each sample's publication leaves them
         if clock == "lockstep":
             p._take_lockstep_commands(k)
         else:
             p._apply_newest_commands(time.monotonic())
             p._play_plans(k)
+            p._note_own_torques(k)
         applied.append(tuple(p.torques[0]))
+        own_flags.append(list(p.own_torques))
     limit = sc.spec.limits.max_wheel_torque_nm  # 2 N m: the last entry is clamped
     assert applied == [own, plan[0], (0.5, 0.0, 0.0, limit), (0.5, 0.0, 0.0, limit)]
+    assert [f[0] for f in own_flags] == [True, False, False, False]
+    assert not any(f[i] for f in own_flags for i in range(1, sc.n))  # never commanded
 
 
 @pytest.mark.parametrize("horizon", [0, 2])

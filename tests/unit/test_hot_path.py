@@ -297,7 +297,7 @@ class ReferenceCore:
         self.cfg = cfg
         self.q0_hat, self.v0_hat = np.array(q0_hat_init, float), np.array(v0_hat_init, float)
         self.q_d = np.array(q_init, float)
-        self.v_d_prev = self.z1_hat = None
+        self.v_d_prev = self.z1_hat = self.last_h = None
         self.z2_hat = np.zeros(3)
         self.r_i = np.array(cfg.offset, float)
         self.weights = [w for _, w in cfg.neighbours]
@@ -355,11 +355,15 @@ class ReferenceCore:
                           bodies, lim, h)
         return np.array([*r.v, v_d[2]])
 
-    def step(self, t, q, q_dot, shares, leader, obstacles=(), robots=(), dt=None) -> AgentOutput:
+    def step(self, t, q, q_dot, shares, leader, obstacles=(), robots=(), dt=None,
+             own_torques=True) -> AgentOutput:
         from agents.controller import control_term as ct
 
         cfg, model = self.cfg, self.cfg.model
         h = cfg.dt if dt is None else dt
+        if not own_torques or (self.last_h is not None and h != self.last_h):
+            self.z1_hat = None  # the observer restarts from the measurement (AgentCore.step)
+        self.last_h = h
         nbr = [shares[j] for j, _ in cfg.neighbours]
         zeta, zeta_dot = self.offsets(t)
         q_fd, v_fd = desired_formation(
