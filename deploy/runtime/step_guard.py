@@ -121,7 +121,16 @@ class OwnClock:
     t0_s: float | None = None
 
     def answer(self, k: int, now: float) -> None:
-        """Lockstep: we answered step ``k`` at ``now`` (the initial share: k = -1)."""
+        """Lockstep: we answered step ``k`` at ``now`` (the initial share: k = -1).
+
+        The bound never goes back: an answer to an old sample (one a link held while it
+        was down, delivered when it came back) says nothing of where the plant went
+        meanwhile, one step per deadline. Reset to that old step, the bound refused every
+        newer sample as ahead of our clock, the agent answered none, and the plant waited
+        its deadline for each while the bound crept up 0.11 step per deadline: 20-30 s
+        of a 50 ms deadline after a 3 s cut (tests/e2e/test_netns.py)."""
+        if self.deadline_s is not None and self.answered >= 0:
+            k = max(k, self.latest(now) - 1)
         self.answered, self.answered_at = k, now
 
     def latest(self, now: float) -> int | None:

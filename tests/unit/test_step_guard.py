@@ -136,6 +136,24 @@ def test_lockstep_the_plant_is_at_most_one_step_past_our_answer_plus_one_per_dea
     assert c.refusal(42 + 100, 3, 101.0, ahead=100) is None
 
 
+def test_lockstep_an_answer_to_an_old_sample_does_not_pull_the_bound_back():
+    """A link down 3 s: the plant went on one step per deadline; the first sample heard
+    when the link is back is an old one the link held. Answering it leaves the bound
+    where the plant may be, so its newer samples are heard."""
+    from deploy.runtime.step_guard import DEADLINE_MARGIN, OwnClock
+
+    c = OwnClock(dt=0.001, deadline_s=0.05, answered_at=0.0)
+    c.answer(150, 10.0)  # the last answer before the cut
+    back = 10.0 + 3.3
+    may_be = c.latest(back)
+    assert may_be == 151 + int(3.3 / (0.05 * DEADLINE_MARGIN))
+    c.answer(151, back)  # the held sample of step 151, answered late
+    assert c.latest(back) == may_be and c.refusal(may_be, may_be, back) is None
+    assert c.refusal(may_be + 1, 0, back) == "step ahead of our clock"  # still a bound
+    c.answer(may_be, back + 0.001)  # answered promptly again: as tight as before
+    assert c.latest(back + 0.001) == may_be + 1
+
+
 def test_realtime_no_sender_is_past_the_wall_clock():
     from deploy.runtime.step_guard import CLOCK_SKEW_S, OwnClock
 
