@@ -169,3 +169,47 @@ def test_a_command_delay_longer_than_the_plan_still_drives_the_robots(horizon: i
     r = run_in_process(sc, "model", 8.0, faults=plan)
     err = np.linalg.norm(r.series.q[:, :, :2] - r.series.target, axis=2)
     assert err[-1].max() < 0.3, err[-1]
+
+
+def test_a_bridge_says_whether_the_robot_moved_on_its_agents_command() -> None:
+    """The CAN bridge's sample after a period: own torques when the command answering its
+    previous sample came and drove the drives; not when none came (the look-ahead or held
+    torques played) or the drives were not armed (Sample.own_torques)."""
+    from fuzz_fakes import FakeNode, RecordingBus
+
+    from bridges.driver import DriverSettings
+    from bridges.odrive import OdriveDriver
+    from deploy.nodes.bridge import BridgeNode
+    from deploy.runtime.node_runtime import StopFlag
+
+    sc = load_scenario("lab")
+    ids, bus = [0, 1, 2, 3], RecordingBus()
+    b = BridgeNode(sc, 2, FakeNode(sc.robot_ids, "bridge-2"), StopFlag(), bus,
+                   OdriveDriver(DriverSettings(tuple(ids))), ids, command_timeout_s=1e9,
+                   heartbeat_timeout_s=1e9)
+    try:
+        _bridge_flags(b, sc)
+    finally:
+        b.close()
+        bus.shutdown()
+
+
+def _bridge_flags(b, sc) -> None:
+    from deploy.contract.wire import WIRE_VERSION, Reply, Sample, ShareData, encode
+
+    z = (0.0, 0.0, 0.0)
+
+    def sample_after(k: int) -> Sample:
+        b._publish(k, k * sc.dt, False)
+        return next(m for _, m in reversed(b.node.published) if isinstance(m, Sample))
+
+    assert not sample_after(0).own_torques  # not armed: nothing drove the wheels
+    b.armed = True
+    b.published_k = 4
+    b.node.deliver(b.node.keys.cmd(2), encode(Reply(
+        WIRE_VERSION, 2, 0, 0, robot=2, k=4, t=4 * sc.dt, torques=(0.1,) * 4, v_cmd=z,
+        state_seq=0, state_stamp_ns=0, share=ShareData(z, z, z, z, z, z))))
+    assert sample_after(5).own_torques  # the answer to sample 4 drove period 4 -> 5
+    b.fallback_period = True  # no command in period 5 -> 6: its look-ahead played
+    assert not sample_after(6).own_torques
+    assert not sample_after(7).own_torques  # still the answer to sample 4
