@@ -213,7 +213,11 @@ def test_bring_up_configures_each_drive_and_reads_the_mapping_back(lab, rig_fact
     assert len([f for _, f in r.raw if f.arbitration_id == 0x181]) == 4
 
 
-def test_bring_up_names_a_drive_that_does_not_answer(lab, rig_factory):
+def test_bring_up_names_a_drive_that_does_not_answer(lab, rig_factory, monkeypatch):
+    from bridges import cia402_driver
+
+    # what a silent drive costs is SDO_TIMEOUT_S a try: shorter here, the same refusal
+    monkeypatch.setattr(cia402_driver, "SDO_TIMEOUT_S", 0.2)
     r = rig_factory(lab, bring_up=False, host_ids=(1, 2, 3, 5))
     with pytest.raises(DriveError, match="node 5: SDO failed"):
         r.bring_up(timeout_s=1.0)

@@ -32,7 +32,10 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def test_stop_all_ends_every_child_by_pid_even_one_that_ignores_sigterm(tmp_path):
+def test_stop_all_ends_every_child_by_pid_even_one_that_ignores_sigterm(tmp_path, monkeypatch):
+    from deploy.run import supervisor
+
+    monkeypatch.setattr(supervisor, "STOP_GRACE_S", 0.3)  # the grace is a constant: shorter here
     sup = Supervisor(None)
     try:
         polite = _started(sup, tmp_path, "polite", SLEEPER)
