@@ -13,9 +13,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agents.controller import (
+    ControlConstants,
     ControllerGains,
     allocate,
     control_term,
+    control_term_vec,
     psi,
     psi_jacobian,
     reaching_term,
@@ -144,16 +146,22 @@ def test_reaching_term_zero_at_origin_and_hand_value():
 
 
 def _closed_loop(e0, D, duration, dt=1e-4):
-    """Euler integration of e_ddot = Gamma + D with z2_hat = D (perfect ESO); returns (t, |e|, |s|)."""
-    e, e_dot = np.array(e0, float), np.zeros(3)
-    ts, es, ss = [], [], []
-    for k in range(int(round(duration / dt)) + 1):
-        gamma, s = control_term(e, e_dot, D, G)
-        ts.append(k * dt)
-        es.append(float(np.linalg.norm(e)))
-        ss.append(float(np.linalg.norm(s)))
-        e, e_dot = e + dt * e_dot, e_dot + dt * (gamma + D)
-    return np.array(ts), np.array(es), np.array(ss)
+    """Euler integration of e_ddot = Gamma + D with z2_hat = D (perfect ESO); returns (t, |e|, |s|).
+    Gamma from the compiled form the agents use (control_term_vec, equal to control_term:
+    tests/unit/test_hot_path.py): 56,570 steps a run, 8x faster than the numpy form."""
+    k_consts = ControlConstants.from_gains(G)
+    d = tuple(float(x) for x in D)
+    e, e_dot = tuple(float(x) for x in e0), (0.0, 0.0, 0.0)
+    n = int(round(duration / dt)) + 1
+    es, ss = np.empty(n), np.empty(n)
+    for k in range(n):
+        gamma, s = control_term_vec(e, e_dot, d, k_consts)
+        es[k] = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+        ss[k] = math.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
+        e = (e[0] + dt * e_dot[0], e[1] + dt * e_dot[1], e[2] + dt * e_dot[2])
+        e_dot = (e_dot[0] + dt * (gamma[0] + d[0]), e_dot[1] + dt * (gamma[1] + d[1]),
+                 e_dot[2] + dt * (gamma[2] + d[2]))
+    return np.arange(n) * dt, es, ss
 
 
 def _first_time_below(t, values, bound):
