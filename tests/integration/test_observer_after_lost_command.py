@@ -11,6 +11,7 @@ distributed plant and agent do on the wire, here by hand for one robot."""
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 
 import numpy as np
 
@@ -23,7 +24,7 @@ STEPS = 2500  # 2.5 s of paper at 1 kHz: the robots settle by 0.45 s
 ROBOT = 1  # the robot whose command goes missing (index)
 
 
-def _closed_loop(lost: set[int] = frozenset(), skipped: set[int] = frozenset(),
+def _closed_loop(lost: Collection[int] = (), skipped: Collection[int] = (),
                  tell: bool = True) -> list[tuple[float, float]]:
     """Per robot, (|z2_hat|, |s|) after STEPS. Robot ROBOT's command of each step in
     ``lost`` does not act (zero torque instead); its agent does not step at the steps in
