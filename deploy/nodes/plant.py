@@ -316,7 +316,6 @@ class PlantNode:
                 self._apply_newest_commands(time.monotonic())
                 for _ in range(k - k_prev):
                     self._play_plans(self.steps_done)
-                    self._note_own_torques(self.steps_done)
                     self.plant.step(self.steps_done * dt, dt, self.torques, self.v_cmd)
                     self.steps_done += 1
             self._publish_world(k, k * dt)
@@ -358,24 +357,19 @@ class PlantNode:
         """Realtime: a robot whose newest command answers an earlier step than the
         one being integrated (its later ones are late or lost) plays that
         command's look-ahead torques for step k; past its plan the last of them is
-        held, as in lockstep (until the command timeout zeroes the robot)."""
+        held, as in lockstep (until the command timeout zeroes the robot). A robot
+        not on its agent's own command for step k (a look-ahead, or zero torque: none,
+        or a stale one) is noted for its next sample (Sample.own_torques)."""
         with self.node.mailbox.lock:
             for i, rid in enumerate(self.ids):
                 cmd = self.newest.get(rid)
                 if cmd is None or rid in self.unpowered or cmd.k >= k:
+                    if cmd is None or rid in self.unpowered:
+                        self.own_torques[i] = False
                     continue
+                self.own_torques[i] = False
                 planned = torques_at(cmd.k, cmd.torques, cmd.plan, k)
                 self.torques[i], self.v_cmd[i] = self.bounds.applied(planned, cmd.v_cmd)
-
-    def _note_own_torques(self, k: int) -> None:
-        """Realtime: which robots integrate step k on their agent's own command for it
-        (a newest command of an earlier step plays its look-ahead; none, or a stale one,
-        zero torque)."""
-        with self.node.mailbox.lock:
-            for i, rid in enumerate(self.ids):
-                cmd = self.newest.get(rid)
-                if cmd is None or cmd.k != k or rid in self.unpowered:
-                    self.own_torques[i] = False
 
     def finish(self, linger_s: float = 5.0) -> None:
         """Report, then stay until the other nodes have left after ``end``, so

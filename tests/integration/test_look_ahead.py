@@ -147,7 +147,6 @@ def test_plant_node_plays_the_newest_plan_for_missing_steps(clock: str) -> None:
         else:
             p._apply_newest_commands(time.monotonic())
             p._play_plans(k)
-            p._note_own_torques(k)
         applied.append(tuple(p.torques[0]))
         own_flags.append(list(p.own_torques))
     limit = sc.spec.limits.max_wheel_torque_nm  # 2 N m: the last entry is clamped
