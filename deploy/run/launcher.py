@@ -135,12 +135,14 @@ class Launcher:
         sup.run_dir = run_dir
         endpoint = o.endpoint or endpoint_of(run_dir, LAUNCHER_ROLE)
         try:
+            sup.start_forks()  # it imports what the nodes need while this process goes on
             lossless = o.clock == "lockstep"
             datagrams = DatagramPath(run_dir, LAUNCHER_ROLE, lossless) if o.datagrams else None
             node = Node(LAUNCHER_ROLE, obs.keys, obs.codec,
                         zenoh_config(listen=[endpoint], gossip=False, lowlatency=o.lowlatency),
                         keyring=self.keyring, datagrams=datagrams)
         except BaseException:
+            sup.stop_all()
             shutil.rmtree(run_dir, ignore_errors=True)
             raise
         zid = node.zid

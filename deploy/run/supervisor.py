@@ -19,16 +19,24 @@ from pathlib import Path
 
 from deploy.contract.wire import PLANT_ROLE
 from deploy.run.kill_schedule import PAUSE, RESUME, KillSchedule
+from deploy.run.node_forks import NodeForks
 from deploy.run.plan import Child, restart_of
 from deploy.runtime.node_runtime import StopFlag
 from deploy.runtime.own_python import child_env
 
 STOP_GRACE_S = 3.0
+FORKS_SWITCH = "OMNIFLEET_NODE_FORKS"  # "0": every node started by its command line
 REJOIN_GRACE_S = 3.0  # a restarted node may exit this long after the others
 # zenoh's runtime pools cut to one worker each: a node needs no more, and every
 # thread is a wake-up competing for 2 cores (the hop 80 -> 60 µs p50, ping-pong)
 ZENOH_RUNTIME = ("(app: (worker_threads: 1), acc: (worker_threads: 1), "
                  "tx: (worker_threads: 1), rx: (worker_threads: 1), net: (worker_threads: 1))")
+
+
+def _child_env() -> dict[str, str]:
+    env = child_env({**os.environ, "PYTHONUNBUFFERED": "1"})
+    env.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
+    return env
 
 
 class RunFailed(RuntimeError):
@@ -70,6 +78,16 @@ class Supervisor:
         self.keyring_of = keyring_of
         self.run_dir = run_dir  # the run's sockets (a restarted node's old one is removed)
         self.children: list[Child] = []
+        self.forks: NodeForks | None = None  # the nodes' fork server, once started
+
+    def start_forks(self) -> None:
+        """Start the nodes' fork server now, so that it has imported what the nodes need
+        by the time they start (deploy/nodes/forks.py); without it (or with
+        ``OMNIFLEET_NODE_FORKS=0`` in the environment) each node is started by its
+        command line. :meth:`stop_all` ends it."""
+        if os.environ.get(FORKS_SWITCH, "1") != "0" and self.forks is None:
+            self.forks = NodeForks()
+            self.forks.start(_child_env())
 
     def start(self, children: list[Child]) -> None:
         for c in children:
@@ -78,20 +96,22 @@ class Supervisor:
     def spawn(self, child: Child) -> None:
         child.log_path.parent.mkdir(parents=True, exist_ok=True)
         child.log = open(child.log_path, "wb")  # noqa: SIM115 - closed in reap
-        env = child_env({**os.environ, "PYTHONUNBUFFERED": "1"})
-        env.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
-        argv, fds = child.argv, ()
+        env = _child_env()
+        keys = None
         if child.zenoh and self.keyring_of is not None:
-            fd = _keys_pipe(self.keyring_of(child.role))
-            argv, fds = [*argv, "--keys-fd", str(fd)], (fd,)
+            keys = _keys_pipe(self.keyring_of(child.role))
         try:
-            child.proc = subprocess.Popen(
-                argv, stdout=child.log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                env=env, start_new_session=True, pass_fds=fds,
+            forked = None
+            if self.forks is not None:
+                forked = self.forks.fork(child.argv, env, child.log.fileno(), keys)
+            child.proc = forked or subprocess.Popen(
+                child.argv if keys is None else [*child.argv, "--keys-fd", str(keys)],
+                stdout=child.log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                env=env, start_new_session=True, pass_fds=() if keys is None else (keys,),
             )
         finally:
-            for fd in fds:
-                os.close(fd)  # the child has its own copy
+            if keys is not None:
+                os.close(keys)  # the child has its own copy
         self.children.append(child)
 
     def reap(self, child: Child, block: bool) -> bool:
@@ -123,7 +143,8 @@ class Supervisor:
         return ended
 
     def stop_all(self) -> None:
-        """SIGTERM every live child by pid, SIGKILL after a grace period, reap all."""
+        """SIGTERM every live child by pid, SIGKILL after a grace period, reap all; then
+        end the nodes' fork server."""
         live = [c for c in self.children if c.proc is not None and not self.reap(c, False)]
         for c in live:
             try:
@@ -141,6 +162,9 @@ class Supervisor:
             except ProcessLookupError:
                 pass
             self.reap(c, block=True)
+        if self.forks is not None:
+            self.forks.close()
+            self.forks = None
 
     def apply_kills(self, kills: KillSchedule, t: float) -> None:
         """The fault plan's process kills (SIGKILL: a crash, no goodbye), pauses and

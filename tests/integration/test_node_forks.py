@@ -1,0 +1,133 @@
+"""A node forked by the fork server (deploy/nodes/forks.py, deploy/run/node_forks.py) is
+the process the supervisor would have spawned: the launcher's own child (waited for and
+signalled by pid), in a session of its own, showing its command line, writing its log,
+reading its keys from the pipe it was handed, and exiting with the node's own status.
+Without a working server every node is spawned as before."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+from procs import pids_with, stat_fields
+
+from deploy.contract.keyring import keyring_text, new_master
+from deploy.contract.scenario import load_scenario
+from deploy.run import node_forks
+from deploy.run.node_forks import ForkedProcess, NodeForks
+from deploy.run.plan import Child, key_roles
+from deploy.run.supervisor import Supervisor
+from deploy.runtime.own_python import python_module
+
+NODES = python_module("deploy.nodes")
+
+
+def _emulator(tmp_path: Path, marker: str) -> Child:
+    """A CAN emulator on a virtual bus: a node that runs until it is stopped."""
+    return Child("emulator", None, [*NODES, "emulate", "--scenario", "lab", "--robot", "1",
+                                    "--can-interface", "virtual", "--can-channel", marker,
+                                    "--truth-out", str(tmp_path / "truth.npz")],
+                 tmp_path / "emulator.log", zenoh=False)
+
+
+def _wait_for(path: Path, text: bytes, proc) -> None:
+    deadline = time.monotonic() + 60
+    while text not in path.read_bytes():
+        assert proc.poll() is None, path.read_text()
+        assert time.monotonic() < deadline, path.read_text()
+        time.sleep(0.01)  # polling its log, the readiness signal
+
+
+def test_a_forked_node_is_the_supervisors_child_in_its_own_session_showing_its_command(tmp_path):
+    marker = f"forked-{os.getpid()}"
+    sup = Supervisor(None)
+    sup.start_forks()
+    try:
+        c = _emulator(tmp_path, marker)
+        sup.spawn(c)
+        assert isinstance(c.proc, ForkedProcess), sup.forks.broken
+        _wait_for(c.log_path, b"on virtual:" + marker.encode(), c.proc)  # its stderr, in its log
+        state, ppid, pgrp, session = stat_fields(c.proc.pid)[:4]
+        assert int(ppid) == os.getpid()  # handed over: ours to wait for
+        assert int(pgrp) == int(session) == c.proc.pid  # its own session, as spawned
+        assert pids_with(marker) == {c.proc.pid}  # ps shows its command, nobody else has it
+        assert Path(f"/proc/{c.proc.pid}/fd/0").resolve() == Path(os.devnull)
+    finally:
+        sup.stop_all()  # SIGTERM by pid, reaped here
+    assert c.exit_code == 143  # the emulator's own clean exit on SIGTERM
+    assert "(SIGTERM); sent " in c.log_path.read_text()
+    assert len(np.load(tmp_path / "truth.npz")["t"]) > 0  # its finally ran: truth saved
+    assert sup.forks is None  # the server is ended with the children
+
+
+def test_a_forked_node_reads_its_keys_from_its_pipe_and_exits_with_its_own_status(tmp_path):
+    sc = load_scenario("paper")
+    master = new_master()
+    roles = key_roles(sc, "model")
+    texts = {"agent-1": keyring_text(master, "forks", "agent-2", roles),  # another's keys
+             "agent-2": "not a keyring"}
+    sup = Supervisor(texts.__getitem__)
+    sup.start_forks()
+    try:
+        children = []
+        for role in texts:
+            robot = int(role[-1])
+            c = Child(role, robot, [*NODES, "agent", "--scenario", "paper", "--robot", str(robot),
+                                    "--fleet", "forks"], tmp_path / f"{role}.log")
+            sup.spawn(c)
+            children.append(c)
+        for c in children:
+            assert isinstance(c.proc, ForkedProcess)
+            assert sup.reap(c, block=True)
+    finally:
+        sup.stop_all()
+    for c in children:
+        assert c.exit_code == 2, c.log_path.read_text()  # refused, said, exit 2
+        assert "--keys-fd" in c.log_path.read_text()  # it read the pipe it was handed
+    assert "agent-2" in children[0].log_path.read_text()  # the keys it got were agent-2's
+
+
+def test_without_a_server_every_node_is_spawned_and_it_says_why(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(node_forks, "python_module", lambda m: python_module("no.such.module"))
+    sup = Supervisor(None)
+    sup.start_forks()
+    try:
+        c = _emulator(tmp_path, f"spawned-{os.getpid()}")
+        sup.spawn(c)
+        assert not isinstance(c.proc, ForkedProcess)  # a subprocess.Popen
+        assert sup.forks.broken
+        _wait_for(c.log_path, b"on virtual:", c.proc)
+    finally:
+        sup.stop_all()
+    assert c.exit_code == 143
+    assert "nodes started by their command line" in capsys.readouterr().err
+
+
+def test_the_switch_turns_the_server_off(tmp_path, monkeypatch):
+    monkeypatch.setenv("OMNIFLEET_NODE_FORKS", "0")
+    sup = Supervisor(None)
+    sup.start_forks()
+    assert sup.forks is None
+    sup.stop_all()
+
+
+def test_a_forked_node_is_waited_for_and_signalled_like_a_spawned_one(tmp_path):
+    forks = NodeForks()
+    forks.start(dict(os.environ))
+    log = open(tmp_path / "log", "wb")  # noqa: SIM115 - closed below
+    try:
+        proc = forks.fork(_emulator(tmp_path, f"wait-{os.getpid()}").argv, dict(os.environ),
+                          log.fileno(), None)
+        assert proc is not None, forks.broken
+        _wait_for(tmp_path / "log", b"on virtual:", proc)  # its handlers are in place
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(30) == 143
+        assert proc.poll() == 143
+        proc.send_signal(signal.SIGTERM)  # ended: nothing to signal, nothing raised
+    finally:
+        log.close()
+        forks.close()
+    assert forks.fork([*NODES, "emulate"], dict(os.environ), 1, None) is None  # closed
