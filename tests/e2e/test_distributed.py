@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from outputs_doc import undocumented
-from procs import assert_same_series, finish, kill_run, pids_with, start
+from procs import assert_same_series, finish, kill_run, pids_with, start, stat_fields
 from realtime_clock import judged
 
 from deploy.report.metrics import control_figures
@@ -250,6 +250,29 @@ def test_sigint_stops_every_process_of_the_run(tmp_path):
     assert_no_process_left(fleet)
     with open(tmp_path / "recording.mcap", "rb") as f:  # flushed, with its summary
         assert make_reader(f).get_summary() is not None
+
+
+def _fork_servers_of(launcher: int) -> set[int]:
+    return {p for p in pids_with("deploy.nodes.forks")
+            if (f := stat_fields(p)) is not None and int(f[1]) == launcher}
+
+
+def test_a_launcher_killed_outright_leaves_no_process_behind(tmp_path):
+    """SIGKILL gives the launcher no chance to stop anyone: every node, forked and handed
+    to it, gets SIGTERM from the kernel as its parent dies, and so does the fork server."""
+    with running_fleet("sigkill", "--out", str(tmp_path), "--no-record") as (proc, fleet, _s):
+        nodes = pids_with(fleet) - {proc.pid}
+        assert len(nodes) >= 5
+        assert all(int(stat_fields(p)[1]) == proc.pid for p in nodes)  # the launcher's own
+        servers = _fork_servers_of(proc.pid)
+        assert len(servers) == 1  # the nodes came from it
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(30)
+    assert_no_process_left(fleet)
+    deadline = time.monotonic() + 5
+    while any((f := stat_fields(p)) is not None and f[0] != "Z" for p in servers):
+        assert time.monotonic() < deadline, "the fork server outlived its launcher"
+        time.sleep(0.05)  # polling for the kernel's SIGTERM to have ended it
 
 
 def test_an_agent_for_an_unknown_robot_fails_fast():
