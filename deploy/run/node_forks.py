@@ -30,12 +30,29 @@ import sys
 import time
 from collections.abc import Mapping
 
-from deploy.runtime.own_python import python_module
+from deploy.runtime.own_python import child_env, python_module
 
 PR_SET_CHILD_SUBREAPER = 36
+SWITCH = "OMNIFLEET_NODE_FORKS"  # "0" in the environment: every node started by its command line
+# zenoh's runtime pools cut to one worker each: a node needs no more, and every
+# thread is a wake-up competing for 2 cores (the hop 80 -> 60 µs p50, ping-pong)
+ZENOH_RUNTIME = ("(app: (worker_threads: 1), acc: (worker_threads: 1), "
+                 "tx: (worker_threads: 1), rx: (worker_threads: 1), net: (worker_threads: 1))")
 NODES = python_module("deploy.nodes")
 ANSWER_TIMEOUT_S = 60.0  # the first answer waits for the server's imports (a loaded host)
 CLOSE_GRACE_S = 2.0
+
+
+def node_env() -> dict[str, str]:
+    """The environment a node starts with (deploy/runtime/own_python.py), unbuffered."""
+    env = child_env({**os.environ, "PYTHONUNBUFFERED": "1"})
+    env.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
+    return env
+
+
+def wanted() -> bool:
+    """Whether nodes are forked (not switched off by ``OMNIFLEET_NODE_FORKS=0``)."""
+    return os.environ.get(SWITCH, "1") != "0"
 
 
 def _subreaper(on: bool) -> bool:
@@ -171,3 +188,30 @@ class NodeForks:
                 self._server.kill()
                 self._server.wait()
             self._server = None
+
+
+# The command line starts the server first thing, before its own imports (~0.2 s of CPU,
+# which the server's then spend beside it): the first supervisor of the process takes it.
+_early: NodeForks | None = None
+
+
+def start_early() -> None:
+    """Start this process's fork server now, for the run it is about to launch."""
+    global _early
+    if _early is None and wanted():
+        _early = NodeForks()
+        _early.start(node_env())
+
+
+def take_early() -> NodeForks | None:
+    """The server :func:`start_early` started, now the caller's to close (once)."""
+    global _early
+    forks, _early = _early, None
+    return forks
+
+
+def close_early() -> None:
+    """End a server started early that no run took (the command ended before its run)."""
+    forks = take_early()
+    if forks is not None:
+        forks.close()

@@ -19,26 +19,12 @@ from pathlib import Path
 
 from deploy.contract.wire import PLANT_ROLE
 from deploy.run.kill_schedule import PAUSE, RESUME, KillSchedule
-from deploy.run.node_forks import NodeForks
+from deploy.run.node_forks import NodeForks, node_env, take_early, wanted
 from deploy.run.plan import Child, restart_of
 from deploy.runtime.node_runtime import StopFlag
-from deploy.runtime.own_python import child_env
 
 STOP_GRACE_S = 3.0
-FORKS_SWITCH = "OMNIFLEET_NODE_FORKS"  # "0": every node started by its command line
 REJOIN_GRACE_S = 3.0  # a restarted node may exit this long after the others
-# zenoh's runtime pools cut to one worker each: a node needs no more, and every
-# thread is a wake-up competing for 2 cores (the hop 80 -> 60 µs p50, ping-pong)
-ZENOH_RUNTIME = ("(app: (worker_threads: 1), acc: (worker_threads: 1), "
-                 "tx: (worker_threads: 1), rx: (worker_threads: 1), net: (worker_threads: 1))")
-
-
-def _child_env() -> dict[str, str]:
-    env = child_env({**os.environ, "PYTHONUNBUFFERED": "1"})
-    env.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
-    return env
-
-
 class RunFailed(RuntimeError):
     """A child died, or the fleet never came up."""
 
@@ -85,9 +71,11 @@ class Supervisor:
         by the time they start (deploy/nodes/forks.py); without it (or with
         ``OMNIFLEET_NODE_FORKS=0`` in the environment) each node is started by its
         command line. :meth:`stop_all` ends it."""
-        if os.environ.get(FORKS_SWITCH, "1") != "0" and self.forks is None:
-            self.forks = NodeForks()
-            self.forks.start(_child_env())
+        if wanted() and self.forks is None:
+            self.forks = take_early()  # started by the command line before its imports
+            if self.forks is None:
+                self.forks = NodeForks()
+                self.forks.start(node_env())
 
     def start(self, children: list[Child]) -> None:
         for c in children:
@@ -96,7 +84,7 @@ class Supervisor:
     def spawn(self, child: Child) -> None:
         child.log_path.parent.mkdir(parents=True, exist_ok=True)
         child.log = open(child.log_path, "wb")  # noqa: SIM115 - closed in reap
-        env = _child_env()
+        env = node_env()
         keys = None
         if child.zenoh and self.keyring_of is not None:
             keys = _keys_pipe(self.keyring_of(child.role))

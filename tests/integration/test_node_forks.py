@@ -131,3 +131,29 @@ def test_a_forked_node_is_waited_for_and_signalled_like_a_spawned_one(tmp_path):
         log.close()
         forks.close()
     assert forks.fork([*NODES, "emulate"], dict(os.environ), 1, None) is None  # closed
+
+
+def test_the_command_line_forks_only_for_a_run_that_starts_a_fleet():
+    from deploy.cli import starts_a_fleet
+
+    assert starts_a_fleet(["run", "paper", "--plant", "model"])
+    assert not starts_a_fleet(["run", "paper", "--in-process"])
+    assert not starts_a_fleet(["run", "--help"])
+    assert not starts_a_fleet(["bench", "--quick"])
+
+
+def _our_fork_servers() -> set[int]:
+    return {p for p in pids_with("deploy.nodes.forks")
+            if (f := stat_fields(p)) is not None and int(f[1]) == os.getpid() and f[0] != "Z"}
+
+
+def test_a_run_refused_before_it_starts_leaves_no_fork_server(tmp_path, capsys):
+    """The command line starts the server before its imports; a run refused by its
+    arguments never takes it, and the command ends it on the way out."""
+    from deploy.cli import main
+
+    before = _our_fork_servers()
+    assert main(["run", "no-such-scenario", "--out", str(tmp_path / "run")]) == 2
+    assert "no-such-scenario" in capsys.readouterr().err
+    assert _our_fork_servers() == before
+    assert node_forks.take_early() is None
