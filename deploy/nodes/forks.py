@@ -69,7 +69,8 @@ def _preload() -> None:
 def _become_node(request: dict, fds: list[int], go: int, server: socket.socket) -> list[str]:
     """In the forked node: its session, streams, environment and title; its arguments."""
     server.close()
-    os.read(go, 1)  # the launcher's child now (b"" if the server died: go on regardless)
+    if os.read(go, 1) != b"g":  # the server died before it knew this node was handed over
+        os._exit(1)  # (the launcher gave up on it, or it was killed): never run unwatched
     os.close(go)
     os.setsid()
     log = fds[0]

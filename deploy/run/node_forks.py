@@ -171,10 +171,15 @@ class NodeForks:
         return ForkedProcess(int(answer["pid"]), argv)
 
     def _give_up(self, why: str) -> None:
+        """Spawn from now on, and end the server: a node it forks after this (an answer
+        given up on) would find it gone before it was told to run, and exits."""
         if self.broken is None:
             self.broken = why
             print(f"omnifleet run: nodes started by their command line ({why})",
                   file=sys.stderr, flush=True)
+        if self._server is not None and self._server.poll() is None:
+            self._server.kill()
+        self.close()
 
     def close(self) -> None:
         """End the server: it leaves when its socket closes; by pid after a grace."""

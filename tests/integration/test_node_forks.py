@@ -157,3 +157,29 @@ def test_a_run_refused_before_it_starts_leaves_no_fork_server(tmp_path, capsys):
     assert "no-such-scenario" in capsys.readouterr().err
     assert _our_fork_servers() == before
     assert node_forks.take_early() is None
+
+
+NOT_TOLD = """
+import os, socket, sys
+from deploy.nodes import forks
+go_r, go_w = os.pipe()
+os.close(go_w)  # the server died before it said the node was handed over
+a, b = socket.socketpair()
+log = os.open(sys.argv[1], os.O_WRONLY)
+forks._become_node({"args": ["agent"], "env": {}}, [log], go_r, a)
+print("ran anyway")
+"""
+
+
+def test_a_node_its_server_never_told_to_run_exits_before_anything(tmp_path):
+    """A node whose server died (or was ended by a launcher that gave up waiting for its
+    answer) before saying it was handed over would run unwatched: it exits at once."""
+    import subprocess
+    import sys
+
+    log = tmp_path / "log"
+    log.write_bytes(b"")
+    r = subprocess.run([sys.executable, "-c", NOT_TOLD, str(log)], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 1 and "ran anyway" not in r.stdout, r.stderr
+    assert log.read_bytes() == b""
