@@ -17,6 +17,7 @@ from deploy.report.run_folder import prepare as prepare_run_folder
 from deploy.report.summary import summary
 from deploy.report.verdict import divergence_banner, verdict_line
 from deploy.runtime.fault_model import fault_metrics
+from deploy.runtime.heap import frozen_heap
 from deploy.runtime.plants import CAN_EMULATED, PLANTS
 
 RECORDING = "recording.mcap"
@@ -77,7 +78,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.in_process:
             metrics = _run_in_process(sc, args, plant, plan, out, label, live, drawing)
         else:
-            metrics = _run_distributed(sc, args, plant, out, label, live, drawing)
+            with frozen_heap():  # what start-up built, out of the full passes (heap.py)
+                metrics = _run_distributed(sc, args, plant, out, label, live, drawing)
             if metrics is None:
                 return 1
     finally:

@@ -26,3 +26,23 @@ def test_start_up_is_frozen_and_the_loop_still_collected():
     assert frozen >= 100_000  # the tables, out of every pass
     assert walked < 1_000  # a pass walks almost nothing of start-up
     assert collected >= 2  # the loop's cycle (two lists) is collected as before
+
+
+FROZEN_FOR_A_WHILE = """
+import gc
+from deploy.runtime.heap import frozen_heap
+tables = [[i] for i in range(100_000)]
+with frozen_heap():
+    inside = gc.get_freeze_count()
+after = gc.get_freeze_count()
+print(inside, after)
+"""
+
+
+def test_the_launchers_run_gives_the_heap_back_to_the_collector_after_it():
+    """The launcher freezes what start-up built for its run (a pytest process or any other
+    caller of the command line lives on after it): everything is walked again after."""
+    out = subprocess.run([sys.executable, "-c", FROZEN_FOR_A_WHILE], capture_output=True,
+                         text=True, check=True, timeout=60).stdout.split()
+    inside, after = map(int, out)
+    assert inside >= 100_000 and after == 0
