@@ -25,6 +25,8 @@ from deploy.runtime.node_runtime import StopFlag
 
 STOP_GRACE_S = 3.0
 REJOIN_GRACE_S = 3.0  # a restarted node may exit this long after the others
+
+
 class RunFailed(RuntimeError):
     """A child died, or the fleet never came up."""
 
