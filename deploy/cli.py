@@ -146,15 +146,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def starts_a_fleet(argv: list[str]) -> bool:
-    """``omnifleet run ...`` without ``--in-process`` (or help): its nodes will be forked."""
-    return (argv[:1] == ["run"] and "--in-process" not in argv
-            and not {"-h", "--help"} & set(argv))
+def fleet_clock(argv: list[str]) -> str | None:
+    """The clock of the fleet ``omnifleet run ...`` will start (``--clock``, lockstep by
+    default), or None: not a run, ``--in-process``, or help."""
+    if argv[:1] != ["run"] or "--in-process" in argv or {"-h", "--help"} & set(argv):
+        return None
+    clock = "lockstep"
+    for i, a in enumerate(argv):
+        if a == "--clock" and i + 1 < len(argv):
+            clock = argv[i + 1]
+        elif a.startswith("--clock="):
+            clock = a.removeprefix("--clock=")
+    return clock
 
 
 def main(argv: list[str] | None = None) -> int:
-    if starts_a_fleet(sys.argv[1:] if argv is None else argv):
-        start_early()
+    clock = fleet_clock(sys.argv[1:] if argv is None else argv)
+    if clock is not None:
+        start_early(clock)  # its nodes' fork server, when they are forked
     try:
         from deploy.nodes.entry import dispatch
 

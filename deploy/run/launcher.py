@@ -135,7 +135,7 @@ class Launcher:
         sup.run_dir = run_dir
         endpoint = o.endpoint or endpoint_of(run_dir, LAUNCHER_ROLE)
         try:
-            sup.start_forks()  # it imports what the nodes need while this process goes on
+            sup.start_forks(o.clock)  # it imports what the nodes need meanwhile
             lossless = o.clock == "lockstep"
             datagrams = DatagramPath(run_dir, LAUNCHER_ROLE, lossless) if o.datagrams else None
             node = Node(LAUNCHER_ROLE, obs.keys, obs.codec,

@@ -50,9 +50,13 @@ def node_env() -> dict[str, str]:
     return env
 
 
-def wanted() -> bool:
-    """Whether nodes are forked (not switched off by ``OMNIFLEET_NODE_FORKS=0``)."""
-    return os.environ.get(SWITCH, "1") != "0"
+def wanted(clock: str) -> bool:
+    """Whether a run on ``clock`` forks its nodes: on the lockstep clock, unless switched
+    off by ``OMNIFLEET_NODE_FORKS=0``. A realtime run spawns them: a forked node's first
+    writes to the pages it shares with the server are copy-on-write faults, and they
+    landed in the loop's first periods (`paper` at 1 kHz, 6 alternating pairs: robots
+    unsettled in 3 runs forked, in none spawned; docs/bench.md)."""
+    return clock == "lockstep" and os.environ.get(SWITCH, "1") != "0"
 
 
 def _subreaper(on: bool) -> bool:
@@ -200,10 +204,11 @@ class NodeForks:
 _early: NodeForks | None = None
 
 
-def start_early() -> None:
-    """Start this process's fork server now, for the run it is about to launch."""
+def start_early(clock: str) -> None:
+    """Start this process's fork server now, for the run on ``clock`` it is about to
+    launch (nothing when that run spawns its nodes)."""
     global _early
-    if _early is None and wanted():
+    if _early is None and wanted(clock):
         _early = NodeForks()
         _early.start(node_env())
 

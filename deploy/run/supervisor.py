@@ -19,7 +19,7 @@ from pathlib import Path
 
 from deploy.contract.wire import PLANT_ROLE
 from deploy.run.kill_schedule import PAUSE, RESUME, KillSchedule
-from deploy.run.node_forks import NodeForks, node_env, take_early, wanted
+from deploy.run.node_forks import NodeForks, close_early, node_env, take_early, wanted
 from deploy.run.plan import Child, restart_of
 from deploy.runtime.node_runtime import StopFlag
 
@@ -68,12 +68,14 @@ class Supervisor:
         self.children: list[Child] = []
         self.forks: NodeForks | None = None  # the nodes' fork server, once started
 
-    def start_forks(self) -> None:
+    def start_forks(self, clock: str) -> None:
         """Start the nodes' fork server now, so that it has imported what the nodes need
-        by the time they start (deploy/nodes/forks.py); without it (or with
-        ``OMNIFLEET_NODE_FORKS=0`` in the environment) each node is started by its
-        command line. :meth:`stop_all` ends it."""
-        if wanted() and self.forks is None:
+        by the time they start (deploy/nodes/forks.py); without it (a realtime run, or
+        ``OMNIFLEET_NODE_FORKS=0`` in the environment: node_forks.wanted) each node is
+        started by its command line. :meth:`stop_all` ends it."""
+        if not wanted(clock):
+            close_early()  # the command line started one for a run that spawns its nodes
+        elif self.forks is None:
             self.forks = take_early()  # started by the command line before its imports
             if self.forks is None:
                 self.forks = NodeForks()
