@@ -92,8 +92,8 @@ class ForkedProcess:
             return self.returncode  # type: ignore[return-value]
         deadline = None if timeout is None else time.monotonic() + timeout
         try:
-            fd = os.pidfd_open(self.pid)
-        except ProcessLookupError:
+            fd = os.pidfd_open(self.pid)  # readable once it has exited
+        except OSError:  # gone already, or a kernel without pidfds: poll instead
             fd = None
         try:
             while self.poll() is None:
@@ -102,6 +102,8 @@ class ForkedProcess:
                     raise subprocess.TimeoutExpired(self.args, timeout or 0.0)
                 if fd is not None:
                     select.select([fd], [], [], left)
+                else:
+                    time.sleep(0.01 if left is None else min(0.01, left))
         finally:
             if fd is not None:
                 os.close(fd)
