@@ -363,11 +363,11 @@ class PlantNode:
         with self.node.mailbox.lock:
             for i, rid in enumerate(self.ids):
                 cmd = self.newest.get(rid)
-                if cmd is None or rid in self.unpowered or cmd.k >= k:
-                    if cmd is None or rid in self.unpowered:
-                        self.own_torques[i] = False
+                if cmd is not None and rid not in self.unpowered and cmd.k >= k:
+                    continue  # its agent's own command for step k
+                self.own_torques[i] = False  # zero torque, or a look-ahead below
+                if cmd is None or rid in self.unpowered:
                     continue
-                self.own_torques[i] = False
                 planned = torques_at(cmd.k, cmd.torques, cmd.plan, k)
                 self.torques[i], self.v_cmd[i] = self.bounds.applied(planned, cmd.v_cmd)
 
