@@ -12,6 +12,7 @@ behavior.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import replace
 
@@ -55,6 +56,7 @@ from agents.formation import (
     scale_at_vec,
 )
 from agents.fusion import (
+    AVOIDANCE,
     fuse,
     fuse_tasks,
     order_by_priority,
@@ -209,10 +211,28 @@ def _tasks(q, target, v_fd, obstacle, robot):
     return tasks
 
 
+def _closing_rate_tie(ranked) -> bool:
+    """Whether an avoidance behavior's closing rate J v is zero to rounding for the
+    velocity fused from a chain "approaching" can reach: there J v < 0 is a tie, which
+    the compiled kernel and numpy round either way (found with q = (1, 0, 0), target
+    (0, 1, 0), the obstacle at (1, 1) and the robot at (2, 1): J v = 0 exactly for FRCB
+    while FDB alone drives)."""
+    avoid = [b for b in ranked if b.name in AVOIDANCE]
+    for r in range(len(avoid) + 1):
+        for engaged in itertools.combinations(avoid, r):
+            v = fuse([b for b in ranked if b.name not in AVOIDANCE or any(b is e for e in engaged)])
+            scale = 1.0 + float(np.abs(v).sum())
+            if any(abs(float(b.jacobian[0] @ v)) <= 1e-9 * scale for b in avoid):
+                return True
+    return False
+
+
 @SETTINGS
 @given(q=st.tuples(comp, comp, angle), target=st.tuples(comp, comp, angle), v_fd=vec3,
        obstacle=st.tuples(st.floats(-2.0, 2.0), st.floats(-2.0, 2.0)),
        robot=st.tuples(st.floats(-1.5, 1.5), st.floats(-1.5, 1.5)), v=vec3)
+@example(q=(1.0, 0.0, 0.0), target=(0.0, 1.0, 0.0), v_fd=(0.0, 0.0, 0.0), obstacle=(0.0, 1.0),
+         robot=(1.0, 1.0), v=(0.0, 0.0, 0.0))  # a tie of FRCB's closing rate (_closing_rate_tie)
 def test_fusion_vec_equals_fusion(q, target, v_fd, obstacle, robot, v):
     obstacle = (q[0] + obstacle[0], q[1] + obstacle[1])
     robot = (q[0] + robot[0], q[1] + robot[1])
@@ -223,6 +243,8 @@ def test_fusion_vec_equals_fusion(q, target, v_fd, obstacle, robot, v):
         ranked_tasks = sorted(tasks, key=lambda t: priority.index(t.name))
         ranked = order_by_priority(outputs, priority)
         for engage in ("inside", "approaching"):
+            if engage == "approaching" and _closing_rate_tie(ranked):
+                continue  # either chain is right: the two roundings may decide it apart
             chain, fused = supervise_tasks(ranked_tasks, engage)
             ref_chain = supervise(ranked, engage)
             assert [t.name for t in chain] == [b.name for b in ref_chain]
