@@ -36,6 +36,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 import pytest
+from background_cpu import background_usage_s
 
 T = TypeVar("T")
 HOPELESS = 4.0  # loop jitter p99 in control periods beyond which a retry is not worth it
@@ -52,10 +53,17 @@ class MachineLoad:
     wall_s: float = 0.0
     busy_cores: float | None = None  # the whole machine (None: /proc/stat unreadable)
     ours_cores: float = 0.0  # this test process and its reaped descendants (the run)
+    # the suite's first phase, run beside this one in a CPU group of low weight
+    # (tests/background_cpu.py); None: no such phase
+    background_cores: float | None = None
 
     @property
     def others_cores(self) -> float | None:
-        return None if self.busy_cores is None else max(0.0, self.busy_cores - self.ours_cores)
+        """What programs other than the run took; the suite's background phase is not
+        one: it takes only what the run's processes leave (tests/background_cpu.py)."""
+        if self.busy_cores is None:
+            return None
+        return max(0.0, self.busy_cores - self.ours_cores - (self.background_cores or 0.0))
 
     @property
     def loaded(self) -> bool:
@@ -70,9 +78,11 @@ class MachineLoad:
     def text(self) -> str:
         if self.busy_cores is None:
             return "the machine's load could not be read"
+        beside = ("" if self.background_cores is None else
+                  f", the suite's background phase {self.background_cores:.2f}")
         return (f"other programs took {self.others_cores:.2f} of {self.cores} cores over the "
                 f"run's {self.wall_s:.0f} s (the machine {self.busy_cores:.2f}, the run "
-                f"{self.ours_cores:.2f})")
+                f"{self.ours_cores:.2f}{beside})")
 
 
 def _busy_s() -> float | None:
@@ -97,15 +107,17 @@ def measured() -> Iterator[MachineLoad]:
     """The machine's load over the block (filled in as the block ends: run the test's
     processes to their exit inside it, so that their CPU time is counted as ours)."""
     load = MachineLoad(os.cpu_count() or 1)
-    t0, busy0, ours0 = time.monotonic(), _busy_s(), _ours_s()
+    t0, busy0, ours0, beside0 = time.monotonic(), _busy_s(), _ours_s(), background_usage_s()
     try:
         yield load
     finally:
         load.wall_s = max(time.monotonic() - t0, 1e-9)
-        busy1 = _busy_s()
+        busy1, beside1 = _busy_s(), background_usage_s()
         if busy0 is not None and busy1 is not None:
             load.busy_cores = (busy1 - busy0) / load.wall_s
         load.ours_cores = (_ours_s() - ours0) / load.wall_s
+        if beside0 is not None and beside1 is not None:
+            load.background_cores = (beside1 - beside0) / load.wall_s
 
 
 def _jitter_periods(metrics: dict[str, Any]) -> float | None:

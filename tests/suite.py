@@ -13,6 +13,19 @@
    no judge marks still run on the wall clock with timeouts that assume their cores, and
    a busy machine changes how fast a probe comes up against its fleet.
 
+The two phases run **side by side** where a CPU group can be made (Linux, root or a
+delegated cgroup; tests/background_cpu.py): the second in the foreground, one test at a
+time as before, the first in a group whose CPU weight is a tenth of one ordinary
+process's. The second phase kept about one of two cores busy (its time is its runs'
+simulated seconds), and its processes get a core whenever they want one: its realtime
+nodes run under SCHED_FIFO, its other processes outweigh the group ten to one. The
+first phase takes what is left, and its own tests hold on a starved scheduler (that is
+what puts them in it). A realtime test counts the group's CPU time apart from the other
+programs' (tests/realtime_clock.py). On the 2-core CI machine the suite took ~300 s one
+phase after the other and ~197 s side by side (docs/layout.md). The first phase's report
+is held in a file and printed when it ends; ``SUITE_SIDE_BY_SIDE=0`` runs the phases one
+after the other, and so does a host where no group can be made.
+
 Both phases let Python keep the bytecode it compiles (``__pycache__``, which git
 ignores) even where ``PYTHONDONTWRITEBYTECODE`` is set, as on the CI machine: there
 every process compiled what it imported anew, pytest's assertion rewriting of every
@@ -28,10 +41,11 @@ of the caller narrows each phase's own selection::
                                                # says so and counts as passed
     python tests/suite.py -m "not slow"        # both phases, without the slow tests
 
-Exit status: 0 when both phases passed, else the first failing phase's pytest status.
-Ctrl-C reaches pytest from the terminal as well (one process group): this waits until
-pytest has ended its tests' processes, runs no further phase, and exits 130; a SIGTERM
-is passed on to pytest and its workers as a SIGINT (the same ending), then 143.
+Exit status: 0 when both phases passed, else the first failing phase's pytest status
+(with ``-x``, a phase that fails ends the other). Ctrl-C reaches pytest from the
+terminal as well (one process group): this waits until pytest has ended its tests'
+processes, runs no further phase, and exits 130; a SIGTERM is passed on to each pytest
+and its workers as a SIGINT (the same ending), then 143.
 ``python -m pytest`` alone still runs every test, one at a time.
 """
 
@@ -42,12 +56,19 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import IO
+
+from background_cpu import USAGE_ENV, BackgroundGroup
 
 NOTHING_COLLECTED = 5  # pytest's exit status when the selection is empty
 MAX_WORKERS = 8  # past this, worker start-up outweighs what it spreads
 
 PARALLEL = "not realtime and (not e2e or load_safe)"
 SERIAL = "realtime or (e2e and not load_safe)"
+SIDE_BY_SIDE = "SUITE_SIDE_BY_SIDE"  # "0": the phases one after the other
 
 
 def workers() -> int:
@@ -101,9 +122,11 @@ def combined(statuses: list[int]) -> int:
 
 
 def pytest_env() -> dict[str, str]:
-    """This environment, with bytecode written (the module's docstring)."""
+    """This environment, with bytecode written (the module's docstring), without the
+    suite's own switch (the fleets' nodes would inherit it)."""
     env = dict(os.environ)
     env.pop("PYTHONDONTWRITEBYTECODE", None)
+    env.pop(SIDE_BY_SIDE, None)
     return env
 
 
@@ -119,48 +142,126 @@ def children(pid: int) -> list[int]:
     return out
 
 
-def run_phase(args: list[str]) -> tuple[int, int | None]:
-    """pytest with ``args``, to its end: (its status, 130 or 143 when interrupted).
-
-    A SIGTERM reaches pytest and its pytest-xdist workers as a SIGINT each, as Ctrl-C
-    from a terminal reaches the whole foreground job: the workers end their tests at
-    once. A SIGINT to the controller alone left a worker's test running until execnet
-    gave up on it (the suite took 6-8 s to end after a SIGTERM, against 1-2 s after
-    Ctrl-C)."""
-    proc = subprocess.Popen([sys.executable, "-m", "pytest", *args], env=pytest_env())
-    interrupted: int | None = None
-
-    def on_term(_signum: int, _frame: object) -> None:
-        nonlocal interrupted
-        interrupted = 143
+def _interrupt(procs: list[subprocess.Popen]) -> None:
+    """SIGINT to each pytest and its workers (what Ctrl-C from a terminal does)."""
+    for proc in procs:
         for pid in [proc.pid, *children(proc.pid)]:  # pytest ends its tests' processes
             try:
                 os.kill(pid, signal.SIGINT)
             except ProcessLookupError:  # gone meanwhile
                 pass
 
+
+@dataclass
+class Phase:
+    """One pytest run of the suite: its arguments, environment, where its output goes
+    (None: this terminal) and the CPU group it runs in (None: this process's)."""
+
+    args: list[str]
+    env: dict[str, str]
+    log: IO[str] | None = None
+    group: BackgroundGroup | None = None
+
+
+def run_phases(runs: list[Phase], on_end: Callable[[int, int], bool] = lambda _i, _s: False,
+               ) -> tuple[list[int], int | None]:
+    """pytest for each phase at once, each to its end: (their statuses, 130 or 143 when
+    interrupted). ``on_end(i, status)`` as phase ``i`` ends: True ends the others (``-x``).
+
+    A SIGTERM reaches each pytest and its pytest-xdist workers as a SIGINT each, as
+    Ctrl-C from a terminal reaches the whole foreground job: the workers end their tests
+    at once. A SIGINT to the controller alone left a worker's test running until execnet
+    gave up on it (the suite took 6-8 s to end after a SIGTERM, against 1-2 s after
+    Ctrl-C)."""
+    interrupted: int | None = None
+    procs: list[subprocess.Popen] = []
+
+    def on_term(_signum: int, _frame: object) -> None:
+        nonlocal interrupted
+        interrupted = 143
+        _interrupt(procs)
+
     previous = signal.signal(signal.SIGTERM, on_term)
     try:
-        while True:
+        for run in runs:
+            procs.append(subprocess.Popen(
+                [sys.executable, "-m", "pytest", *run.args], env=run.env, stdout=run.log,
+                stderr=None if run.log is None else subprocess.STDOUT))
+            if run.group is not None:  # before its workers start: they follow it there
+                run.group.add(procs[-1].pid)
+        statuses: list[int | None] = [None] * len(procs)
+        while None in statuses:
             try:
-                return proc.wait(), interrupted
+                for i, proc in enumerate(procs):
+                    if statuses[i] is None and proc.poll() is not None:
+                        statuses[i] = proc.returncode
+                        if on_end(i, proc.returncode):
+                            _interrupt([p for p in procs if p.poll() is None])
+                if None in statuses:
+                    wait_any()
             except KeyboardInterrupt:  # pytest heard it too: wait for it to end its own
                 interrupted = interrupted or 130
+        return [int(s) for s in statuses], interrupted
     finally:
         signal.signal(signal.SIGTERM, previous)
 
 
-def main(argv: list[str]) -> int:
+def wait_any() -> None:
+    """Until a child of this process has ended, left for its ``Popen`` to reap (the
+    suite's children are its phases' pytest processes)."""
+    try:
+        os.waitid(os.P_ALL, 0, os.WEXITED | os.WNOWAIT)
+    except ChildProcessError:
+        pass
+
+
+def run_one_after_the_other(named: list[tuple[str, list[str]]], argv: list[str]) -> int:
     statuses = []
-    for name, args in phases(argv, importlib.util.find_spec("xdist") is not None):
+    for name, args in named:
         print(f"== tests: {name}", flush=True)
-        status, interrupted = run_phase(args)
+        (status,), interrupted = run_phases([Phase(args, pytest_env())])
         if interrupted is not None:
             return interrupted
         statuses.append(status)
         if status not in (0, NOTHING_COLLECTED) and ("-x" in argv or "--exitfirst" in argv):
             break
     return combined(statuses)
+
+
+def run_side_by_side(named: list[tuple[str, list[str]]], argv: list[str],
+                     group: BackgroundGroup) -> int:
+    """The first phase in ``group`` (its output printed as it ends), the second in the
+    foreground, at the same time (tests/background_cpu.py)."""
+    (first, first_args), (second, second_args) = named
+    print(f"== tests: {first}, beside the next phase at a tenth of a process's CPU weight "
+          "(its report follows when it ends)", flush=True)
+    print(f"== tests: {second}", flush=True)
+    stop_early = "-x" in argv or "--exitfirst" in argv
+
+    with tempfile.TemporaryFile("w+") as log:
+        def on_end(i: int, status: int) -> bool:
+            if i == 0:
+                log.seek(0)
+                print(f"\n== tests: {first}: ended\n{log.read()}", end="", flush=True)
+            return stop_early and status not in (0, NOTHING_COLLECTED)
+
+        try:
+            statuses, interrupted = run_phases(
+                [Phase(first_args, pytest_env(), log, group),
+                 Phase(second_args, {**pytest_env(), USAGE_ENV: str(group.usage)})], on_end)
+        finally:
+            group.remove()
+    return interrupted if interrupted is not None else combined(statuses)
+
+
+def main(argv: list[str]) -> int:
+    named = phases(argv, importlib.util.find_spec("xdist") is not None)
+    group = None
+    if os.environ.get(SIDE_BY_SIDE, "1") != "0":
+        group = BackgroundGroup.make(f"omnifleet-suite-{os.getpid()}")
+    if group is None:
+        return run_one_after_the_other(named, argv)
+    return run_side_by_side(named, argv, group)
 
 
 if __name__ == "__main__":

@@ -218,7 +218,9 @@ def test_bring_up_names_a_drive_that_does_not_answer(lab, rig_factory, monkeypat
 
     # what a silent drive costs is SDO_TIMEOUT_S a try: shorter here, the same refusal
     monkeypatch.setattr(cia402_driver, "SDO_TIMEOUT_S", 0.2)
-    r = rig_factory(lab, bring_up=False, host_ids=(1, 2, 3, 5))
+    # the silent drive first: the refusal does not wait on the others' configuration,
+    # which took the whole second on a machine busy with other tests
+    r = rig_factory(lab, bring_up=False, host_ids=(5, 1, 2, 3))
     with pytest.raises(DriveError, match="node 5: SDO failed"):
         r.bring_up(timeout_s=1.0)
 

@@ -11,8 +11,9 @@ import time
 from pathlib import Path
 
 import pytest
+from background_cpu import BackgroundGroup
 from procs import running
-from suite import SERIAL
+from suite import SERIAL, SIDE_BY_SIDE
 
 SUITE = Path(__file__).resolve().parent.parent / "suite.py"
 
@@ -62,15 +63,33 @@ def signal_states(root: int) -> list[str]:
     return out
 
 
+def groups_of_suites() -> set[str] | None:
+    """The background CPU groups of suites (tests/background_cpu.py) under this process's
+    own; None where no group can be made."""
+    probe = BackgroundGroup.make(f"omnifleet-probe-{os.getpid()}")
+    if probe is None:
+        return None
+    probe.remove()
+    return {str(p) for d in probe.dirs for p in d.parent.glob("omnifleet-suite-*")}
+
+
+@pytest.mark.parametrize("side_by_side", [False, True], ids=["one-after-the-other", "side-by-side"])
 @pytest.mark.parametrize(("sig", "status"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
 def test_a_signal_ends_the_phase_with_its_processes_and_starts_no_other(
-        tmp_path: Path, sig: signal.Signals, status: int) -> None:
+        tmp_path: Path, sig: signal.Signals, status: int, side_by_side: bool) -> None:
+    """One after the other, the second phase never starts; side by side (the first in a
+    CPU group of its own), both end, and the group with them."""
+    groups_before = groups_of_suites()
+    if side_by_side and groups_before is None:
+        pytest.skip("no CPU group can be made here (root and a cgroup cpu controller): "
+                    "the suite runs its phases one after the other, the other case")
     (tmp_path / "test_sleeper.py").write_text(SLEEPER)
     pids = tmp_path / "pids"
     suite = subprocess.Popen(
         [sys.executable, "-c", AS_FROM_A_TERMINAL, str(SUITE), str(tmp_path),
          "-p", "no:cacheprovider", "-q"],
-        cwd=tmp_path, env={**os.environ, "SUITE_PIDS": str(pids)},
+        cwd=tmp_path, env={**os.environ, "SUITE_PIDS": str(pids),
+                           SIDE_BY_SIDE: "1" if side_by_side else "0"},
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 60.0
@@ -88,7 +107,11 @@ def test_a_signal_ends_the_phase_with_its_processes_and_starts_no_other(
             raise AssertionError(f"the suite did not end within 60 s of {sig.name}: "
                                  f"{signal_states(suite.pid)}; its output: {exc.output}") from None
         assert suite.returncode == status, out
-        assert f"== tests: {SERIAL}" not in out  # the second phase never started
+        if side_by_side:
+            assert "beside the next phase" in out, out
+            assert groups_of_suites() == groups_before  # its group removed
+        else:
+            assert f"== tests: {SERIAL}" not in out  # the second phase never started
         assert not running(pytest_pid) and not running(child_pid), out
     finally:
         if suite.poll() is None:
