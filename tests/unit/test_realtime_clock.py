@@ -162,3 +162,18 @@ def test_a_nodes_own_report_says_whether_its_loop_kept_its_period():
     for missing in ([], [types.SimpleNamespace(jitter_ns=[])]):
         with pytest.raises(pytest.fail.Exception, match="report .* did not arrive"):
             loop_missed(missing, 0.005, "bridge")
+
+
+def test_the_suites_background_phase_is_not_counted_as_another_program():
+    """The suite's first phase, run beside the realtime tests in a group of low CPU weight
+    (tests/background_cpu.py), takes only what the run leaves: a run that missed its clock
+    beside it fails, and the reason names what the phase took."""
+    beside = MachineLoad(cores=2, wall_s=10.0, busy_cores=1.9, ours_cores=0.9,
+                         background_cores=0.95)
+    assert not beside.loaded and beside.others_cores == pytest.approx(0.05)
+    assert "the suite's background phase 0.95" in beside.text()
+    with pytest.raises(pytest.fail.Exception, match="left alone"):
+        judged(_runs(9.0, 9.5)[0], lambda m: m, "x", _machine(beside))
+    # what the group cannot account for is still others'
+    assert MachineLoad(cores=2, wall_s=10.0, busy_cores=1.9, ours_cores=0.9,
+                       background_cores=0.3).loaded
