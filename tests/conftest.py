@@ -37,6 +37,33 @@ def paper():
     return load_scenario("paper")
 
 
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist's own: it reads -n then
+def pytest_cmdline_main(config: pytest.Config) -> None:
+    """A selection with no test that must run alone (``-m "not e2e and not slow"``, the
+    quick lane) runs over the cores, as tests/suite.py runs its first phase, unless the
+    caller said ``-n`` (tests/lanes.py)."""
+    from lanes import spreads
+    from suite import workers
+
+    o = config.option
+    if (config.pluginmanager.hasplugin("xdist") and not hasattr(config, "workerinput")
+            and getattr(o, "numprocesses", 0) is None and o.dist == "no" and not o.tx
+            and not o.usepdb and not o.collectonly and spreads(o.markexpr or "")):
+        o.numprocesses, o.dist = workers(), "worksteal"
+        config.stash[SPREAD] = o.numprocesses
+
+
+SPREAD = pytest.StashKey[int]()
+
+
+def pytest_report_header(config: pytest.Config) -> str | None:
+    n = config.stash.get(SPREAD, None)
+    if n is None:
+        return None
+    return (f"spread over {n} workers: the selection holds no test that must run alone "
+            "(tests/lanes.py); -n 0 runs it one test at a time")
+
+
 def pytest_sessionfinish(session: pytest.Session) -> None:
     """A pytest-xdist worker (tests/suite.py) hands its fuzz tally to the controller."""
     out = getattr(session.config, "workeroutput", None)
@@ -106,6 +133,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.slow)
         if path.parent.name != "unit" and _judges_the_clock(item):
             item.add_marker(pytest.mark.realtime)
+            item.add_marker(pytest.mark.slow)  # it lasts its run's wall time (tests/lanes.py)
         if path.stem == "test_netns" or (module is not None and hasattr(module, "netns_problem")):
             item.add_marker(pytest.mark.root)
 

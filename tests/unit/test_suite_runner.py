@@ -1,5 +1,6 @@
 """The two-phase suite (tests/suite.py): every test runs in exactly one phase, and the
-suite's status is a failing phase's."""
+suite's status is a failing phase's; a selection spreads over the cores by default only
+when it holds no test that must run alone (tests/lanes.py)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import itertools
 
 import pytest
 from _pytest.mark.expression import Expression  # how pytest evaluates -m
+from lanes import one_at_a_time, possible, spreads
 from suite import NOTHING_COLLECTED, PARALLEL, SERIAL, combined, phases, split_markers
 
 MARKERS = ("e2e", "slow", "realtime", "root", "load_safe")
@@ -58,3 +60,27 @@ def test_a_marker_expression_of_the_caller_narrows_each_phase(args: list[str]) -
 ])
 def test_the_suite_fails_when_a_phase_fails(statuses: list[int], expected: int) -> None:
     assert combined(statuses) == expected
+
+
+@pytest.mark.parametrize(("markexpr", "spread"), [
+    ("not e2e and not slow", True),  # the quick lane
+    ("not slow", True),
+    (PARALLEL, True),
+    ("not e2e", False),  # a realtime integration test is neither e2e ...
+    ("not realtime", False),  # ... and an e2e fleet probe may not be load_safe
+    ("", False),
+    (SERIAL, False),
+    ("slow", False),
+])
+def test_a_selection_spreads_only_when_it_holds_no_test_that_must_run_alone(
+        markexpr: str, spread: bool) -> None:
+    assert spreads(markexpr) is spread
+
+
+@pytest.mark.parametrize("marked", [set(c) for n in range(len(MARKERS) + 1)
+                                    for c in itertools.combinations(MARKERS, n)])
+def test_what_spreads_is_what_the_suite_runs_beside_others(marked: set[str]) -> None:
+    """A test that can exist runs alone in the suite exactly when tests/lanes.py says so."""
+    if possible(marked):
+        alone = Expression.compile(SERIAL).evaluate(lambda name, **_: name in marked)
+        assert one_at_a_time(marked) == alone
