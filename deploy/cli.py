@@ -146,18 +146,27 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+# the plants that run on the wall clock only (deploy/runtime/plants.py, ``realtime_only``;
+# named here, not imported: this is read before the command line's imports)
+REALTIME_ONLY_PLANTS = {"can-emulated"}
+
+
 def fleet_clock(argv: list[str]) -> str | None:
     """The clock of the fleet ``omnifleet run ...`` will start (``--clock``, lockstep by
-    default), or None: not a run, ``--in-process``, or help."""
+    default, realtime for a ``--plant`` that runs on the wall clock only), or None: not a
+    run, ``--in-process``, or help. A scenario's own plant is not read here."""
     if argv[:1] != ["run"] or "--in-process" in argv or {"-h", "--help"} & set(argv):
         return None
-    clock = "lockstep"
+    options: dict[str, str] = {}
     for i, a in enumerate(argv):
-        if a == "--clock" and i + 1 < len(argv):
-            clock = argv[i + 1]
-        elif a.startswith("--clock="):
-            clock = a.removeprefix("--clock=")
-    return clock
+        for name in ("--clock", "--plant"):
+            if a == name and i + 1 < len(argv):
+                options[name] = argv[i + 1]
+            elif a.startswith(f"{name}="):
+                options[name] = a.removeprefix(f"{name}=")
+    if options.get("--plant") in REALTIME_ONLY_PLANTS:
+        return "realtime"
+    return options.get("--clock", "lockstep")
 
 
 def main(argv: list[str] | None = None) -> int:
