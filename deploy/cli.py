@@ -28,6 +28,15 @@ def package_version() -> str:
         return "unknown (not installed)"
 
 
+class _Version(argparse.Action):
+    """``--version``: the package's metadata read only when asked (importlib.metadata
+    costs ~11 ms, on every command otherwise)."""
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        print(f"omnifleet {package_version()}")  # on stdout, as argparse's own
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     from bridges.drivers import DEFAULT_DRIVER, DRIVERS
     from deploy.contract.options import add_option
@@ -45,7 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
         "folder in runs/lab/, ending with a verdict); COMMAND --help says more, README.md "
         "and docs/ the rest.",
     )
-    p.add_argument("--version", action="version", version=f"omnifleet {package_version()}")
+    p.add_argument("--version", action=_Version, nargs=0,
+                   help="show the installed version and exit")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     run = sub.add_parser(
         "run", help="run a scenario and write its report folder",

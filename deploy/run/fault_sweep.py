@@ -22,7 +22,6 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -132,6 +131,9 @@ def run_sweep(scenario: str, drops: list[float], seeds: int, out: Path, jobs: in
             if progress:
                 progress(len(rows), len(grid), rows[-1])
     else:
+        # here, not at the top: the command line builds this command's parser on every run
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
         with ProcessPoolExecutor(max_workers=jobs) as pool:
             futures = [pool.submit(fn, scenario, d, s, folder(d, s), duration, plant)
                        for d, s in grid]

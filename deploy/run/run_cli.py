@@ -111,7 +111,6 @@ def cmd_run(args: argparse.Namespace) -> int:
 def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, label: str, live,
                     drawing=None):
     from deploy.report.outputs import write_run
-    from deploy.report.recorder import McapRecorder
     from deploy.run.runner import run_in_process, run_progress
 
     progress = _with_live(run_progress(label), live)
@@ -130,6 +129,8 @@ def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, l
             print(f"omnifleet run: cannot write to {out} any more ({why}); the run's results "
                   f"go to {usable}/", file=sys.stderr)
         out = usable
+        from deploy.report.recorder import McapRecorder  # mcap: only for a recording
+
         recorder = McapRecorder(out / RECORDING, sim_dt=sc.dt)
     if result.interrupted:
         from deploy.report.outputs import write_interrupted
