@@ -48,7 +48,9 @@ def pytest_cmdline_main(config: pytest.Config) -> None:
     o = config.option
     if (config.pluginmanager.hasplugin("xdist") and not hasattr(config, "workerinput")
             and getattr(o, "numprocesses", 0) is None and o.dist == "no" and not o.tx
-            and not o.usepdb and not o.collectonly and spreads(o.markexpr or "")):
+            and not o.usepdb and not getattr(o, "trace", False)
+            and not getattr(o, "stepwise", False) and not o.collectonly
+            and spreads(o.markexpr or "")):
         o.numprocesses, o.dist = workers(), "worksteal"
         config.stash[SPREAD] = o.numprocesses
 
