@@ -52,10 +52,10 @@ def node_env() -> dict[str, str]:
 
 def wanted(clock: str) -> bool:
     """Whether a run on ``clock`` forks its nodes: on the lockstep clock, unless switched
-    off by ``OMNIFLEET_NODE_FORKS=0``. A realtime run spawns them: a forked node's first
-    writes to the pages it shares with the server are copy-on-write faults, and they
-    landed in the loop's first periods (`paper` at 1 kHz, 6 alternating pairs: robots
-    unsettled in 3 runs forked, in none spawned; docs/bench.md)."""
+    off by ``OMNIFLEET_NODE_FORKS=0``. A realtime run spawns them: forked, `paper` at
+    1 kHz left robots unsettled in 3 of 6 alternating pairs (none spawned), and still in
+    4 of 6 with every page shared with the server copied before the loop, so not for
+    copy-on-write faults; the cause is open (docs/bench.md)."""
     return clock == "lockstep" and os.environ.get(SWITCH, "1") != "0"
 
 

@@ -9,9 +9,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from suite import NOTHING_COLLECTED
 
 REPO = Path(__file__).resolve().parents[2]
-NOTHING_COLLECTED = 5
 
 
 def pytest_run(*args: str) -> subprocess.CompletedProcess:

@@ -8,10 +8,8 @@ import itertools
 
 import pytest
 from _pytest.mark.expression import Expression  # how pytest evaluates -m
-from lanes import one_at_a_time, possible, spreads
+from lanes import MARKERS, one_at_a_time, possible, spreads
 from suite import NOTHING_COLLECTED, PARALLEL, SERIAL, combined, phases, split_markers
-
-MARKERS = ("e2e", "slow", "realtime", "root", "load_safe")
 
 
 @pytest.mark.parametrize("marked", [set(c) for n in range(len(MARKERS) + 1)
