@@ -26,6 +26,7 @@ class FakeNode:
         self.codec = Codec(robot_ids)
         self.counters = Counters()
         self.mailbox = Mailbox()
+        self.costs = self.mailbox.costs  # as Node.costs
         self.received: dict[str, int] = {}
         self.refused: dict[str, int] = {}
         self.peers_alive: set[str] = set()
@@ -78,6 +79,15 @@ class FakeNode:
 
     def declare_alive(self) -> None:
         pass
+
+    def wake_on(self, keys: Any) -> None:  # as Node.wake_on without a datagram path
+        pass
+
+    def stamp_arrivals(self) -> None:  # likewise
+        pass
+
+    def arrival_ns(self) -> int | None:  # nothing here is stamped by a kernel
+        return None
 
     def declare_ready(self) -> None:
         pass

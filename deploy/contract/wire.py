@@ -35,8 +35,9 @@ from agents.degradation import MAX_COMMAND_HORIZON
 
 # 2: Sample, Reply, batched LeaderState/Telemetry, StateLog; 3: safety in Telemetry; 4: no MAC
 # fields in Control and NodeReport (every message of a keyed node is authenticated by its
-# envelope, deploy/contract/mac.py); 5: a node's CPU time in NodeReport; 6: Sample.own_torques
-WIRE_VERSION = 6
+# envelope, deploy/contract/mac.py); 5: a node's CPU time in NodeReport; 6: Sample.own_torques;
+# 7: where a node's loop spent its time (NodeReport.step_costs_ns)
+WIRE_VERSION = 7
 MAX_BODIES = 256  # bodies per perception message
 MAX_ORDER_CHARS = 32
 MAX_ROLE_CHARS = 32
@@ -351,6 +352,8 @@ class NodeReport(Message, frozen=True):
     # plant: samples and replies it could not keep for the run's recording (its record of
     # them failed to write: deploy/runtime/wire_spool.py)
     unrecorded: int = 0
+    # the time its run loop spent in each part of its steps, ns (deploy/runtime/step_costs.py)
+    step_costs_ns: dict[str, int] = {}
 
     def __post_init__(self) -> None:
         if min(self.sent, self.dropped, self.late, self.invalid, self.steps, self.nonfinite,
@@ -362,7 +365,8 @@ class NodeReport(Message, frozen=True):
                 or len(self.received) > MAX_REPORT_KEYS or len(self.faults) > MAX_REPORT_KEYS
                 or len(self.refused) > MAX_REPORT_KEYS or len(self.command_stops) > 1000
                 or len(self.zero_torque) > 1000 or len(self.torque_clipped) > MAX_BODIES
-                or len(self.unanswered) > MAX_BODIES):
+                or len(self.unanswered) > MAX_BODIES or len(self.step_costs_ns) > 32
+                or any(v < 0 or len(k) > MAX_ROLE_CHARS for k, v in self.step_costs_ns.items())):
             raise ValueError("report too large")
         if len(self.zid) > MAX_ROLE_CHARS or len(self.peers) > MAX_BODIES or any(
                 len(p) > MAX_ROLE_CHARS for p in self.peers):

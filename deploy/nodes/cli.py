@@ -130,6 +130,7 @@ def run_node(args: argparse.Namespace, role: str, sender: int, build, lockstep, 
             print(f"omnifleet {role}: {exc}", file=sys.stderr)
             return EXIT_STARTUP
         node.note_links()  # the links of the run (at its end, peers leave one by one)
+        LOOP.costs = node.costs
         with LOOP:
             if args.clock == "lockstep":
                 if batch:

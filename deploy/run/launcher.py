@@ -174,6 +174,7 @@ class Launcher:
         roles = [c.role for c in plan.children if c.zenoh]
         self._wait_ready(node, roles)
         start = time.perf_counter()
+        self.loop_clock.costs = node.costs
         with self.loop_clock:  # this process's CPU over the run (it hears the whole fleet)
             if o.plant == CAN_EMULATED:
                 self._announce_start(node)

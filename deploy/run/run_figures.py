@@ -17,6 +17,7 @@ from deploy.run.observer import Observer
 from deploy.run.plan import Child
 from deploy.runtime.fault_model import fault_metrics, merge_reports
 from deploy.runtime.node_runtime import LoopClock, peak_rss_kb
+from deploy.runtime.step_costs import per_step_us
 
 
 def agent_figures(agents: list[NodeReport | None]) -> dict[str, Any]:
@@ -93,14 +94,30 @@ def process_rows(children: list[Child], reports: dict[str, NodeReport],
                      "received": dict(r.received) if r is not None else {},
                      "cpu_s": round(r.cpu_s, 3) if r is not None else None,
                      "loop_s": round(r.loop_s, 3) if r is not None else None,
+                     "step_costs_ns": dict(r.step_costs_ns) if r is not None else {},
                      "links": sorted(role_of.get(z, z) for z in r.peers) if r is not None
                      else None})
     rows.append({"role": LAUNCHER_ROLE, "robot": None, "pid": os.getpid(),
                  "peak_rss_mb": round(peak_rss_kb() / 1024.0, 1), "exit_code": None,
                  "reported": True,
                  "cpu_s": None if listener_cpu is None else round(listener_cpu.cpu_s, 3),
-                 "loop_s": None if listener_cpu is None else round(listener_cpu.loop_s, 3)})
+                 "loop_s": None if listener_cpu is None else round(listener_cpu.loop_s, 3),
+                 "step_costs_ns": ({} if listener_cpu is None or listener_cpu.costs is None
+                                   else listener_cpu.costs.totals())})
     return rows
+
+
+def add_cost_per_step(rows: list[dict[str, Any]], steps: int) -> None:
+    """Each process's CPU per step of the run (µs; ``cpu_us_per_step``) and the share of
+    each part of a step in it (``parts_us_per_step``: deploy/runtime/step_costs.py)."""
+    for row in rows:
+        cpu, costs = row.get("cpu_s"), row.pop("step_costs_ns", {})
+        if cpu is None or steps <= 0:
+            continue
+        row["cpu_us_per_step"] = round(cpu / steps * 1e6, 1)
+        if costs:
+            row["parts_us_per_step"] = {k: round(v, 1)
+                                        for k, v in per_step_us(costs, cpu, steps).items()}
 
 
 def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: float,
@@ -155,6 +172,7 @@ def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: f
         if late:
             out["restarts_not_rejoined"] = late
     out |= completeness_figures(sc.dt, expected_roles, reports, plant, bridges, obs.clock)
+    add_cost_per_step(out["processes"], out.get("steps_simulated") or obs.steps)
     if obs.clock == "realtime":
         out["latency_ms"] = percentiles_ms(plant.latency_ns if plant else [])
         if bridges:  # on CAN: each command's arrival -> its torque frames on the bus

@@ -17,6 +17,7 @@ from typing import Any
 
 from deploy.contract.wire import MAX_REPORT_SAMPLES, WIRE_VERSION, Control, NodeReport
 from deploy.runtime.fault_model import FaultModel
+from deploy.runtime.step_costs import StepCosts
 from deploy.runtime.transport import Mailbox, Node
 
 START_LEAD_S = 0.3  # realtime: t = 0 this long after ``start`` is sent
@@ -92,24 +93,25 @@ class Periodic:
         """Wait until step k's time; return k (or None when stopped). A wake
         more than one period late counts as a deadline miss and skips ahead."""
         target = self.t0 + self.k * self.period
-        while True:
-            now = time.monotonic()
-            if stop():
-                return None
-            if now >= target:
-                if self.mailbox is not None:
-                    # late: still handle what arrived. A plant that ran late every period
-                    # (the paper at 1 kHz on 2 cores) never waited, so never heard a
-                    # command during the whole run: the robots ran open loop. At most
-                    # one period of it: messages that keep coming faster than their
-                    # handlers run (a flood, a backlog) never hold the loop
-                    self.mailbox.drain(until=now + self.period)
-                break
-            if self.mailbox is not None:
-                # bounded: the wait returns by its timeout whatever keeps arriving
-                self.mailbox.wait_until(stop, min(target - now, 0.05), bounded=True)
+        box = self.mailbox
+        now = time.monotonic()
+        if now < target:
+            if box is not None:
+                box.sleep_until(target, stop)
             else:
-                time.sleep(min(target - now, 0.05))
+                while now < target and not stop():
+                    time.sleep(min(target - now, 0.05))
+                    now = time.monotonic()
+            now = time.monotonic()
+        if stop():
+            return None
+        if box is not None:
+            # what arrived meanwhile, before the step: a plant acts on the commands that
+            # came in the period (they did not wake it). At most one period of it:
+            # messages that keep coming faster than their handlers run (a flood, a
+            # backlog) never hold the loop. (A plant that ran late every period, the
+            # paper at 1 kHz on 2 cores, never waited, so once never heard a command)
+            box.drain(until=now + self.period)
         lateness = now - target
         self.timing.add_jitter(int(lateness * 1e9))
         self.timing.note_late(int(lateness * 1e9), self.k)
@@ -250,9 +252,12 @@ class LoopClock:
     def __init__(self) -> None:
         self.cpu_s = self.loop_s = 0.0
         self._cpu0 = self._wall0 = 0.0
+        self.costs: StepCosts | None = None  # the node's (counted from the loop's start)
 
     def __enter__(self) -> LoopClock:
         self._cpu0, self._wall0 = _process_cpu_s(), time.perf_counter()
+        if self.costs is not None:  # the loop's own parts, as its CPU time
+            self.costs.ns[:] = [0] * len(self.costs.ns)
         return self
 
     def __exit__(self, *_exc: object) -> None:
@@ -284,7 +289,8 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
         deadline_misses=timing.deadline_misses, peak_rss_kb=peak_rss_kb(),
         longest_late_ns=timing.longest_late_ns, longest_late_k=timing.longest_late_k,
         received=dict(node.received), refused=dict(node.refused), zid=node.zid,
-        peers=node.linked_peers(), cpu_s=LOOP.cpu_s, loop_s=LOOP.loop_s, **extra,
+        peers=node.linked_peers(), cpu_s=LOOP.cpu_s, loop_s=LOOP.loop_s,
+        step_costs_ns=node.costs.totals(), **extra,
     ))
     if not node.wait_filed(REPORT_FILED_TIMEOUT_S):
         print(f"{node.role}: the launcher did not say it holds this node's report within "

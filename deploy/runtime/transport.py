@@ -48,6 +48,8 @@ from deploy.contract.wire import (
     encode,
 )
 from deploy.runtime.datagrams import DATA_KINDS, DatagramPath, Dispatch
+from deploy.runtime.step_costs import DECODE, HANDLE, MAC, RECEIVE, SEND, StepCosts, now_ns
+from deploy.runtime.step_costs import ENCODE as ENCODE_PART
 from deploy.runtime.wire_spool import SpoolWriter
 
 MAX_PEER_EVENTS = 10_000
@@ -122,6 +124,7 @@ class Counters:
 
 
 BEHIND_RETRY_S = 0.002  # a waiting node with frames held for a slow receiver retries this often
+MAX_WAIT_S = 0.05  # Mailbox.sleep_until looks at the stop flag at least this often
 
 
 class Mailbox:
@@ -143,6 +146,9 @@ class Mailbox:
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._dgram = datagrams
         self.on_datagram: Callable[[bytes], None] = lambda frame: None
+        # the node's step costs: a frame's reading and handling is ``receive`` (its
+        # handler moves its own parts out: Node.subscribe)
+        self.costs = StepCosts()
 
     def post(self, handler: Callable[[Any], None], item: Any = None) -> None:
         """From any thread (a signal handler too): run ``handler(item)`` on the
@@ -157,8 +163,12 @@ class Mailbox:
 
     def _run(self, entry: tuple[Callable[[Any], None], Any]) -> None:
         handler, item = entry
+        if self._dgram is not None:  # not a frame of the datagram path: no kernel stamp
+            self._dgram.arrived_unix_ns = None
+        t0 = now_ns()
         with self.lock:
             handler(item)
+        self.costs.ns[RECEIVE] += now_ns() - t0
 
     def drain(self, until: float | None = None) -> None:
         """Handle everything already arrived, without waiting; with ``until`` (a
@@ -173,16 +183,21 @@ class Mailbox:
                     return
             if dgram is None:
                 return
-            on = self.on_datagram
+            on, costs = self.on_datagram, self.costs.ns
             while True:
+                t0 = now_ns()
                 frame = dgram.recv()
                 if frame is None:
+                    costs[RECEIVE] += now_ns() - t0
                     return
                 if frame:
                     with self.lock:
                         on(frame)
-                elif not q.empty():  # a wake-up: take what was posted first
-                    break
+                    costs[RECEIVE] += now_ns() - t0
+                else:
+                    costs[RECEIVE] += now_ns() - t0
+                    if not q.empty():  # a wake-up: take what was posted first
+                        break
                 n += 1
                 if until is not None and n % 32 == 0 and time.monotonic() >= until:
                     return
@@ -248,8 +263,10 @@ class Mailbox:
                 else:
                     frame = recv_wait(left)
                 if frame:
+                    t0 = now_ns()
                     with self.lock:
                         on(frame)
+                    self.costs.ns[RECEIVE] += now_ns() - t0
                 while not q.empty():  # posted by another thread (its wake-up: b"")
                     self._run(q.get_nowait())
                 if ready():
@@ -267,6 +284,44 @@ class Mailbox:
             self.drain(deadline if bounded else None)
             if ready():
                 return True
+
+
+    def sleep_until(self, until: float, stop: Callable[[], bool]) -> None:
+        """Wait until ``until`` (time.monotonic()) or ``stop()``, handling what wakes the
+        node meanwhile (what another thread posts; on the datagram path the frames that
+        wake it, :meth:`Node.wake_on`, and any found readable), one at a time: a flood
+        never holds the wait past ``until``. A realtime loop's wait for its next period:
+        one blocking wait when nothing comes, where :meth:`wait_until` looks again
+        before and after it (a period of ``Periodic`` took 4 looks and a wait)."""
+        q, dgram = self._queue, self._dgram
+        if dgram is None:
+            while not stop():
+                left = until - time.monotonic()
+                if left <= 0:
+                    return
+                try:
+                    entry = q.get(timeout=min(left, MAX_WAIT_S))
+                except queue.Empty:
+                    continue
+                self._run(entry)
+            return
+        on, recv_wait = self.on_datagram, dgram.recv_wait
+        while not stop():
+            left = until - time.monotonic()
+            if left <= 0:
+                return
+            if dgram.behind:  # frames held for a slow receiver: send them first
+                dgram.flush()
+                if dgram.behind:
+                    left = min(left, BEHIND_RETRY_S)
+            frame = recv_wait(min(left, MAX_WAIT_S))
+            if frame:
+                t0 = now_ns()
+                with self.lock:
+                    on(frame)
+                self.costs.ns[RECEIVE] += now_ns() - t0
+            while not q.empty():  # posted by another thread (its wake-up: b"")
+                self._run(q.get_nowait())
 
 
 def _nothing(_item: Any) -> None:
@@ -305,6 +360,7 @@ class Node:
         self.received: dict[str, int] = {}  # valid messages per key (what we really heard)
         self.datagrams = datagrams
         self.mailbox = Mailbox(datagrams)
+        self.costs = self.mailbox.costs  # where its run loop spends its time (step_costs.py)
         self._dispatch = Dispatch()
         self.mailbox.on_datagram = self._dispatch
         self._by_datagram: dict[str, bool] = {}  # key -> sent on the datagram path
@@ -430,18 +486,26 @@ class Node:
             self._pubs[key] = pub
         seq = self._seq.get(key, 0)
         self._seq[key] = seq + 1
+        costs = self.costs.ns
         try:
+            t0 = now_ns()
             msg = msg_factory(seq, time.monotonic_ns())
             data = encode(msg)
             if not checked:
                 self.codec.check(type(msg), data)  # the receivers' schema: NaN never leaves
             plain = data
+            t1 = now_ns()
+            costs[ENCODE_PART] += t1 - t0
             if self.keyring is not None:
                 data = self.keyring.seal(data, key)
+                t2 = now_ns()
+                costs[MAC] += t2 - t1
+                t1 = t2
             if by_datagram:
                 self.counters.dropped += self.datagrams.send(key, data)  # type: ignore[union-attr]
             else:
                 pub.put(data)
+            costs[SEND] += now_ns() - t1
             self.counters.sent += 1
             spool = self.spool
             if spool is not None and key in spool.keys:
@@ -452,6 +516,27 @@ class Node:
                 print(f"{self.role}: not sent on {key}: {exc}", file=sys.stderr)
             return None
         return msg
+
+    def wake_on(self, keys: Iterable[str] | None) -> None:
+        """On the datagram path, be woken from a wait only by frames on ``keys`` (None:
+        by every frame); the others are handled at the next wake (realtime loops:
+        :meth:`deploy.runtime.datagrams.DatagramPath.wake_on`). zenoh's deliveries, and
+        whatever another thread posts, still wake the node."""
+        if self.datagrams is not None:
+            self.datagrams.wake_on(keys)
+
+    def stamp_arrivals(self) -> None:
+        """Have the kernel stamp what arrives on the datagram path (:meth:`arrival_ns`)."""
+        if self.datagrams is not None:
+            self.datagrams.stamp_arrivals()
+
+    def arrival_ns(self) -> int | None:
+        """When the message being handled reached this node, on its monotonic clock (ns),
+        if the kernel stamped it (:meth:`stamp_arrivals`, the datagram path); else None."""
+        d = self.datagrams
+        if d is None or d.arrived_unix_ns is None:
+            return None
+        return d.arrived_unix_ns - time.time_ns() + time.monotonic_ns()
 
     def _is_data(self, key: str) -> bool:
         """A data key of the run, sent on the datagram path when this node has one."""
@@ -489,14 +574,19 @@ class Node:
         decode = self.codec.decoder_for(kind, robot)
         open_ = keyring.open if keyring is not None else None
 
+        costs = self.costs.ns
+
         def handle(data: bytes, on: str = key) -> None:  # the node's thread
+            t0 = now_ns()
             if open_ is not None:  # before anything decodes it or looks at its step
                 payload, why = open_(data, on)
                 if payload is None:
                     self.refuse_unsigned(what, why, on)
                     return
                 data = payload
+            t1 = now_ns()
             msg = decode(data)
+            t2 = now_ns()
             if msg is None:
                 counters.invalid += 1
                 self._warn_version()
@@ -508,6 +598,12 @@ class Node:
             if spool is not None and on in spool.keys:
                 spool.write(on, data)
             on_message(msg)
+            t3 = now_ns()
+            # the parts of this frame, out of the receive span that holds them (Mailbox)
+            costs[MAC] += t1 - t0
+            costs[DECODE] += t2 - t1
+            costs[HANDLE] += t3 - t2
+            costs[RECEIVE] -= t3 - t0
 
         if "*" in key:  # a wildcard: the key each sample came on
             def arrived(s: Any) -> None:
