@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
 
 import msgspec
 import numpy as np
@@ -50,6 +51,7 @@ from deploy.runtime.fault_model import FaultModel
 from deploy.runtime.lockstep_inputs import AgentLinks
 from deploy.runtime.node_runtime import ControlInbox, FaultGate, StopFlag, Timing, publish_report
 from deploy.runtime.priority import hand_over
+from deploy.runtime.step_costs import LAW, TELEMETRY, now_ns
 from deploy.runtime.step_guard import CLOCK_SKEW_S, JUMP_OK, OwnClock, StepGuard
 from deploy.runtime.transport import Node
 
@@ -59,6 +61,7 @@ FORGET_EVERY = 32  # lockstep: older inputs are dropped every this many steps (a
 # LOOKAHEAD + TICK_EVERY steps ahead; a neighbour answers the samples we get too
 LEADER_AHEAD_STEPS = LOOKAHEAD + TICK_EVERY + JUMP_OK
 SHARE_AHEAD_STEPS = JUMP_OK + 1
+REALTIME_SHARES_KEPT = 8  # realtime: a neighbour's newest shares kept by step
 TELEMETRY_HZ = 100.0  # realtime telemetry rate (lockstep: every step)
 TELEMETRY_BATCH_S = 0.1  # telemetry rows go out in batches of this much run time (at most)
 # ... and at most this many rows (lockstep: 8 steps a message, ~2.1 kB): zenoh 1.10 grows a
@@ -67,8 +70,7 @@ TELEMETRY_BATCH_S = 0.1  # telemetry rows go out in batches of this much run tim
 TELEMETRY_BATCH_MAX = 8
 
 
-@dataclass(frozen=True)
-class LeaderPoint:
+class LeaderPoint(NamedTuple):
     """The leader at one step, unpacked from a (batched) :class:`LeaderState`."""
 
     k: int
@@ -88,14 +90,26 @@ def share_from_msg(m: Reply) -> ShareData:
     return m.share
 
 
-def realtime_ages(state: Sample, leader: LeaderPoint | None,
-                  shares: dict[int, Reply], dt: float) -> InputAges:
-    """Realtime: how much older than one period each input is, by the step
-    indices the messages carry (the leader's and the plant's clocks tick
-    together from the same start)."""
-    leader_s = 0.0 if leader is None else max(0.0, state.t - leader.t - dt)
-    return InputAges(0.0, leader_s, {j: max(0.0, (state.k - 1 - m.k) * dt)
-                                     for j, m in shares.items()})
+def step_input(by_step: dict[int, Any], k: int) -> tuple[Any, int]:
+    """Realtime: the input of step ``k`` and its step, else the newest before it (None,
+    -1: none); older ones are forgotten (the table keeps what is still to come)."""
+    found = by_step.get(k)
+    if found is not None:
+        kk = k
+    else:
+        kk = max((s for s in by_step if s < k), default=-1)
+        found = by_step.get(kk)
+    for s in [s for s in by_step if s < kk]:
+        del by_step[s]
+    return found, kk
+
+
+def step_ages(k: int, leader_k: int, shares: dict[int, Reply], dt: float) -> InputAges:
+    """Realtime: how much older each input is than the one a lockstep step k takes (the
+    leader at k, each neighbour's share of k - 1), by the steps the messages carry (the
+    nodes' clocks tick together from the same start)."""
+    return InputAges(0.0, 0.0 if leader_k < 0 else max(0.0, (k - leader_k) * dt),
+                     {j: max(0.0, (k - 1 - m.k) * dt) for j, m in shares.items()})
 
 
 def _no_clock() -> float:
@@ -138,10 +152,12 @@ class AgentInputs:
 
     states: dict[int, Sample]
     leaders: dict[int, LeaderPoint]
-    shares: dict[tuple[int, int], Reply]
+    shares: dict[tuple[int, int], Reply]  # lockstep: by (neighbour, step)
     newest_share: dict[int, Reply]  # per neighbour, by step
     newest_state: Sample | None = None
     newest_leader: LeaderPoint | None = None
+    # realtime: per neighbour, its shares by step, the newest few (step_input takes them)
+    shares_of: dict[int, dict[int, Reply]] = field(default_factory=dict)
 
     @classmethod
     def empty(cls) -> AgentInputs:
@@ -273,12 +289,23 @@ class AgentNode:
                 refuse_ahead("share", why)
                 return
             at = clock()
-            if lockstep and not guards["sample"].within(m.k, SHARE_AHEAD_STEPS):
-                refuse("share step")
+            if lockstep:
+                if not guards["sample"].within(m.k, SHARE_AHEAD_STEPS):
+                    refuse("share step")
+                    return
+                inp.shares.setdefault((m.robot, m.k), m)
+                if share_guards[m.robot].admit(m.k, at):
+                    inp.newest_share[m.robot] = m
                 return
-            inp.shares.setdefault((m.robot, m.k), m)
-            if share_guards[m.robot].admit(m.k, at):
+            g = share_guards[m.robot]
+            mine = inp.shares_of.setdefault(m.robot, {})
+            if g.admit(m.k, at):
                 inp.newest_share[m.robot] = m
+                mine[m.k] = m
+                if len(mine) > REALTIME_SHARES_KEPT:  # step_input forgets as it takes
+                    del mine[min(mine)]
+            elif g.newest is not None and g.newest - REALTIME_SHARES_KEPT < m.k < g.newest:
+                mine.setdefault(m.k, m)  # late, but maybe still the one of its step
 
         me, gate = agent_role(rid), self._gated
         self.node.subscribe(keys.sample(rid), Sample,
@@ -338,6 +365,12 @@ class AgentNode:
                       file=sys.stderr, flush=True)
         if k % self.telemetry_every:
             return
+        costs = self.node.costs
+        t0, mark = now_ns(), costs.mark()
+        self._telemetry_row(k, t, out, stale)
+        costs.charge(TELEMETRY, t0, mark)
+
+    def _telemetry_row(self, k: int, t: float, out: AgentOutput, stale: int) -> None:
         fdb = out.task_errors.get("FDB")
         f = out.safety
         acted = f is not None and f.active
@@ -378,10 +411,12 @@ class AgentNode:
         if self.hears_leader and lead is None:  # never heard it yet: use own estimate
             lead = (self.core.q0_hat_vec, self.core.v0_hat_vec)
         q, q_dot = state.q, state.q_dot
+        t0 = now_ns()
         out = self.core.step(t, q, q_dot, self.last_shares, lead, obstacles, robots, dt, ages,
                              horizon, speed_cap, state.own_torques)
         plan = [] if self.look_ahead is None else self.look_ahead.plan(
             self.core, out, t, q, q_dot, self.last_shares, lead, obstacles, robots, ages)
+        self.node.costs.add(LAW, t0)
         return out, plan
 
     # -- lockstep -----------------------------------------------------------------
@@ -473,7 +508,15 @@ class AgentNode:
         """``t0_mono`` None: this agent rejoins a running fleet (restarted after a
         crash): t = 0 is read from the plant's first state, and the leader
         estimate and reference restart from what the leader or neighbours say
-        (:meth:`_resync`). ``steps``: the run's (the scenario's unless said)."""
+        (:meth:`_resync`). ``steps``: the run's (the scenario's unless said).
+
+        Each step is built as a lockstep step is: the sample of step k, the leader at
+        step k (its batches run ahead) and each neighbour's share of step k - 1 (its
+        answer to the sample before ours). One that is not in is taken from the newest
+        before it, predicted to its step by its true age (agents/degradation.py). Taking
+        whatever came last instead (the leader of k or k - 1, a neighbour's share of k
+        when it ran first) switched the finite-time terms of eq. (14) from step to step:
+        the wheel torques' second difference was 10-100x lockstep's (docs/bench.md)."""
         steps = self.sc.steps if steps is None else steps
         inp, box, dt = self.inputs, self.node.mailbox, self.sc.dt
         # telemetry is for people and the recorder: at most telemetry_hz, so the
@@ -481,6 +524,9 @@ class AgentNode:
         self.telemetry_every = max(1, round(1.0 / (dt * telemetry_hz)))
         self.telemetry_batch = max(1, min(TELEMETRY_BATCH_MAX,
                                           round(TELEMETRY_BATCH_S * telemetry_hz)))
+        # woken by its robot's sample only: the leader's batches and the neighbours'
+        # shares wait in their sockets until then (deploy/runtime/datagrams.py)
+        self.node.wake_on([self.node.keys.sample(self.rid)])
         last_k = -1
         last_step = None
         pace = LoopPace(dt)
@@ -489,31 +535,36 @@ class AgentNode:
         share_msgs: dict[int, Reply] = {}
         synced = t0_mono is not None
         self.clock.t0_s = t0_mono  # no sender is past the wall clock (step_guard.OwnClock)
-        while not self.stop():
-            box.wait_until(
-                lambda seen=last_k: self.stop() or (inp.newest_state is not None
-                                                    and inp.newest_state.k > seen),
-                1.5 * dt,
-            )
-            if self.stop():
+        stop, monotonic = self.stop, time.monotonic
+
+        def has_new_sample() -> bool:
+            return stop() or (inp.newest_state is not None and inp.newest_state.k > last_k)
+
+        while not stop():
+            if not box.wait_until(has_new_sample, 1.5 * dt, ready_first=True):
+                if stop():
+                    break
+                # no new state for 1.5 periods: stepping again on the old one would
+                # integrate the observer on stale data; wait (the plant zeroes our
+                # torques after its command timeout) and count the miss
+                if inp.newest_state is not None and last_k < steps - 1:
+                    # (none before the first sample; after the run's last only `end`)
+                    self.timing.deadline_misses += 1
+                continue
+            if stop():
                 break
-            now = time.monotonic()
+            box.drain()  # what came meanwhile without waking us: shares, the leader
+            now = monotonic()
             with box.lock:
                 state = inp.newest_state
                 if state is None:
                     continue
-                fresh = state.k > last_k
-                leader = inp.newest_leader
-                share_msgs.update(inp.newest_share)
-                for by_step in (inp.states, inp.leaders, inp.shares):
-                    by_step.clear()  # realtime uses only the newest of each
-            if not fresh:
-                # no new state for 1.5 periods: stepping again on the old one would
-                # integrate the observer on stale data; wait (the plant zeroes our
-                # torques after its command timeout) and count the miss
-                if last_k < steps - 1:  # after the run's last sample only `end` is to come
-                    self.timing.deadline_misses += 1
-                continue
+                inp.states.clear()
+                leader, leader_k = step_input(inp.leaders, state.k)
+                for j in self.neighbours:  # the share of step k - 1, else the newest before
+                    m, _ = step_input(inp.shares_of[j], state.k - 1)
+                    if m is not None:
+                        share_msgs[j] = m
             if synced and (now - t0_mono) - state.t > stale_after:
                 # a sample older than the inputs stay fresh, by our clock: the backlog
                 # of a process that was off the CPU (SIGSTOP, a starved host). Answering
@@ -534,7 +585,7 @@ class AgentNode:
             last_t = state.t
             if any(j not in share_msgs for j in self.neighbours):
                 continue
-            ages = realtime_ages(state, leader, share_msgs, dt)
+            ages = step_ages(state.k, leader_k, share_msgs, dt)
             if synced and h > stale_after:
                 # this process was off the CPU (paused, starved) longer than its inputs
                 # stay fresh: the plant has zeroed the robot meanwhile. Integrating the
@@ -551,7 +602,6 @@ class AgentNode:
                 self.clock.t0_s = t0_mono
             for j, msg in share_msgs.items():
                 self.last_shares[j] = share_from_msg(msg)
-            t = now - t0_mono
             cap = pace.speed_cap()
             if cap < 1.0:  # the loop cannot keep its period: slow the robot, say so
                 self.overloaded_steps += 1
@@ -560,8 +610,11 @@ class AgentNode:
                           f" {pace.typical_s * 1e3:.2f} ms between steps, the median): the robot is slowed"
                           f" to {cap:.0%} of its speed while it lasts (counted: overloaded_steps)",
                           file=sys.stderr, flush=True)
-            out, plan = self._compute(t, state, leader, h, ages, pace.horizon(t - state.t), cap)
-            self._publish_step(state.k, t, state, out, plan, _stale(ages))
+            # the law's time is the sample's (as in lockstep); how late we answer it is
+            # the horizon's (agents/pace.py)
+            out, plan = self._compute(state.t, state, leader, h, ages,
+                                      pace.horizon(now - t0_mono - state.t), cap)
+            self._publish_step(state.k, state.t, state, out, plan, _stale(ages))
             self.steps_done += 1
 
     def _resync(self, state: Sample, leader: LeaderPoint | None,
