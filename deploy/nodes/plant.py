@@ -59,6 +59,7 @@ from deploy.runtime.node_runtime import (
 )
 from deploy.runtime.plants import contact_log, make_plant, sensor_for
 from deploy.runtime.priority import hand_over
+from deploy.runtime.step_costs import LAW, TELEMETRY, now_ns
 from deploy.runtime.step_guard import SEQ_SLACK
 from deploy.runtime.transport import Node
 from deploy.runtime.wire_spool import SpoolWriter, spool_path
@@ -169,15 +170,17 @@ class PlantNode:
         # newer by step (an agent restarted after a crash numbers its messages from 0
         # again, but answers the current step); the same step: the first one stays
         if old is None or m.k > old.k:
+            arrived = self.node.arrival_ns()  # realtime: read at our next period, not as it came
+            arrived = time.monotonic_ns() if arrived is None else arrived
             self.newest[m.robot] = m
-            self.newest_at[m.robot] = time.monotonic()
+            self.newest_at[m.robot] = arrived * 1e-9
             sent = self.sent_stamps.get(m.robot, {}).pop(m.state_seq, None)
             if sent is not None:
                 # answers a recent state: state-to-command latency on our clock. (Only the
                 # answer to the latest state counted before: a plant that runs late, the
                 # paper at 1 kHz on 2 cores, publishes its next sample before the answers
                 # to the last arrive, and reported no latency at all.)
-                self.timing.add_latency(time.monotonic_ns() - sent)
+                self.timing.add_latency(max(0, arrived - sent))
         else:
             self.node.counters.dropped += 1  # out of order: never acted on
 
@@ -202,8 +205,11 @@ class PlantNode:
         checked = within_wire_bound(q, qd)
         stamps_of, last_seq = self.sent_stamps, self.last_state_seq
         own, self.own_torques = self.own_torques, [True] * len(self.ids)
+        costs, t0 = node.costs, now_ns()
+        sensed = self.sense()
+        costs.add(LAW, t0)  # perception: the plant's, as its integration
         for i, (rid, key, (robots, obstacles)) in enumerate(
-                zip(self.ids, self.sample_keys, self.sense(), strict=True)):
+                zip(self.ids, self.sample_keys, sensed, strict=True)):
             if self.unpowered:  # a robot nobody drives is an obstacle to the others
                 off = np.isin(robots[:, 0], list(self.unpowered))
                 obstacles = np.concatenate([obstacles, robots[off]])
@@ -224,9 +230,11 @@ class PlantNode:
         if hand_over_after:
             hand_over()
         # lists of 3 floats as they come (the wire writes a list as it writes a tuple)
+        t0, mark = now_ns(), costs.mark()
         self.log_rows.append(StateRow(k, t, q, qd, [False] * len(self.ids)))
         if len(self.log_rows) >= self.log_every:
             self.flush_log()
+        costs.charge(TELEMETRY, t0, mark)
 
     def flush_log(self) -> None:
         """The robot states gathered so far, to observers, in one message."""
@@ -301,11 +309,16 @@ class PlantNode:
     # -- realtime -------------------------------------------------------------------
     def run_realtime(self, steps: int) -> None:
         dt = self.sc.dt
+        # woken by its clock alone: the commands of a period are read at the next one
+        # (where they act), stamped by the kernel as they came (the latency's end)
+        self.node.wake_on(())
+        self.node.stamp_arrivals()
         start_unix_ns = time.time_ns() + int(START_LEAD_S * 1e9)
         t0 = time.monotonic() + START_LEAD_S
         self._control("start", start_unix_ns=start_unix_ns)
         ticker = Periodic(t0, dt, self.timing, self.node.mailbox)
         k_prev = None
+        costs = self.node.costs
         while not self.stop():
             k = ticker.wait_next(self.stop)
             if k is None or k >= steps:
@@ -313,11 +326,13 @@ class PlantNode:
             if k_prev is not None:
                 # integrate [t_prev, t_k] with what the agents answered meanwhile:
                 # an answer within one period acts as in lockstep
+                t0 = now_ns()
                 self._apply_newest_commands(time.monotonic())
                 for _ in range(k - k_prev):
                     self._play_plans(self.steps_done)
                     self.plant.step(self.steps_done * dt, dt, self.torques, self.v_cmd)
                     self.steps_done += 1
+                costs.add(LAW, t0)
             self._publish_world(k, k * dt)
             k_prev = k
             if k == steps - 1:
