@@ -27,6 +27,7 @@ class FakeNode:
         self.counters = Counters()
         self.mailbox = Mailbox()
         self.costs = self.mailbox.costs  # as Node.costs
+        self.datagrams = None  # no local data path
         self.received: dict[str, int] = {}
         self.refused: dict[str, int] = {}
         self.peers_alive: set[str] = set()

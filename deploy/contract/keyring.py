@@ -48,6 +48,9 @@ MAX_KEYRING_BYTES = 4 * 1024 * 1024
 MAX_CACHED = 4096  # prepared key expressions kept per node (a wildcard hears made-up keys)
 
 UNSIGNED, WRONG_SENDER, BAD_MAC = mac.UNSIGNED, mac.WRONG_SENDER, mac.BAD_MAC
+# what a connection of the local data path says first (deploy/runtime/datagrams.py): the
+# key expression its tag is over (no key of a fleet is one: theirs start with omr/)
+HELLO = "hello"
 
 
 class KeysError(ValueError):
@@ -139,6 +142,10 @@ class Keyring:
         self._me = mac.hint(role)
         roles = list(dict.fromkeys([role, *peers]))
         self._hints = {r: mac.hint(r) for r in roles}
+        self._by_hint: dict[bytes, list[str]] = {}  # the roles of each hint we hold a key with
+        for r in roles:
+            if r in self._pair:
+                self._by_hint.setdefault(self._hints[r], []).append(r)
         self.senders: dict[str, list[str]] = {}  # key -> the roles that may put it
         self.receivers: dict[str, list[str]] = {}  # key -> the roles that get a tag
         if ROUTER_ROLE in roles:  # it would be a sender of every key
@@ -178,6 +185,35 @@ class Keyring:
             if len(self._seal) < MAX_CACHED:
                 self._seal[key_expr] = plan
         return mac.seal(payload, *plan)
+
+    def hello(self, receiver: str) -> bytes | None:
+        """What a connection to ``receiver`` says first: a fresh nonce in an envelope
+        tagged, over :data:`HELLO`, under the key we share with it (None: we have none).
+        The receiver binds the connection to us (:meth:`hello_from`) and takes what follows
+        on it as ours, with no tag of its own: a connected socket is the kernel's, nobody
+        else writes into it (docs/hardening.md, "One host: authenticated connections")."""
+        key = self._pair.get(receiver)
+        if key is None:
+            return None
+        tag = [(self._hints[receiver], mac.prefixed(key, HELLO, self.role, receiver))]
+        return mac.seal(secrets.token_bytes(16), tag, mac.trailer(self._me, 1))
+
+    def hello_from(self, data: bytes) -> str | None:
+        """The role whose :meth:`hello` ``data`` is (its tag checks under the key we share
+        with that role), or None."""
+        head = mac.parse_head(data)
+        if head is None:
+            return None
+        for r in self._by_hint.get(head[1], ()):
+            start = mac.prefixed(self._pair[r], HELLO, r, self.role)
+            payload, _ = mac.open_envelope(data, self._me, {head[1]: [start]})
+            if payload is not None:
+                return r
+        return None
+
+    def may_send(self, role: str, key_expr: str) -> bool:
+        """Whether ``role`` is a sender of ``key_expr`` (what its tag would have to say)."""
+        return role in self.senders.get(key_expr, ())
 
     def open(self, data: bytes, key_expr: str) -> tuple[memoryview | None, str]:
         """(the payload, "") when ``data`` came from a sender of ``key_expr`` with a tag

@@ -80,8 +80,11 @@ class Observer:
         return [k.leader_state, k.state_log_all, f"{k.root}/agent/*/telemetry",
                 k.ctl_all, f"{k.root}/report/*"]
 
-    def on_sample(self, arrived: tuple[str, bytes]) -> None:
-        key, data = arrived
+    def on_sample(self, arrived: tuple[str, bytes] | tuple[str, bytes, str | None]) -> None:
+        """A message heard on ``key``; ``sender``: the role of the authenticated connection
+        it came on (deploy/runtime/datagrams.py), its bytes untagged; None: tagged."""
+        key, data = arrived[0], arrived[1]
+        sender = arrived[2] if len(arrived) > 2 else None
         found = self._kinds.get(key)
         if found is None:
             found = self.keys.kind_of(key)
@@ -90,7 +93,7 @@ class Observer:
             if len(self._kinds) < MAX_KINDS_KEPT:  # a forger's made-up keys stay bounded
                 self._kinds[key] = found
         kind, robot = found
-        if self.keyring is not None:  # before anything decodes or files it
+        if self.keyring is not None and sender is None:  # before anything decodes or files it
             payload, why = self.keyring.open(data, key)
             if payload is None:
                 reason = f"{WHAT[kind]}: {why}"

@@ -60,6 +60,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from deploy.contract.audience import robot_of
+from deploy.contract.keyring import HELLO
 from deploy.contract.wire import LAUNCHER_ROLE, LeaderState, Reply, Sample, StateLog, Telemetry
 
 # the message kinds of the control path and of its observers' series
@@ -86,6 +87,7 @@ MAX_SOCKET_PATH = 107
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux's; the module lacks the name
 _STAMP_SPACE = socket.CMSG_SPACE(16)  # one struct timespec
 _TIMESPEC = struct.Struct("qq")
+_HELLO_KEY = HELLO.encode()
 
 
 class DatagramError(OSError):
@@ -180,6 +182,12 @@ class DatagramPath:
         # ns), or None
         self._stamped = False
         self.arrived_unix_ns: int | None = None
+        # authenticate: what a connection says first, and who said it (the keyring's)
+        self._hello: Callable[[str], bytes | None] | None = None
+        self._hello_from: Callable[[bytes], str | None] | None = None
+        self._bound: dict[int, str] = {}  # connection -> the role its hello proved
+        self.frame_from: str | None = None  # the role of the frame last read (a bound one)
+        self.hellos_refused = 0  # first frames that were not a hello that checks
         self._conns: dict[int, socket.socket] = {}  # fd -> a sender's connection
         self._ready: list[int] = []  # fds epoll said were readable, not yet read
         self._hears: list[str] = []
@@ -223,6 +231,41 @@ class DatagramPath:
             for fd in self._conns:  # until its first frame says what it carries
                 self._ep_wake.register(fd, select.EPOLLIN)
                 self._fd_wakes[fd] = True
+
+    def authenticate(self, hello: Callable[[str], bytes | None],
+                     hello_from: Callable[[bytes], str | None]) -> None:
+        """Authenticated connections (docs/hardening.md): every connection this node
+        opens says ``hello(receiver)`` first; every connection it accepts is bound to the
+        role ``hello_from`` finds in its first frame, and after each read ``frame_from`` is
+        that role (None: a connection that said no hello that checks, whose frames must
+        carry their own tags). A node's frames then need no tag per message on this path:
+        the kernel alone writes into a connected socket."""
+        self._hello, self._hello_from = hello, hello_from
+
+    @property
+    def authenticated(self) -> bool:
+        """What this node sends here goes on connections that said who we are."""
+        return self._hello is not None
+
+    def _dial(self, p: _Peer) -> socket.socket:
+        s = p.connect()
+        hello = None if self._hello is None else self._hello(p.role)
+        if hello is not None:
+            raw = HELLO.encode()
+            s.send(bytes((len(raw),)) + raw + hello)  # an empty connection takes it at once
+        return s
+
+    def _bind(self, fd: int, frame: bytes) -> None:
+        """The first frame of an unbound connection: bound to the role of a hello that
+        checks; anything else on it is taken as it is (its own tags are checked)."""
+        n = frame[0]
+        if frame[1:1 + n] != _HELLO_KEY:
+            return
+        who = self._hello_from(frame[1 + n:])  # type: ignore[misc]
+        if who is None:
+            self.hellos_refused += 1
+        else:
+            self._bound[fd] = who
 
     def stamp_arrivals(self) -> None:
         """Have the kernel stamp each frame as it arrives (``SO_TIMESTAMPNS``): after a
@@ -286,6 +329,13 @@ class DatagramPath:
                         self._forget(fd)
                         continue
                     if frame:
+                        if self._hello_from is not None:
+                            who = self._bound.get(fd)
+                            if who is None and frame[0] < len(frame) and \
+                                    frame[1:1 + frame[0]] == _HELLO_KEY:
+                                self._bind(fd, frame)
+                                continue  # a hello is the path's own, never delivered
+                            self.frame_from = who
                         if self._waking is not None and frame[0] < len(frame):
                             self._note_key(fd, frame)
                         return frame
@@ -346,6 +396,7 @@ class DatagramPath:
 
     def _forget(self, fd: int) -> None:
         c = self._conns.pop(fd, None)
+        self._bound.pop(fd, None)
         if c is not None:
             try:
                 self._ep.unregister(fd)
@@ -449,7 +500,7 @@ class DatagramPath:
                 return self._defer(p, frame)
         for attempt in (0, 1):
             try:
-                s = p.sock or p.connect()
+                s = p.sock or self._dial(p)
                 s.send(frame)
                 return True
             except BlockingIOError:  # the connection is full: hold it for later

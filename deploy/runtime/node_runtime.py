@@ -280,6 +280,8 @@ def publish_report(node: Node, robot: int, steps: int, timing: Timing | None = N
     # every data frame out first (held for a receiver that reads behind): the report must
     # not reach the launcher before the telemetry and state rows it follows
     node.flush_data()
+    if node.datagrams is not None and node.datagrams.hellos_refused:
+        node.refused["connection: hello does not check"] = node.datagrams.hellos_refused
     c = node.counters
     timing = timing or Timing()
     node.publish(node.keys.report(node.role), lambda seq, stamp: NodeReport(

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from deploy.contract.keyring import Keyring
+from deploy.contract.keyring import WRONG_SENDER, Keyring
 from deploy.contract.wire import (
     LAUNCHER_ROLE,
     MAX_REPORT_KEYS,
@@ -163,8 +163,9 @@ class Mailbox:
 
     def _run(self, entry: tuple[Callable[[Any], None], Any]) -> None:
         handler, item = entry
-        if self._dgram is not None:  # not a frame of the datagram path: no kernel stamp
-            self._dgram.arrived_unix_ns = None
+        if self._dgram is not None:  # not a frame of the datagram path: no kernel stamp,
+            self._dgram.arrived_unix_ns = None  # no authenticated connection
+            self._dgram.frame_from = None
         t0 = now_ns()
         with self.lock:
             handler(item)
@@ -369,6 +370,8 @@ class Node:
         self.links_noted: list[str] | None = None
         self.refused: dict[str, int] = {}  # messages refused on arrival, by reason
         self.keyring = keyring
+        if keyring is not None and datagrams is not None:  # connections that say who we are
+            datagrams.authenticate(keyring.hello, keyring.hello_from)
         # this node's own record of what it sends and hears on some keys, for the run's
         # recording on this host (deploy/runtime/wire_spool.py); None: no record
         self.spool: SpoolWriter | None = None
@@ -496,8 +499,8 @@ class Node:
             plain = data
             t1 = now_ns()
             costs[ENCODE_PART] += t1 - t0
-            if self.keyring is not None:
-                data = self.keyring.seal(data, key)
+            if self.keyring is not None and not (by_datagram and self.datagrams.authenticated):
+                data = self.keyring.seal(data, key)  # (on our connections: no tag needed)
                 t2 = now_ns()
                 costs[MAC] += t2 - t1
                 t1 = t2
@@ -573,17 +576,25 @@ class Node:
         keyring, what = self.keyring, WHAT.get(kind, kind.__name__)
         decode = self.codec.decoder_for(kind, robot)
         open_ = keyring.open if keyring is not None else None
+        dgram = self.datagrams
+        may_send = keyring.may_send if keyring is not None else None
 
         costs = self.costs.ns
 
         def handle(data: bytes, on: str = key) -> None:  # the node's thread
             t0 = now_ns()
             if open_ is not None:  # before anything decodes it or looks at its step
-                payload, why = open_(data, on)
-                if payload is None:
-                    self.refuse_unsigned(what, why, on)
-                    return
-                data = payload
+                sender = None if dgram is None else dgram.frame_from
+                if sender is not None:  # on a connection bound to its sender (datagrams.py)
+                    if not may_send(sender, on):  # type: ignore[misc]
+                        self.refuse_unsigned(what, WRONG_SENDER, on)
+                        return
+                else:
+                    payload, why = open_(data, on)
+                    if payload is None:
+                        self.refuse_unsigned(what, why, on)
+                        return
+                    data = payload
             t1 = now_ns()
             msg = decode(data)
             t2 = now_ns()
@@ -650,12 +661,21 @@ class Node:
                   f"{WIRE_VERSION}: every node of a fleet must run the same omnifleet",
                   file=sys.stderr, flush=True)
 
-    def subscribe_raw(self, key: str, callback: Callable[[tuple[str, bytes]], None]) -> None:
-        """(key, bytes) as they arrive, handled on the node's thread (the recorder)."""
-        post = self.mailbox.post
+    def subscribe_raw(self, key: str, callback: Callable[[tuple[str, bytes, str | None]], None]
+                      ) -> None:
+        """(key, bytes, sender) as they arrive, handled on the node's thread (the recorder):
+        ``sender`` is the role of the authenticated connection a frame came on, when that
+        role may send on ``key`` (the bytes carry no tag then); None: check their tags."""
+        post, dgram, keyring = self.mailbox.post, self.datagrams, self.keyring
         self._subs.append(self.session.declare_subscriber(key, self._direct(
-            lambda s: post(callback, (str(s.key_expr), s.payload.to_bytes())))))
-        self._hear_by_datagram(key, lambda data, on: callback((on, data)))
+            lambda s: post(callback, (str(s.key_expr), s.payload.to_bytes(), None)))))
+
+        def heard(data: bytes, on: str) -> None:
+            sender = None if dgram is None else dgram.frame_from
+            if sender is not None and (keyring is None or not keyring.may_send(sender, on)):
+                sender = None
+            callback((on, data, sender))
+        self._hear_by_datagram(key, heard)
 
     def linked_peers(self) -> list[str]:
         """The zenoh ids of the peers this session had a link with (zenoh's own

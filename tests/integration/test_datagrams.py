@@ -217,6 +217,53 @@ def test_a_node_sends_data_on_the_path_and_refuses_a_forgery_there_as_on_zenoh(r
         plant.close()
 
 
+def test_a_connection_is_bound_to_the_role_its_hello_proves_and_to_nothing_else(run_dir):
+    """Authenticated connections (docs/hardening.md): agent 1's connection says a hello
+    under its key with the plant, and its replies then go untagged and are taken; a hello
+    made under another run's keys binds nothing (counted, and what follows on it must
+    carry tags that check: it is refused as unsigned); a node of the run bound as itself
+    (agent 2, its own keys) is still refused what only agent 1 may send."""
+    from deploy.runtime.transport import Node, zenoh_config
+
+    sc = load_scenario("paper")
+    keys, master = Keys("t"), new_master()
+    roles = [*run_roles(sc.robot_ids), "launcher"]
+    ring = {r: Keyring.from_text(keyring_text(master, "t", r, roles), "test", r, sc, keys)
+            for r in roles}
+    other = Keyring.from_text(keyring_text(new_master(), "t", "agent-1", roles), "x",
+                              "agent-1", sc, keys)
+    plant = Node("plant", keys, Codec(sc.robot_ids), zenoh_config(gossip=False),
+                 keyring=ring["plant"], datagrams=DatagramPath(run_dir, "plant", True))
+    got: list[Reply] = []
+    sent: list[bytes] = []
+    forgers = []
+    try:
+        plant.subscribe(keys.cmd(1), Reply, got.append, robot=1)
+        real = DatagramPath(run_dir, "agent-1", True)
+        real.authenticate(ring["agent-1"].hello, ring["agent-1"].hello_from)
+        forged = DatagramPath(run_dir, "agent-1x", True)  # another run's agent 1
+        forged.authenticate(other.hello, other.hello_from)
+        rogue = DatagramPath(run_dir, "agent-2", True)  # agent 2, bound as itself
+        rogue.authenticate(ring["agent-2"].hello, ring["agent-2"].hello_from)
+        forgers += [real, forged, rogue]
+        for path in forgers:
+            path.refresh()
+        sent.append(_reply(1))
+        real.send(keys.cmd(1), sent[0])  # untagged: the connection says who sends it
+        forged.send(keys.cmd(1), _reply(1))
+        rogue.send(keys.cmd(1), _reply(1))
+        plant.mailbox.wait_until(lambda: len(got) >= 1 and sum(plant.refused.values()) >= 2,
+                                 5.0)
+        assert [encode(m) for m in got] == sent  # the real one, once, as it was sent
+        assert plant.datagrams.hellos_refused == 1
+        assert plant.refused == {"reply: unsigned": 1,
+                                 "reply: not signed by a sender of this key": 1}
+    finally:
+        for path in forgers:
+            path.close()
+        plant.close()
+
+
 class _Looks:
     """Counts how a coalescing listener looks for frames: blocking waits and pauses."""
 
