@@ -35,6 +35,7 @@ import can
 import numpy as np
 
 from bridges.driver import FrameCounters
+from bridges.udp_can import send_frames
 from plant.disturbance import make_disturbance
 from plant.mecanum import MecanumModel
 from plant.model_plant import ModelPlant
@@ -166,6 +167,7 @@ class RobotEmulator:
         self.faults = faults
         self.watchdog_timeout_s = float(watchdog_timeout_s)
         self.counters = EmulatorCounters()
+        self._outbox: list[can.Message] = []  # this step's frames, sent together (flush_frames)
         self._wheel_of = {n: w for w, n in enumerate(ids)}
         self.model = sc.model()
         q, qd = sc.initial_state()
@@ -268,6 +270,8 @@ class RobotEmulator:
         n = math.floor(now_s / self._h + 1e-9) - self._ticks
         for _ in range(max(n, 0)):
             self._tick()
+            self.flush_frames()  # each tick's frames at that tick
+        self.flush_frames()
 
     def run(self, stop: Callable[[], bool], duration_s: float | None = None) -> None:
         """Realtime: step every physics tick on ``time.monotonic`` until ``stop()`` or
@@ -324,12 +328,22 @@ class RobotEmulator:
         if self.faults.corrupt_rate > 0 and frame.dlc > 0 and rng.random() < self.faults.corrupt_rate:
             frame.data = flip_bits(bytes(frame.data), rng)
             self.counters.corrupted_by_fault += 1
-        try:
-            self.bus.send(frame, timeout=0.01)
-        except can.CanError:
-            self.counters.send_errors += 1
+        self._outbox.append(frame)
+
+    def flush_frames(self) -> None:
+        """Send the frames of this step, together where the bus can (one datagram on the
+        emulated bus, bridges/udp_can.py: the robot's four encoder estimates of a tick
+        went out as four, and woke their bridge four times)."""
+        out = self._outbox
+        if not out:
             return
-        self.counters.sent += 1
+        self._outbox = []
+        try:
+            send_frames(self.bus, out)
+        except can.CanError:
+            self.counters.send_errors += len(out)
+            return
+        self.counters.sent += len(out)
 
     def _receive(self) -> None:
         for _ in range(MAX_FRAMES_PER_STEP):

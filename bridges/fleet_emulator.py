@@ -25,9 +25,8 @@ class FleetEmulator:
     one-robot emulator's; numpy's cost is per call, not per robot).
 
     Why: on a small host one process per robot, each waking at the physics rate,
-    cost more CPU than the host had (docs/hardware.md). :meth:`run` waits on every
-    bus's socket at once (``select``) until the next physics tick, so frames are
-    applied as they arrive instead of after a sleep.
+    cost more CPU than the host had (docs/hardware.md). :meth:`run` sleeps until the
+    next physics tick and reads every bus that holds frames then.
     """
 
     def __init__(self, sc: Fleet, robots: Sequence[tuple[int, can.BusABC]],
@@ -72,6 +71,16 @@ class FleetEmulator:
 
     def step(self, now_s: float, behind_s: float | None = None,
              ready: Sequence[int] | None = None) -> None:
+        """See :meth:`_step`; each robot's frames of the step go out together at its end,
+        and a tick's as it is integrated."""
+        try:
+            self._step(now_s, behind_s, ready)
+        finally:
+            for e in self.emulators:
+                e.flush_frames()
+
+    def _step(self, now_s: float, behind_s: float | None = None,
+              ready: Sequence[int] | None = None) -> None:
         """Every robot as :meth:`RobotEmulator.step`: frames received so far, then
         the physics tick by tick.
 
@@ -110,6 +119,7 @@ class FleetEmulator:
                 send = behind_s is None or (target - first._ticks - k) * self._h <= behind_s
                 for e in self.emulators:
                     e._after_physics(send, k)
+                    e.flush_frames()
                 if self._origin is not None and first.t >= self._next_lag:
                     # how late this tick was computed (sampled in emulator time, so a
                     # long catch-up weighs as long as it lasted)
@@ -121,7 +131,7 @@ class FleetEmulator:
     def run(self, stop: Callable[[], bool], duration_s: float | None = None,
             lag_every_s: float = 0.01, behind_s: float = 0.02) -> None:
         """Realtime on ``time.monotonic`` until ``stop()`` or ``duration_s``; between
-        ticks, wait on the buses (a bus without a file descriptor: sleep). Records
+        ticks, sleep, then read the buses that hold frames. Records
         how far behind the wall clock the physics was, every ``lag_every_s``; see
         :meth:`step` for ``behind_s``."""
         import select
@@ -142,11 +152,14 @@ class FleetEmulator:
             ready = None
             delay = (self.emulators[0]._ticks + 1) * self._h - (time.monotonic() - origin)
             if delay > 0:
-                if can_select:  # an empty read costs a select per bus: read only the ready ones
-                    readable = select.select(fds, [], [], delay)[0]
-                    ready = [fds.index(fd) for fd in readable]
-                else:
-                    time.sleep(delay)
+                # asleep until the next tick, not woken by each frame: a frame acts at the
+                # next tick however early it came (the physics integrates tick by tick), and
+                # woken by every frame the emulator of the CAN fleet woke ~6,500 times a
+                # second for 1,000 ticks (docs/bench.md, "The realtime budget")
+                time.sleep(delay)
+            if can_select:  # an empty read costs a select per bus: read only the ready ones
+                readable = select.select(fds, [], [], 0)[0]
+                ready = [fds.index(fd) for fd in readable]
 
     def lag_stats(self) -> dict[str, float]:
         """Median, 99th percentile and largest lag behind the wall clock (s)."""

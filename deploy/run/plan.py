@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from bridges.drivers import DEFAULT_DRIVER
+from bridges.udp_can import INTERFACE as CAN_INTERFACE
 from deploy.contract.fault_plan import FaultPlan
 from deploy.contract.options import DEFAULT_STARTUP_TIMEOUT_S, DEFAULT_STEP_DEADLINE_S
 from deploy.contract.scenario import Scenario
@@ -261,14 +262,16 @@ def _links(sc: Scenario, plan: list[Child], on_can: bool, run_dir: Path | None,
 def _can_plan(sc: Scenario, a: LaunchOptions, cmd: list[str], common: list[str], out: Path,
               truth: dict[int, Path]) -> list[Child]:
     """One driver emulator process for the whole fleet and a bridge per robot; every
-    robot on a CAN bus of its own (udp_multicast: a group and a port per robot, so
-    robots never hear each other). One emulator process, not one per robot: on a
+    robot on a CAN bus of its own (``omnifleet_udp``, bridges/udp_can.py: a multicast
+    group and a port per robot, so robots never hear each other; python-can's
+    udp_multicast does the same at several times the CPU a frame, docs/bench.md). One
+    emulator process, not one per robot: on a
     2-core host three emulators waking at the physics rate each fell seconds behind
     the wall clock (docs/hardware.md)."""
     logs = out / "logs"
     driver = ["--driver", a.driver]
     plan, emulate = [], [*cmd, "emulate", "--scenario", a.scenario_arg, *driver,
-                         "--can-interface", "udp_multicast",
+                         "--can-interface", CAN_INTERFACE,
                          # ODrive's default encoder message rate (10 ms): half the
                          # frames of 200 Hz; odometry from the angle estimates loses
                          # nothing by it (a 30 s lab run under load: lag p99 7 ms, drift
@@ -287,7 +290,7 @@ def _can_plan(sc: Scenario, a: LaunchOptions, cmd: list[str], common: list[str],
                     "--truth-out", str(truth[r])]
         plan.append(Child(bridge_role(r), r, [
             *cmd, "bridge", *common, *_priority(a, a.realtime_priority), "--robot", str(r),
-            *driver, "--can-interface", "udp_multicast",
+            *driver, "--can-interface", CAN_INTERFACE,
             "--can-channel", group, "--can-arg", port], logs / f"{bridge_role(r)}.log"))
     plan.insert(0, Child("emulator", None, [*emulate, *_can_faults(a.faults)],
                          logs / "emulator.log", zenoh=False, stop_after_run=True))
