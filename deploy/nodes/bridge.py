@@ -33,6 +33,7 @@ from bridges.driver import DriveState, WheelDriver
 from bridges.monitor import DriverMonitor
 from bridges.odometry import Odometry
 from bridges.safety import ZERO, CommandGate, Decision
+from bridges.udp_can import send_frames
 from deploy.contract.options import DEFAULT_COMMAND_TIMEOUT_S
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import (
@@ -46,6 +47,7 @@ from deploy.contract.wire import (
     sensed_bodies,
 )
 from deploy.runtime.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
+from deploy.runtime.step_costs import CAN, HANDLE, LAW, TELEMETRY, now_ns
 from deploy.runtime.step_guard import SEQ_SLACK, OwnClock
 from deploy.runtime.transport import Node
 from plant.command import ZeroTorqueSpans, exceeds, torque_bound
@@ -60,6 +62,7 @@ LOG_ROWS = 20  # states per batch to observers (0.1 s at the lab's 200 Hz; ~1.3 
 # off the CPU for seconds is not a drive that refuses)
 ENABLE_TIMEOUT_S = 2.0
 MIN_ARMING_ATTEMPTS = 5
+MAX_FRAMES_PER_PERIOD = 512  # read at one period at most (a flood never holds the loop)
 
 
 class BridgeNode:
@@ -106,6 +109,7 @@ class BridgeNode:
         self._send_lock = threading.Lock()
         self._frames: queue.SimpleQueue = queue.SimpleQueue()
         self._closing = False
+        self._reading_in_loop = False  # the run's loop reads the bus (no reader thread)
         # the other robots, for perception: their published states (initially the scenario's)
         self.positions, self.velocities = q0[:, :2].copy(), np.zeros((sc.n, 2))
         self.radii = [sc.spec.robot.body_radius_m] * sc.n
@@ -127,7 +131,9 @@ class BridgeNode:
 
     # -- inputs -----------------------------------------------------------------------
     def _read_bus(self) -> None:
-        while not self.stop() and not self._closing:
+        """Until the run starts: the frames as they come (the bring-up and the wait for
+        ``ctl/start`` read the bus for the bridge). The run's loop reads them itself."""
+        while not self.stop() and not self._closing and not self._reading_in_loop:
             try:
                 frame = self.bus.recv(timeout=0.05)
             except Exception as exc:  # a bus that failed: faulted by missing heartbeats
@@ -174,23 +180,29 @@ class BridgeNode:
         arrived = time.monotonic()
         self.gate.command(m.torques, arrived, m.k, m.plan)
         if self.armed:  # torque on the bus now, not at the next period
+            t0 = now_ns()
             self._apply(self.gate.decide(arrived, self.monitor.faulted(arrived)))
             self.timing.add_latency(time.monotonic_ns() - int(arrived * 1e9))
+            spent = now_ns() - t0  # the frames of a command: CAN, out of its handling
+            self.node.costs.ns[CAN] += spent
+            self.node.costs.take_from(HANDLE, spent)
 
     # -- outputs ----------------------------------------------------------------------
     def _send(self, frames: list) -> None:
-        for frame in frames:
-            self._send_frame(frame)
-
-    def _send_frame(self, frame: Any) -> None:
+        """``frames`` on the bus, together where it can (bridges/udp_can.py)."""
+        if not frames:
+            return
         with self._send_lock:
             try:
-                self.bus.send(frame)
-                self.frames_sent += 1
+                send_frames(self.bus, frames)
+                self.frames_sent += len(frames)
             except Exception as exc:
-                self.node.counters.dropped += 1
+                self.node.counters.dropped += len(frames)
                 if self.node.counters.dropped <= 5:
                     print(f"{self.node.role}: CAN send failed: {exc}", file=sys.stderr)
+
+    def _send_frame(self, frame: Any) -> None:
+        self._send([frame])
 
     def _send_all(self, frames_of) -> None:
         for n in self.node_ids:
@@ -255,8 +267,8 @@ class BridgeNode:
         # (still arming, stopped by its watchdog, refusing) would leave the robot pushed
         # by three wheels; one that never becomes enabled is given up (_rearm_idle_axes)
         torques = d.torques if self._all_enabled() else ZERO
-        for n, tau in zip(self.node_ids, torques, strict=True):
-            self._send_frame(self.protocol.torque_frame(n, tau))
+        self._send([self.protocol.torque_frame(n, tau)
+                    for n, tau in zip(self.node_ids, torques, strict=True)])
         self.torque_sent_at = time.monotonic()
         self.last_reason = d.reason
 
@@ -265,8 +277,10 @@ class BridgeNode:
 
     def _cycle(self, now: float) -> None:
         """The driver's frames of this period, after its torques (CiA 402: SYNC)."""
+        t0 = now_ns()
         with self.node.mailbox.lock:
             self._send(self.protocol.cycle_frames(now))
+        self.node.costs.add(CAN, t0)
 
     # -- the loop ---------------------------------------------------------------------
     def _sample(self, now: float, dt: float) -> None:
@@ -279,10 +293,38 @@ class BridgeNode:
             report = self.protocol.decode(frame)
             if report is not None:
                 self.monitor.feed(report, at, frame.timestamp)
+        if self._reading_in_loop:
+            self._read_frames(now)
         # the wheels' rotation from the drives' angle estimates: a lost or late encoder
         # frame adds no drift (the next carries the whole rotation); see Odometry.follow
+        t0 = now_ns()
         self.odometry.follow(self.monitor.wheel_positions_rev(), self.monitor.first_positions_rev(),
                              self.monitor.wheel_speeds_radps(), dt)
+        self.node.costs.add(LAW, t0)
+
+    def _read_frames(self, now: float) -> None:
+        """The run's loop: the drives' frames that came since the last period, each heard
+        at the time the kernel stamped it (python-can's ``timestamp``, the wall clock, on
+        socketcan and udp_multicast), on this clock; ``now`` where it has none. A reader
+        thread woken by every frame cost the bridge ~4 wakes a period and the GIL's
+        hand-over to its loop each time (docs/bench.md, "The realtime budget")."""
+        bus, decode, feed = self.bus, self.protocol.decode, self.monitor.feed
+        offset = time.monotonic() - time.time()
+        costs, t0 = self.node.costs, now_ns()
+        for _ in range(MAX_FRAMES_PER_PERIOD):
+            try:
+                frame = bus.recv(timeout=0)
+            except Exception as exc:  # a bus that failed: faulted by missing heartbeats
+                print(f"{self.node.role}: CAN receive failed: {exc}", file=sys.stderr)
+                break
+            if frame is None:
+                break
+            report = decode(frame)
+            if report is not None:
+                stamp = frame.timestamp
+                at = stamp + offset if stamp and abs(stamp + offset - now) < 1.0 else now
+                feed(report, min(at, now), stamp)
+        costs.add(CAN, t0)
 
     def idle_until_start(self, timeout_s: float) -> float | None:
         """Before the run: keep the odometry going (the robot may be pushed) and the
@@ -303,6 +345,11 @@ class BridgeNode:
     def run_realtime(self, t0_mono: float, steps: int) -> None:
         dt = self.sc.dt
         self.clock.t0_s = t0_mono
+        # from here the loop reads the bus at each period (what the thread had queued
+        # first); woken by its clock and by its agent's commands only
+        self._reading_in_loop = True
+        self._reader.join(1.0)
+        self.node.wake_on([self.node.keys.cmd(self.rid)])
         ticker = Periodic(t0_mono + self.phase_s, dt, self.timing, self.node.mailbox)
         last = getattr(self, "_pre_run_last", None)
         try:
@@ -358,11 +405,13 @@ class BridgeNode:
         age = None if now is None else self.monitor.encoder_age_s(now)
         if age is not None and 0.0 < age <= MAX_POSE_LEAD_S:
             q = q + age * qd
+        t0 = now_ns()
         with node.mailbox.lock:
             pos, vel = self.positions.copy(), self.velocities.copy()
         pos[i], vel[i] = q[:2], qd[:2]
         robots, obstacles = sense(i, pos, vel, self.radii, self.sc.robot_ids, self.obstacles,
                                   self.sc.spec.behaviors.detection_range_m, self.shapes)
+        node.costs.add(LAW, t0)  # perception, as the plant's
         self.published_k = max(self.published_k, k)
         # the robot moved on its agent's command for our previous sample (Sample.own_torques)
         own = self.armed and self.command_k == k - 1 and not self.fallback_period
@@ -371,9 +420,11 @@ class BridgeNode:
             WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, q=tuple(q.tolist()),
             q_dot=tuple(qd.tolist()), robots=sensed_bodies(robots),
             obstacles=sensed_bodies(obstacles), faulted=faulted, own_torques=own))
+        t0, mark = now_ns(), node.costs.mark()
         self.log_rows.append(StateRow(k, t, [tuple(q.tolist())], [tuple(qd.tolist())], [faulted]))
         if len(self.log_rows) >= LOG_ROWS:
             self.flush_log()
+        node.costs.charge(TELEMETRY, t0, mark)
 
     def flush_log(self) -> None:
         """This robot's states gathered so far, to observers, in one message."""
