@@ -110,6 +110,12 @@ def contact_onsets(clearance: np.ndarray) -> int:
     return int(touching[0].sum() + onsets.sum())
 
 
+def _least(gaps: np.ndarray) -> float | None:
+    """The least gap over the steps whose states exist (None: no gap, or no such step)."""
+    ok = gaps[np.isfinite(gaps)]
+    return float(ok.min()) if ok.size else None
+
+
 def _nan_aware(fn, x: np.ndarray) -> float:
     return float(fn(x)) if np.isfinite(x).any() else float(np.abs(x).max(initial=np.nan))
 
@@ -150,6 +156,11 @@ def compute_metrics(
     rr, _ = pair_clearances(series.q[:, :, :2], radii, np.zeros((0, 2)), np.zeros(0))
     # discs, walls and polygons: the true geometry (plant/shapes.py, G2)
     ro = sc.obstacle_gaps(series.q[:, :, :2]).reshape(len(t), -1)
+    heard = series.state_heard
+    if heard is not None:  # gaps only where the states were heard (not filled, never NaN)
+        iu, ju = np.triu_indices(n, 1)
+        rr = np.where(heard[:, iu] & heard[:, ju], rr, np.nan)
+        ro = np.where(np.repeat(heard, ro.shape[1] // n if n else 0, axis=1), ro, np.nan)
     sim_time = series.steps * sc.dt
     lim = s.limits
     reach = formation_figures(series, sc.robot_ids, sc.dt, s.metrics.formation_threshold_m,
@@ -180,8 +191,12 @@ def compute_metrics(
         "formation_rms_whole_run_m": whole,
         "formation_rms_after_settling_m": after,
         **reach,
-        "min_obstacle_gap_m": float(ro.min()) if ro.size else None,
-        "min_robot_gap_m": float(rr.min()) if rr.size else None,
+        "min_obstacle_gap_m": _least(ro),
+        "min_robot_gap_m": _least(rr),
+        # per robot, the steps whose state the series never received (realtime: filled
+        # forward from the step before; the gaps above leave them out)
+        "series_rows_missing": ([0] * n if heard is None
+                                else (~heard).sum(axis=0).astype(int).tolist()),
         "contacts": (contact_onsets(rr) + contact_onsets(ro) if contact_log is None
                      else max(len(contact_log), contacts_total or 0)),
         "contact_source": "geometry" if contact_log is None else "physics",

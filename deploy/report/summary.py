@@ -160,6 +160,10 @@ def _transport_lines(m: dict) -> list[str]:
         if unanswered and any(unanswered):
             lines.append(f"  states unanswered in time {_fmt_ints(unanswered)} step(s) (the "
                          "agent's command had not come by the plant's next step)")
+        rows = m.get("series_rows_missing")
+        if rows and any(rows):
+            lines.append(f"  states never heard         {_fmt_ints(rows)} step(s) (filled forward "
+                         "in the series; left out of the gaps)")
         stall = m.get("longest_stall")
         if stall:
             lines.append(f"  longest stall              {stall['node']} {stall['duration_s']:.3f} s "

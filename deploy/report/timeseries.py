@@ -79,6 +79,9 @@ class TimeSeries:
     safety_active: np.ndarray
     safety_dv: np.ndarray
     safety_infeasible: np.ndarray
+    # (steps, n): robot i's state of step k was heard (a distributed realtime run may miss
+    # some: deploy/run/collector.py fills them forward); None: every one was (not a column)
+    state_heard: np.ndarray | None = None
 
     @classmethod
     def allocate(cls, steps: int, n: int) -> TimeSeries:

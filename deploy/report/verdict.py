@@ -16,6 +16,9 @@ A run must also have gone **whole** and **on time**; the verdict fails, naming w
   its states were heard for fewer steps than were simulated (``steps``): on the
   realtime clock by more than the command timeout (the last wake of a loop that runs
   late skips its last periods; a gap longer than the timeout is not a late wake);
+- (realtime) a robot's states were never heard for more steps than that
+  (``series_rows_missing``): the series fills them forward, and the gaps leave them out
+  (a state never heard is not a gap of 0);
 - a node's report never arrived (``reports_missing``): its counts, its misses and its
   zero-torque stretches are unknown, so nothing says the run was whole;
 - (realtime) the node that integrates or applies the torques stalled longer than the
@@ -170,6 +173,13 @@ def _whole(metrics: dict[str, Any], reasons: list[str]) -> bool:
         ok = False
         reasons.append(f"the robots' states were heard for {heard * dt:.3f} s of the "
                        f"{simulated * dt:.3f} s simulated: the rest cannot be judged")
+    rows = metrics.get("series_rows_missing") or []
+    unheard = [(i, r) for i, r in enumerate(rows) if r > slack]
+    if unheard:  # named, never read as a gap (metrics: the gaps leave these rows out)
+        ok = False
+        reasons.append("states never heard: " + ", ".join(
+            f"robot #{i + 1} {r} step(s) ({r * dt:.3f} s)" for i, r in unheard)
+            + " (filled forward in the series: those steps cannot be judged)")
     late = metrics.get("restarts_not_rejoined") or []
     if late:
         ok = False

@@ -115,6 +115,8 @@ class Collector:
                 steps = self.steps if complete.all() else int(np.argmin(complete))
             ts = TimeSeries(**{c: getattr(self.ts, c)[:steps].copy() for c in COLUMNS})
             self._fill_forward(ts, steps)
+            if realtime:  # the rows filled forward (or left NaN) are no robot's state
+                ts.state_heard = self.have_state[:steps].copy()
         ts.t[:] = np.arange(steps) * sc.dt
         ts.target[:] = FormationTargets(sc).along(ts.t, ts.leader_q)
         return ts

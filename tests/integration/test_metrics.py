@@ -3,6 +3,7 @@ settling, both named; the smallest distances are gaps between surfaces."""
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -50,3 +51,30 @@ def test_paper_metrics_name_both_rms_and_the_gaps_are_surface_to_surface():
     obstacles = np.array([o.position for o in sc.spec.obstacles])
     to_obstacles = np.linalg.norm(q[:, :, None] - obstacles[None, None], axis=3).min()
     assert m["min_obstacle_gap_m"] == pytest.approx(to_obstacles - r)  # point obstacles
+
+
+def test_a_state_never_heard_is_no_gap_and_is_counted():
+    """A realtime series whose robot 3 was first heard at step 20 (its first rows NaN, as a
+    late bridge leaves them) and missed step 60 (filled forward): the gaps are taken over
+    the states heard, never NaN, and the rows are counted per robot. The CAN fleet at
+    200 Hz on a slow host said "a gap between surfaces reached 0" for such a run."""
+    sc = load_scenario("lab")
+    run = cached_run("lab", 0.5)
+    series = copy.deepcopy(run.series)  # the cached run is shared with other tests
+    heard = np.ones((series.steps, sc.n), dtype=bool)
+    heard[:20, 2] = False
+    heard[60, 2] = False
+    series.q[:20, 2] = np.nan
+    series.q[60, 2] = series.q[59, 2]
+    series.state_heard = heard
+    m = compute_metrics(sc, series, "model", "realtime", run.wall_time_s)
+    assert m["series_rows_missing"] == [0, 0, 21]
+    assert math.isfinite(m["min_robot_gap_m"]) and m["min_robot_gap_m"] > 0
+    assert math.isfinite(m["min_obstacle_gap_m"]) and m["min_obstacle_gap_m"] > 0
+    assert m["contacts"] == 0
+    from deploy.report.verdict import judge, verdict_line
+
+    m.update(clock="realtime", command_timeout_s=0.05, steps_asked=series.steps)
+    line = verdict_line(judge(m))
+    assert "gap between surfaces" not in line
+    assert "states never heard: robot #3 21 step(s)" in line  # beyond 0.05 s at 200 Hz
