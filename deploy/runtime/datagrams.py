@@ -55,6 +55,7 @@ import os
 import select
 import socket
 import struct
+import time
 from collections import deque
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -315,40 +316,82 @@ class DatagramPath:
 
     def _next(self, timeout_s: float) -> bytes | None:
         polled = False
-        conns, ready = self._conns, self._ready
+        ready = self._ready
         while True:
             while ready:
                 fd = ready.pop()
-                c = conns.get(fd)
-                if c is not None:
-                    try:
-                        frame = self._recv_stamped(c) if self._stamped else c.recv(MAX_DATAGRAM)
-                    except (BlockingIOError, InterruptedError):
-                        continue
-                    except OSError:
-                        self._forget(fd)
-                        continue
-                    if frame:
-                        if self._hello_from is not None:
-                            who = self._bound.get(fd)
-                            if who is None and frame[0] < len(frame) and \
-                                    frame[1:1 + frame[0]] == _HELLO_KEY:
-                                self._bind(fd, frame)
-                                continue  # a hello is the path's own, never delivered
-                            self.frame_from = who
-                        if self._waking is not None and frame[0] < len(frame):
-                            self._note_key(fd, frame)
-                        return frame
-                    self._forget(fd)  # the sender closed its end
-                elif fd == self._lfd:
-                    self._accept()
-                elif fd == self._wfd:
-                    self._drain_wake()
-                    return b""
+                frame = self._read(fd)
+                if frame is not None:
+                    return frame
             if polled:
                 return None
             self._poll(timeout_s)
             polled = True
+
+    def _read(self, fd: int) -> bytes | None:
+        """One frame of ``fd`` found readable: a connection's frame (``frame_from`` says
+        whose), b"" for a wake-up; None when there is nothing to deliver (the listener, a
+        hello, a connection that closed)."""
+        c = self._conns.get(fd)
+        if c is None:
+            if fd == self._lfd:
+                self._accept()
+                return None
+            if fd == self._wfd:
+                self._drain_wake()
+                return b""
+            return None
+        try:
+            frame = self._recv_stamped(c) if self._stamped else c.recv(MAX_DATAGRAM)
+        except (BlockingIOError, InterruptedError):
+            return None
+        except OSError:
+            self._forget(fd)
+            return None
+        if not frame:
+            self._forget(fd)  # the sender closed its end
+            return None
+        if self._hello_from is not None:
+            who = self._bound.get(fd)
+            if who is None and frame[0] < len(frame) and frame[1:1 + frame[0]] == _HELLO_KEY:
+                self._bind(fd, frame)
+                return None  # a hello is the path's own, never delivered
+            self.frame_from = who
+        if self._waking is not None and frame[0] < len(frame):
+            self._note_key(fd, frame)
+        return frame
+
+    def read_ready(self, on: Callable[[bytes], None], until: float | None = None) -> bool:
+        """Hand ``on`` every frame readable now, one at a time as read (what a wait left
+        unread first), without waiting; True when a wake-up came meanwhile (another
+        thread posted: take its item). ``until`` (time.monotonic()): stop there even if
+        more keeps coming (a flood). One look at every connection a round, a frame each:
+        what :meth:`recv` does frame by frame, in one call (a realtime step reads its
+        inputs here: each call through :meth:`recv` cost ~2 us of Python)."""
+        ready, ep, read = self._ready, self._ep, self._read
+        woke = False
+        n = 0
+        while True:
+            while ready:
+                frame = read(ready.pop())
+                if frame is None:
+                    continue
+                if not frame:
+                    woke = True
+                    continue
+                on(frame)
+                n += 1
+                if until is not None and n % 32 == 0 and time.monotonic() >= until:
+                    return woke
+            try:
+                events = ep.poll(0)
+            except InterruptedError:
+                events = []
+            if not events:
+                return woke
+            # the wake-up and the listener first in the list: read last (pop)
+            ready[:] = [fd for fd, _ in events if fd == self._wfd or fd == self._lfd]
+            ready += [fd for fd, _ in events if fd != self._wfd and fd != self._lfd]
 
     def _poll(self, timeout_s: float) -> None:
         """What is readable now (or once something is, within ``timeout_s``); the

@@ -184,24 +184,12 @@ class Mailbox:
                     return
             if dgram is None:
                 return
-            on, costs = self.on_datagram, self.costs.ns
-            while True:
-                t0 = now_ns()
-                frame = dgram.recv()
-                if frame is None:
-                    costs[RECEIVE] += now_ns() - t0
-                    return
-                if frame:
-                    with self.lock:
-                        on(frame)
-                    costs[RECEIVE] += now_ns() - t0
-                else:
-                    costs[RECEIVE] += now_ns() - t0
-                    if not q.empty():  # a wake-up: take what was posted first
-                        break
-                n += 1
-                if until is not None and n % 32 == 0 and time.monotonic() >= until:
-                    return
+            t0 = now_ns()
+            with self.lock:
+                woke = dgram.read_ready(self.on_datagram, until)
+            self.costs.ns[RECEIVE] += now_ns() - t0
+            if not woke or q.empty() or (until is not None and time.monotonic() >= until):
+                return
 
     def _ready_at_deadline(self, ready: Callable[[], bool]) -> bool:
         """``ready()`` once what had already arrived is handled (at most a batch, as
