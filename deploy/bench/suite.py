@@ -52,13 +52,16 @@ class Settings:
     plant_steps: int
     codec_calls: int
     hops: int
+    one_core_paper_runs: int  # paper at 1 kHz pinned to one core: runs, each judged
+    can_s: float  # the CAN fleet's runs pinned to one core
 
     @classmethod
     def of(cls, quick: bool, repeats: int | None) -> Settings:
         if quick:
             # a second of each realtime run: enough for every figure (the suite runs this)
-            return cls(repeats or 1, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0, 0.2, 200, 2000, 500)
-        return cls(repeats or 3, 8.0, None, 20.0, 10.0, 10.0, 20.0, 2.0, 2000, 20000, 5000)
+            return cls(repeats or 1, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0, 0.2, 200, 2000, 500, 1, 1.0)
+        return cls(repeats or 3, 8.0, None, 20.0, 10.0, 10.0, 20.0, 2.0, 2000, 20000, 5000, 10,
+                   20.0)
 
 
 @dataclass
@@ -86,7 +89,8 @@ class Figure:
         if self.target is None or self.median is None:
             return None
         op, bound = self.target
-        return self.median <= bound if op == "<=" else self.median >= bound
+        return {"<=": self.median <= bound, "<": self.median < bound,
+                ">=": self.median >= bound}[op]
 
     def as_json(self) -> dict[str, Any]:
         return {
@@ -152,10 +156,12 @@ class Bench:
 
     # -- fleet runs -------------------------------------------------------------------
     def run_fleet(self, scenario: str, *args: str, timeout_s: float = 900.0,
-                  record: bool = False, figures: bool = False) -> dict[str, Any]:
+                  record: bool = False, figures: bool = False,
+                  cpus: set[int] | None = None) -> dict[str, Any]:
         """One ``omnifleet run``; its metrics.json, with ``command_wall_s``: the whole
         command's wall time as a user waits for it (start-up, run, outputs). Ended by pid
-        whatever happens."""
+        whatever happens. ``cpus``: the only processors the run and every process it
+        starts may use (``taskset``; one of two: a machine half as fast)."""
         out = self.work / f"run-{len(list(self.work.iterdir()))}"
         if "--in-process" not in args:
             self.fleet_runs += 1
@@ -164,8 +170,9 @@ class Bench:
                *args]
         started, stolen = time.perf_counter(), stolen_s()
         # the launcher as a user starts it (its BLAS threads too), this installation's code
+        pin = None if cpus is None else (lambda: os.sched_setaffinity(0, cpus))
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                                env=child_env(one_blas_thread=False))
+                                env=child_env(one_blas_thread=False), preexec_fn=pin)
         try:
             _, err = proc.communicate(timeout=timeout_s)
         finally:
@@ -176,7 +183,7 @@ class Bench:
                 except subprocess.TimeoutExpired:
                     proc.kill()
                     proc.wait()
-        if proc.returncode != 0:
+        if proc.returncode not in (0, 1) or not (out / "metrics.json").exists():
             raise FleetRunFailed(f"`omnifleet run {scenario} {' '.join(args)}` exited "
                                  f"{proc.returncode}: {err.strip()[-600:]}")
         metrics = json.loads((out / "metrics.json").read_text())
@@ -532,6 +539,126 @@ class Bench:
                 fig.samples.append(zenoh_hop_us(self.s.hops, path))
             udp.samples.append(udp_hop_us(self.s.hops))
 
+    def _budget_figures(self, run: str, what: str, roles: dict[str, float | None]
+                        ) -> dict[str, Figure]:
+        """The CPU-per-step figures of one budget run, by role (the busiest of a kind)."""
+        return {role: self.figure(f"budget.{run}.{role}_cpu_us", "µs",
+                                  f"{what}: run-loop CPU per step of the {role.replace('_', ' ')}"
+                                  " (every thread; metrics.json processes[].cpu_us_per_step)",
+                                  None if bound is None else ("<=", bound))
+                for role, bound in roles.items()}
+
+    def _add_budget(self, run: str, figs: dict[str, Figure], m: dict[str, Any]) -> None:
+        """Each role's CPU per step (the busiest process of it) and the parts of its step."""
+        for role, fig in figs.items():
+            rows = [p for p in m["processes"] if _role_kind(p["role"]) == role.split("_")[0]
+                    and p.get("cpu_us_per_step") is not None]
+            if not rows:
+                fig.add(None, f"no {role} reported its CPU")
+                continue
+            row = max(rows, key=lambda p: p["cpu_us_per_step"])
+            fig.add(row["cpu_us_per_step"])
+            for part, us in (row.get("parts_us_per_step") or {}).items():
+                self.figure(f"budget.{run}.{role}.part.{part.replace(' ', '_')}_us", "µs",
+                            f"the same process: µs a step in {part} "
+                            "(deploy/runtime/step_costs.py)").add(us)
+
+    def budget(self) -> None:
+        """The realtime CPU budget per process (docs/bench.md, "The realtime budget"): each
+        process's run-loop CPU per step at the rate its scenario asks, and the part of the
+        step each piece of work takes, on this machine as it is (both cores)."""
+        n = 3
+        runs = {
+            "paper_1khz": (("paper", "--clock", "realtime", "--plant", "model"),
+                           "paper at 1 kHz, realtime, model plant",
+                           {"agent_max": 60.0, "plant": 40.0 + 20.0 * n, "leader": 20.0,
+                            "launcher": 30.0}),
+            **{f"can_{drv.replace('-', '_')}_200hz": (
+                ("lab", "--plant", "can-emulated", "--driver", drv),
+                f"lab on the CAN fleet ({drv}), 200 Hz",
+                {"agent_max": 60.0, "bridge_max": 150.0, "leader": 20.0, "launcher": 30.0})
+               for drv in ("odrive-cansimple", "cia402")},
+        }
+        for run, (args, what, roles) in runs.items():
+            figs = self._budget_figures(run, what, roles)
+
+            def body(args: tuple[str, ...] = args, run: str = run,
+                     figs: dict[str, Figure] = figs) -> None:
+                for _ in range(self.s.repeats):
+                    m = self.run_fleet(*args, "--duration", str(self.s.realtime_paper_s))
+                    self._add_budget(run, figs, m)
+
+            self.measure(f"CPU budget: {what}", body, *(f.name for f in figs.values()))
+
+    def one_core(self) -> None:
+        """Every realtime fleet pinned to one of the two cores (what a machine half as fast
+        sees): the CAN fleet at 200 Hz (both drives), lab and paper at 1 kHz."""
+        cpu = {min(os.sched_getaffinity(0))}
+        paper_runs = self.s.one_core_paper_runs
+        passed = self.figure("onecore.paper_1khz_passed", "runs",
+                             f"paper at 1 kHz, realtime, model plant, 10 s, pinned to one core: "
+                             f"runs that PASS (settled, no contact) of {paper_runs}",
+                             (">=", float(paper_runs)))
+        unsettled = self.figure("onecore.paper_1khz_unsettled_robots", "count",
+                                "the same: robots not settled before the bound, every run")
+        p99 = self.figure("onecore.lab_1khz_latency_p99_ms", "ms",
+                          "lab at 1 kHz, realtime, model plant, pinned to one core: "
+                          "state-to-command latency p99", ("<=", 1.0))
+        lab_pass = self.figure("onecore.lab_1khz_pass", "bool", "the same: verdict PASS",
+                               (">=", 1.0))
+
+        def paper() -> None:
+            count, late = 0, 0.0
+            for _ in range(paper_runs):
+                m = self.run_fleet("paper", "--clock", "realtime", "--plant", "model",
+                                   "--duration", str(self.s.realtime_paper_s), cpus=cpu)
+                count += bool(m["verdict"]["pass"])
+                late += sum(x is None or x > m["settling_bound_s"] for x in m["settling_time_s"])
+            passed.add(float(count))
+            unsettled.add(late)
+
+        def lab() -> None:
+            for _ in range(self.s.repeats):
+                m = self.run_fleet("lab", "--clock", "realtime", "--control-rate", "1000",
+                                   "--plant", "model", "--duration", str(self.s.realtime_s),
+                                   cpus=cpu)
+                p99.add(m["latency_ms"]["p99"], "the plant reported no latency")
+                lab_pass.add(float(m["verdict"]["pass"]))
+
+        self.measure("one core: paper at 1 kHz", paper, passed.name, unsettled.name)
+        self.measure("one core: lab at 1 kHz", lab, p99.name, lab_pass.name)
+        for drv in ("odrive-cansimple", "cia402"):
+            name = drv.replace("-", "_")
+            figs = {
+                "pass": self.figure(f"onecore.can_{name}_200hz_pass", "bool",
+                                    f"lab on the CAN fleet ({drv}), 200 Hz, {self.s.can_s:g} s, "
+                                    "pinned to one core: verdict PASS", (">=", 1.0)),
+                "unsimulated": self.figure(f"onecore.can_{name}_200hz_steps_not_simulated",
+                                           "steps", "the same: steps asked, not simulated",
+                                           ("<=", 0.0)),
+                "jitter": self.figure(f"onecore.can_{name}_200hz_jitter_p99_ms", "ms",
+                                      "the same: loop jitter p99, every node", ("<=", 1.0)),
+                "misses": self.figure(f"onecore.can_{name}_200hz_deadline_misses", "count",
+                                      "the same: deadline misses, every node"),
+                "settling": self.figure(f"onecore.can_{name}_200hz_settling_max_s", "s",
+                                        "the same: the slowest robot's settling time (never "
+                                        "settled: the run's duration)", ("<", 1.0)),
+            }
+
+            def can(drv: str = drv, figs: dict[str, Figure] = figs) -> None:
+                for _ in range(self.s.repeats):
+                    m = self.run_fleet("lab", "--plant", "can-emulated", "--driver", drv,
+                                       "--duration", str(self.s.can_s), cpus=cpu)
+                    figs["pass"].add(float(m["verdict"]["pass"]))
+                    figs["unsimulated"].add(float(m["steps_asked"] - m["steps_simulated"]))
+                    figs["jitter"].add(m["jitter_ms"]["p99"], "no node reported its jitter")
+                    figs["misses"].add(float(m["deadline_misses"]))
+                    figs["settling"].add(max(m["sim_time_s"] if x is None else x
+                                             for x in m["settling_time_s"]))
+
+            self.measure(f"one core: the CAN fleet ({drv}) at 200 Hz", can,
+                         *(f.name for f in figs.values()))
+
     def groups(self) -> dict[str, Callable[[], None]]:
         """The benchmarks by name, in the order a full run takes them."""
         return {"costs": self.costs, "in-process": self.in_process,
@@ -539,7 +666,8 @@ class Bench:
                 "data-path": self.data_path,
                 "paper-run": self.paper_run, "rtf500": self.lockstep_rtf_500,
                 "realtime": self.realtime_loop, "realtime-fast": self.realtime_fast,
-                "realtime-paper": self.realtime_paper, "scale": self.scale}
+                "realtime-paper": self.realtime_paper, "scale": self.scale,
+                "budget": self.budget, "one-core": self.one_core}
 
     def run_all(self, only: list[str] | None = None) -> None:
         for name, run in self.groups().items():
@@ -559,6 +687,11 @@ class Bench:
             "machine": machine(),
             "figures": {name: f.as_json() for name, f in self.figures.items()},
         }
+
+
+def _role_kind(role: str) -> str:
+    """agent-3 -> agent, bridge-1 -> bridge, plant -> plant."""
+    return role.split("-", 1)[0]
 
 
 def machine() -> dict[str, Any]:
@@ -662,8 +795,10 @@ def add_bench_command(sub: argparse._SubParsersAction) -> None:
     add_option(p, "--repeats")
     p.add_argument("--only", metavar="GROUP[,GROUP]",
                    help="run only these groups: costs, in-process, lockstep, lockstep-paper, "
-                   "data-path, paper-run, rtf500, realtime, realtime-fast, realtime-paper, scale "
-                   "(memory is always judged on the fleet runs made)")
+                   "data-path, paper-run, rtf500, realtime, realtime-fast, realtime-paper, scale, "
+                   "budget (each realtime process's CPU per step and its parts), one-core (the "
+                   "realtime fleets pinned to one core) (memory is always judged on the fleet "
+                   "runs made)")
     p.add_argument("--scale-sizes", type=scale_sizes, default=SCALE_SIZES, metavar="N[,N]",
                    help="the fleet sizes of the scale group (default: "
                    f"{','.join(map(str, SCALE_SIZES))}; the n30 targets apply to N = 30)")
