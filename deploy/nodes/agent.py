@@ -612,7 +612,9 @@ class AgentNode:
                           file=sys.stderr, flush=True)
             # the law's time is the sample's (as in lockstep); how late we answer it is
             # the horizon's (agents/pace.py)
-            out, plan = self._compute(state.t, state, leader, h, ages,
+            # fresh inputs, as a fault-free lockstep step has them: no ages at all (the
+            # kernel then skips the degradation's bookkeeping, as lockstep does)
+            out, plan = self._compute(state.t, state, leader, h, None if ages.fresh else ages,
                                       pace.horizon(now - t0_mono - state.t), cap)
             self._publish_step(state.k, state.t, state, out, plan, _stale(ages))
             self.steps_done += 1

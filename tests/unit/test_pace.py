@@ -95,3 +95,21 @@ def test_a_speed_cap_scales_the_planar_command():
     free = core.fork().step(0.0, q, np.zeros(3), {}, lead).v_cmd
     capped = core.fork().step(0.0, q, np.zeros(3), {}, lead, speed_cap=0.5).v_cmd
     assert np.hypot(*capped[:2]) < np.hypot(*free[:2])
+
+
+from hypothesis import given  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@given(st.lists(st.floats(0.0, 0.02), max_size=200), st.integers(1, 30))
+def test_the_running_counts_answer_as_the_whole_window_does(intervals, window):
+    """The speed cap and the horizon kept as the window moves equal those of the window
+    sorted and searched whole, at every step."""
+    pace = LoopPace(0.001, window=window)
+    for i, x in enumerate(intervals):
+        pace.note(x)
+        seen = intervals[max(0, i + 1 - window):i + 1]
+        median = sorted(seen)[len(seen) // 2]
+        ratio = median / 0.001
+        assert pace.speed_cap() == (1.0 if ratio <= 1.5 else 1.5 / ratio)
+        assert pace.longest_s == max(seen)
