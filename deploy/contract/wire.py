@@ -337,6 +337,9 @@ class NodeReport(Message, frozen=True):
     unrecorded: int = 0
     # the time its run loop spent in each part of its steps, ns (deploy/runtime/step_costs.py)
     step_costs_ns: dict[str, int] = {}
+    # agent that rejoined a running fleet: from its process start to its first command, s
+    # (-1: not a rejoin, or it sent none)
+    rejoin_s: Finite = -1.0
 
     def __post_init__(self) -> None:
         if min(self.sent, self.dropped, self.late, self.invalid, self.steps, self.nonfinite,

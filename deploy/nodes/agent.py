@@ -49,7 +49,14 @@ from deploy.contract.wire import (
 from deploy.nodes.leader import LOOKAHEAD, TICK_EVERY
 from deploy.runtime.fault_model import FaultModel
 from deploy.runtime.lockstep_inputs import AgentLinks
-from deploy.runtime.node_runtime import ControlInbox, FaultGate, StopFlag, Timing, publish_report
+from deploy.runtime.node_runtime import (
+    ControlInbox,
+    FaultGate,
+    StopFlag,
+    Timing,
+    process_age_s,
+    publish_report,
+)
 from deploy.runtime.priority import hand_over
 from deploy.runtime.step_costs import LAW, TELEMETRY, now_ns
 from deploy.runtime.step_guard import CLOCK_SKEW_S, JUMP_OK, OwnClock, StepGuard
@@ -210,6 +217,7 @@ class AgentNode:
         self.nonfinite_commands = 0  # steps whose law gave NaN/Inf: zero torques sent
         self.stale_samples = 0  # realtime: samples older than stale_after_s, not answered
         self.overloaded_steps = 0  # realtime: steps of a loop slower than its period (pace.py)
+        self.rejoin_s = -1.0  # rejoining: its process start to its first command, s
         self.steps_done = 0
         self.telemetry_every = 1  # realtime decimates (see run_realtime)
         self.telemetry_batch = TELEMETRY_BATCH_MAX
@@ -534,6 +542,7 @@ class AgentNode:
         last_t: float | None = None
         share_msgs: dict[int, Reply] = {}
         synced = t0_mono is not None
+        rejoining = False  # until a rejoining agent's first command is out
         self.clock.t0_s = t0_mono  # no sender is past the wall clock (step_guard.OwnClock)
         stop, monotonic = self.stop, time.monotonic
 
@@ -600,6 +609,7 @@ class AgentNode:
                     continue
                 t0_mono, synced = now - state.t, True
                 self.clock.t0_s = t0_mono
+                rejoining = True
             for j, msg in share_msgs.items():
                 self.last_shares[j] = share_from_msg(msg)
             cap = pace.speed_cap()
@@ -618,6 +628,13 @@ class AgentNode:
                                       pace.horizon(now - t0_mono - state.t), cap)
             self._publish_step(state.k, state.t, state, out, plan, _stale(ages))
             self.steps_done += 1
+            if rejoining:  # the first command of a restarted agent: how long it took
+                rejoining = False
+                age = process_age_s()
+                if age is not None:
+                    self.rejoin_s = age
+                    print(f"{self.node.role}: first command {age:.3f} s after its process "
+                          "started", file=sys.stderr, flush=True)
 
     def _resync(self, state: Sample, leader: LeaderPoint | None,
                 shares: dict[int, Reply], ages: InputAges) -> bool:
@@ -659,4 +676,5 @@ class AgentNode:
         publish_report(self.node, self.rid, self.steps_done, self.timing,
                        faults=self.faults.report(), law_resets=self.law_resets,
                        nonfinite_commands=self.nonfinite_commands,
-                       stale_samples=self.stale_samples, overloaded_steps=self.overloaded_steps)
+                       stale_samples=self.stale_samples, overloaded_steps=self.overloaded_steps,
+                       rejoin_s=self.rejoin_s)

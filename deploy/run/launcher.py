@@ -135,7 +135,8 @@ class Launcher:
         sup.run_dir = run_dir
         endpoint = o.endpoint or endpoint_of(run_dir, LAUNCHER_ROLE)
         try:
-            sup.start_forks(o.clock)  # it imports what the nodes need meanwhile
+            # it imports what the nodes need meanwhile (a realtime run: its restarts')
+            sup.start_forks(o.clock, restarts=any(e.restart for e in self.kills.pending))
             lossless = o.clock == "lockstep"
             datagrams = DatagramPath(run_dir, LAUNCHER_ROLE, lossless) if o.datagrams else None
             node = Node(LAUNCHER_ROLE, obs.keys, obs.codec,

@@ -95,6 +95,8 @@ def process_rows(children: list[Child], reports: dict[str, NodeReport],
                      "cpu_s": round(r.cpu_s, 3) if r is not None else None,
                      "loop_s": round(r.loop_s, 3) if r is not None else None,
                      "step_costs_ns": dict(r.step_costs_ns) if r is not None else {},
+                     **({"rejoin_s": round(r.rejoin_s, 3)}
+                        if r is not None and r.rejoin_s >= 0 and c.restarted else {}),
                      "links": sorted(role_of.get(z, z) for z in r.peers) if r is not None
                      else None})
     rows.append({"role": LAUNCHER_ROLE, "robot": None, "pid": os.getpid(),

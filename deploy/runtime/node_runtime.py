@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import os
 import resource
 import signal
 import sys
@@ -225,6 +226,18 @@ class FaultGate:
         with self._wake:
             self._closed = True
             self._wake.notify()
+
+
+def process_age_s() -> float | None:
+    """How long ago this process started (the kernel's start time, to its clock tick;
+    a forked node's is its fork), s; None where /proc cannot say."""
+    try:
+        with open("/proc/self/stat") as f:
+            stat = f.read()
+        start_ticks = int(stat[stat.rfind(")") + 2:].split()[19])
+        return time.clock_gettime(time.CLOCK_BOOTTIME) - start_ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
 
 
 def peak_rss_kb() -> int:

@@ -96,7 +96,17 @@ def test_the_restarted_agent_takes_its_robot_back_into_the_band(killed_run):
     restarted = KILL_AT + RESTART_AFTER
     late = np.flatnonzero((ts.t > restarted) & (err > band))
     back = ts.t[late[-1] + 1] if len(late) else restarted
-    print(f"\nrobot 2 back within {band} m from t = {back:.2f} s (restarted at {restarted:.2f} s)")
+    rejoin = next(p["rejoin_s"] for p in m["processes"] if p.get("rejoin_s") is not None)
+    # what this machine showed in the same run: the restarted process's start-up, and how
+    # long the robots that were never stopped took to settle from rest at t = 0 (the
+    # restarted agent's robot starts from rest too). Measured on the 2-core development
+    # VM: start-up 0.15 s forked (0.9 s spawned, on one core), back 0.49 s after the restart
+    settle = max(m["settling_time_s"][0], m["settling_time_s"][2])
+    bound = max(1.0, rejoin + 1.5 * settle + 2.0 / m["control_rate_hz"])
+    print(f"\nrobot 2 back within {band} m from t = {back:.2f} s (restarted at {restarted:.2f} s; "
+          f"first command {rejoin:.3f} s after its process started; bound {bound:.2f} s)")
+    assert rejoin <= 0.3  # imports and keys ready before they are needed: forked, not spawned
+    assert back - restarted <= bound
     assert back < ts.t[-1] - 1.0  # and stayed there for the last second at least
     assert m["settling_time_s"][0] < m["settling_bound_s"]  # robots 1 and 3 carried on
     assert m["settling_time_s"][2] < m["settling_bound_s"]
