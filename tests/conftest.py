@@ -50,7 +50,7 @@ def pytest_cmdline_main(config: pytest.Config) -> None:
             and getattr(o, "numprocesses", 0) is None and o.dist == "no" and not o.tx
             and not o.usepdb and not getattr(o, "trace", False)
             and not getattr(o, "stepwise", False) and not o.collectonly
-            and spreads(o.markexpr or "")):
+            and spreads(o.markexpr or "") and workers() > 1):  # one core: nothing to spread
         o.numprocesses, o.dist = workers(), "worksteal"
         config.stash[SPREAD] = o.numprocesses
 

@@ -142,15 +142,21 @@ def test_another_thread_wakes_the_waiting_one(run_dir):
 def test_a_short_wait_keeps_its_time_below_a_scheduler_tick(run_dir):
     """A realtime loop's wait of a fraction of a millisecond: a kernel receive timeout
     would round it up to a scheduler tick (4 ms at 250 Hz). The shortest of 20 waits
-    (a loaded machine can only make one longer, never shorter)."""
+    (a loaded machine can only make one longer, never shorter), against what a sleep of
+    the same length overshot on this machine meanwhile: this test runs beside others at a
+    tenth of a process's CPU weight (tests/suite.py), where a fixed bound judged the
+    scheduler, not the wait; a timeout in ticks overshoots by milliseconds either way."""
     rx = DatagramPath(run_dir, "rx", True)
     for want in (0.0003, 0.002):
-        took = []
+        took, slept = [], []
         for _ in range(20):
             t0 = time.perf_counter()
             assert rx.recv_wait(want) is None
-            took.append(time.perf_counter() - t0)
-        assert want <= min(took) < want + 0.0015, (want, sorted(took)[:3])
+            t1 = time.perf_counter()
+            time.sleep(want)
+            took.append(t1 - t0)
+            slept.append(time.perf_counter() - t1)
+        assert want <= min(took) < min(slept) + 0.0015, (want, sorted(took)[:3], min(slept))
 
 
 def test_dispatch_by_exact_key_and_wildcard_and_counts_what_nobody_hears():
