@@ -40,7 +40,7 @@ from deploy.report.timeseries import TimeSeries
 # scenario (and between in-process and distributed runs); everything else in
 # metrics.json is a control figure and must not.
 TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "jitter_ms",
-               "deadline_misses", "messages", "recording", "series_cells_filled",
+               "deadline_misses", "messages", "recording", "series_cells_filled", "early_load",
                "odometry_drift", "liveliness", "emulator_lag_ms", "bridge_faulted_fraction",
                "bridge_latency_ms",
                # what the nodes report of themselves (a distributed run only: in process

@@ -160,6 +160,12 @@ def _transport_lines(m: dict) -> list[str]:
         if unanswered and any(unanswered):
             lines.append(f"  states unanswered in time {_fmt_ints(unanswered)} step(s) (the "
                          "agent's command had not come by the plant's next step)")
+        early = m.get("early_load")
+        if early and early.get("behind"):
+            lines.append(f"  machine too slow           in the first second the fleet took "
+                         f"{early['busy_share']:.0%} of {early['cores']} core(s), "
+                         f"{early['heaviest']} {early['heaviest_cpu_us_per_step']:.0f} µs a step; "
+                         f"this machine would hold it at about {early['max_rate_hz']:.0f} Hz")
         rows = m.get("series_rows_missing")
         if rows and any(rows):
             lines.append(f"  states never heard         {_fmt_ints(rows)} step(s) (filled forward "

@@ -17,6 +17,7 @@ scenario's name).
 
 from __future__ import annotations
 
+import os
 import shutil
 import signal
 import sys
@@ -31,6 +32,7 @@ from deploy.contract.keyring import Keyring, keyring_text, new_master
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, Keys, control
 from deploy.report.timeseries import TimeSeries
+from deploy.run.early_load import EarlyLoad, EarlyLoadProbe
 from deploy.run.kill_schedule import KillSchedule
 from deploy.run.observer import Observer, SpooledWire
 from deploy.run.plan import LaunchOptions, endpoint_of, key_roles, plan_run, spools
@@ -102,6 +104,7 @@ class Launcher:
         self.kills = KillSchedule(opts.faults.kills if opts.faults else ())
         self.truth_files: dict[int, Path] = {}  # can-emulated: each emulator's ground truth
         self.loop_clock = LoopClock()
+        self.early: EarlyLoad | None = None  # realtime: the fleet's first second
         self.spool: SpoolReader | None = None  # the plant's samples and replies (recording)
         # called once with the run's final series, as soon as every node's report (and so
         # all of its data) is in, while the nodes are still leaving: a caller starts
@@ -161,8 +164,11 @@ class Launcher:
                         self.spool.open_all()
         finally:
             shutil.rmtree(run_dir, ignore_errors=True)
-        return run_figures(obs, sup.children, zid, wall, o.faults, self.kills.events,
-                           listener_cpu=self.loop_clock)
+        out = run_figures(obs, sup.children, zid, wall, o.faults, self.kills.events,
+                          listener_cpu=self.loop_clock)
+        if self.early is not None:
+            out["early_load"] = self.early.as_json()
+        return out
 
     def _run_fleet(self, node: Node, endpoint: str, run_dir: Path, progress: Progress) -> float:
         """Start the fleet, supervise it to the end and collect its reports; returns
@@ -230,10 +236,16 @@ class Launcher:
         does (CAN), carry out the fault plan, report progress; the fleet's messages
         are heard here meanwhile (the handlers run on this thread, off the fleet's path)."""
         obs = self.observer
+        probe = None
+        if self.opts.clock == "realtime":  # does this machine keep the fleet's clock?
+            pids = {c.role: c.proc.pid for c in self.supervisor.children if c.proc is not None}
+            probe = EarlyLoadProbe({**pids, LAUNCHER_ROLE: os.getpid()}, self.sc.dt)
         while not obs.ended:
             if self.stop():
                 raise Interrupted(self.stop.reason)
             obs.ended = self.supervisor.check(obs.ended)
+            if probe is not None and obs.run_t0 is not None:
+                self._judge_early_load(probe, obs.run_t0)
             if obs.t0_mono is not None and time.monotonic() >= obs.t0_mono + self.steps * self.sc.dt:
                 self._control(node, "end")  # no plant: the launcher keeps the run's time
                 obs.ended = True
@@ -246,6 +258,18 @@ class Launcher:
             node.mailbox.wait_until(lambda: obs.ended or self.stop(),
                                     0.05 if not self.kills.pending else 0.005, bounded=True,
                                     coalesce_s=0.0 if self.kills.pending else HEAR_EVERY_S)
+
+    def _judge_early_load(self, probe: EarlyLoadProbe, run_t0: float) -> None:
+        """At the run's start, and a second later: say at once when this machine cannot
+        keep the fleet's clock (deploy/run/early_load.py)."""
+        now = time.monotonic()
+        if probe.started_at is None and now >= run_t0:
+            probe.start(now)
+        elif probe.due(now):
+            self.early = probe.finish(now)
+            if self.early is not None and self.early.behind:
+                print(f"omnifleet run: {self.early.message(1.0 / self.sc.dt)}",
+                      file=sys.stderr, flush=True)
 
     def _announce_start(self, node: Node) -> None:
         start_unix_ns = time.time_ns() + int(START_LEAD_S * 1e9)

@@ -49,6 +49,13 @@ EXPECTED = {
     "datapath.local_wall_s", "datapath.zenoh_wall_s", "datapath.zenoh_over_local",
     *(f"lockstep.paper_cpu_us_per_step.{w}" for w in ("plant", "agent_max", "leader",
                                                       "launcher", "all")),
+    # the realtime budget (one fleet in the smoke run) and the fleets pinned to one core
+    *(f"budget.paper_1khz.{w}_cpu_us" for w in ("agent_max", "plant", "leader", "launcher")),
+    "budget.paper_1khz.agent_max.part.law_us",
+    "budget.paper_1khz.agent_max.part.wake_and_the_rest_us",
+    "onecore.paper_1khz_passed", "onecore.paper_1khz_unsettled_robots",
+    *(f"onecore.can_odrive_cansimple_200hz_{w}" for w in (
+        "pass", "steps_not_simulated", "jitter_p99_ms", "deadline_misses", "settling_max_s")),
 }
 TARGETS = {"lockstep.overhead_ratio": "<= 1.5", "lockstep.real_time_factor_500hz": ">= 10",
            "realtime.latency_p99_ms": "<= 1", "realtime.jitter_p99_ms": "<= 0.5",
