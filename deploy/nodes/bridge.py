@@ -51,7 +51,7 @@ from deploy.runtime.step_costs import CAN, HANDLE, LAW, TELEMETRY, now_ns
 from deploy.runtime.step_guard import SEQ_SLACK, OwnClock
 from deploy.runtime.transport import Node
 from plant.command import ZeroTorqueSpans, exceeds, torque_bound
-from plant.perception import sense
+from plant.perception import Perception
 
 MAX_POSE_LEAD_S = 0.02  # longest the published pose is carried past the newest encoder data
 LOG_ROWS = 20  # states per batch to observers (0.1 s at the lab's 200 Hz; ~1.3 kB)
@@ -113,8 +113,10 @@ class BridgeNode:
         # the other robots, for perception: their published states (initially the scenario's)
         self.positions, self.velocities = q0[:, :2].copy(), np.zeros((sc.n, 2))
         self.radii = [sc.spec.robot.body_radius_m] * sc.n
-        self.obstacles = sc.obstacle_bodies()  # the map: discs,
-        self.shapes = sc.obstacle_shapes()  # walls and polygons
+        # what this robot perceives: the map (discs, walls, polygons) and the other robots'
+        # published states, by the plant's kernel (one Perception, its arrays kept)
+        self.perception = Perception(self.radii, sc.robot_ids, sc.obstacle_bodies(),
+                                     sc.spec.behaviors.detection_range_m, sc.obstacle_shapes())
         self.log_rows: list[StateRow] = []
         node.subscribe(node.keys.cmd(robot_id), Reply, self._on_cmd, robot=robot_id)
         for j, rid in enumerate(sc.robot_ids):
@@ -409,8 +411,7 @@ class BridgeNode:
         with node.mailbox.lock:
             pos, vel = self.positions.copy(), self.velocities.copy()
         pos[i], vel[i] = q[:2], qd[:2]
-        robots, obstacles = sense(i, pos, vel, self.radii, self.sc.robot_ids, self.obstacles,
-                                  self.sc.spec.behaviors.detection_range_m, self.shapes)
+        robots, obstacles = self.perception.rows(i, pos, vel)  # rows, as the plant's
         node.costs.add(LAW, t0)  # perception, as the plant's
         self.published_k = max(self.published_k, k)
         # the robot moved on its agent's command for our previous sample (Sample.own_torques)

@@ -51,6 +51,7 @@ class Child:
     killed: bool = False  # killed by the fault plan: its exit status is expected
     restarted: bool = False  # started again by the fault plan, while the fleet runs
     never_rejoined: bool = False  # restarted, and still starting when the run ended: stopped
+    cpu_s: float | None = None  # its whole life's CPU time, from the kernel as it was reaped
 
     def tail(self, n: int = TAIL_LINES) -> str:
         try:

@@ -92,7 +92,10 @@ def process_rows(children: list[Child], reports: dict[str, NodeReport],
                      "peak_rss_mb": None if c.peak_rss_mb is None else round(c.peak_rss_mb, 1),
                      "exit_code": c.exit_code, "killed": c.killed, "reported": r is not None,
                      "received": dict(r.received) if r is not None else {},
-                     "cpu_s": round(r.cpu_s, 3) if r is not None else None,
+                     # a node's own figure is its run loop's; one with no report (the
+                     # drive emulator), its whole life's, from the kernel
+                     "cpu_s": round(r.cpu_s, 3) if r is not None else (
+                         None if c.cpu_s is None else round(c.cpu_s, 3)),
                      "loop_s": round(r.loop_s, 3) if r is not None else None,
                      "step_costs_ns": dict(r.step_costs_ns) if r is not None else {},
                      **({"rejoin_s": round(r.rejoin_s, 3)}

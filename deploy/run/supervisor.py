@@ -116,12 +116,14 @@ class Supervisor:
         if child.exit_code is not None or child.proc is None:
             return True
         try:
-            pid, status = os.waitpid(child.proc.pid, 0 if block else os.WNOHANG)
+            pid, status, usage = os.wait4(child.proc.pid, 0 if block else os.WNOHANG)
         except ChildProcessError:
-            pid, status = child.proc.pid, 0
+            pid, status, usage = child.proc.pid, 0, None
         if pid == 0:
             return False
         child.exit_code = os.waitstatus_to_exitcode(status)
+        if usage is not None:  # what a process with no report of its own cost (the emulator)
+            child.cpu_s = usage.ru_utime + usage.ru_stime
         child.proc.returncode = child.exit_code
         if child.log is not None:
             child.log.close()
