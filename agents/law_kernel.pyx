@@ -1099,6 +1099,79 @@ cdef class Law:
             self.tasks[best + 1] = tmp
         return n
 
+    cdef void _drive(self, Inputs* x, const double* qv, double* v_d, double* e, double* s,
+                     Outputs* o):
+        """From the commanded velocity ``v_d`` (after the explicit limits) to the wheel
+        torques: the safety filter, the dynamic level (36), (40)-(42), the observer (39) and
+        the reference's integration (11). The paper's step runs it after its behaviors;
+        a law of the behavior level (agents/law_api.py) after its own (``drive``).
+        ``qv``: the own pose the step uses; ``e``, ``s``: the tracking error and the
+        sliding variable, out."""
+        cdef double h = x.h
+        cdef double v_ref[3]
+        cdef double e_dot[3]
+        cdef double gamma[3]
+        cdef double gen[3]
+        cdef double a1[3]
+        cdef double u[4]
+        cdef double c, sphi, e_norm, pull
+        cdef int j
+        o.filtered = self.use_filter and (x.n_obs + x.n_rob) > 0
+        if o.filtered:
+            o.safety = safety_filter(v_d[0], v_d[1], self.has_vdp, self.vdp[0], self.vdp[1],
+                                     qv[0], qv[1], self.radius, x.bodies, x.n_obs + x.n_rob,
+                                     x.n_obs, self.margin, self.max_accel, self.max_speed,
+                                     self.exit_time, h, x.horizon, self.lines)
+            if o.safety.active:
+                v_d[0], v_d[1] = o.safety.vx, o.safety.vy
+
+        # dynamic level, eqs. (36), (40)-(42). The reference q_d(t) is the first-order
+        # hold of the v_d samples, one period late (controller.py): velocity v_d(k-1) at
+        # t_k, constant acceleration q_d_ddot over [t_k, t_k+1]
+        c, sphi = cos(qv[2]), sin(qv[2])
+        for j in range(3):
+            v_ref[j] = self.vdp[j] if self.has_vdp else v_d[j]
+            e[j] = qv[j] - self.qref[j]
+        e_norm = sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+        if e_norm > self.max_tracking_error:
+            # anti-windup on the reference (ours, not the paper's): eq. (11) integrates q_d
+            # open loop, so a robot held back left q_d running ahead; q_d is kept within
+            # the bound of the robot
+            pull = 1.0 - self.max_tracking_error / e_norm
+            for j in range(3):
+                self.qref[j] = self.qref[j] + pull * e[j]
+                e[j] = qv[j] - self.qref[j]
+        for j in range(3):
+            e_dot[j] = x.qd[j] - v_ref[j]
+        if not self.has_z1:  # the ESO starts at the first measurement (eso.py)
+            self.has_z1 = True
+            for j in range(3):
+                self.z1[j] = e_dot[j]
+        control_term(e, e_dot, self.z2, self.gamma_p, self.alpha, self.mu2, self.eps2,
+                     self.reach_low, self.reach_high, self.s_div, gamma, s)
+        # u = B_bar^-1 [q_d_ddot + A0 q_dot + A1 + Gamma; 0], q_d_ddot = (v_d - v_ref) / h
+        coulomb_term(&self.model, c, sphi, x.qd, a1)
+        for j in range(3):
+            gen[j] = (v_d[j] - v_ref[j]) / h + (self.model.A0[j][0] * x.qd[0]
+                     + self.model.A0[j][1] * x.qd[1] + self.model.A0[j][2] * x.qd[2]) \
+                     + a1[j] + gamma[j]
+        allocate(self.alloc, c, sphi, gen, u)
+        saturate_torques(u, self.max_torque)
+        o.nonfinite = not (isfinite(u[0]) and isfinite(u[1]) and isfinite(u[2]) and isfinite(u[3]))
+        for j in range(4):
+            o.torques[j] = 0.0 if o.nonfinite else u[j]
+
+        # observer (39) and reference integration (CLIK, eq. 11: the trapezoid of the
+        # first-order hold)
+        eso_advance(self.z1, self.z2, e_dot, gamma, self.mu1, self.mu2_eso, self.r1, self.r2,
+                    h, self.dt)
+        for j in range(3):
+            o.q_d[j] = self.qref[j]
+            self.qref[j] = self.qref[j] + 0.5 * h * (v_ref[j] + v_d[j])
+            self.vdp[j] = v_d[j]
+        self.has_vdp = True
+
+
     cdef void _step(self, Inputs* x, Outputs* o):
         """One control step (agents/core.py AgentCore.step says what comes in and out)."""
         cdef double h = x.h
@@ -1170,60 +1243,7 @@ cdef class Law:
                              x.n_rob, x.horizon)
         supervise(self.tasks, nt, self.approaching, self, h, v_d)
         self.n_tasks = nt
-        o.filtered = self.use_filter and (x.n_obs + x.n_rob) > 0
-        if o.filtered:
-            o.safety = safety_filter(v_d[0], v_d[1], self.has_vdp, self.vdp[0], self.vdp[1],
-                                     qv[0], qv[1], self.radius, x.bodies, x.n_obs + x.n_rob,
-                                     x.n_obs, self.margin, self.max_accel, self.max_speed,
-                                     self.exit_time, h, x.horizon, self.lines)
-            if o.safety.active:
-                v_d[0], v_d[1] = o.safety.vx, o.safety.vy
-
-        # dynamic level, eqs. (36), (40)-(42). The reference q_d(t) is the first-order
-        # hold of the v_d samples, one period late (controller.py): velocity v_d(k-1) at
-        # t_k, constant acceleration q_d_ddot over [t_k, t_k+1]
-        c, sphi = cos(qv[2]), sin(qv[2])
-        for j in range(3):
-            v_ref[j] = self.vdp[j] if self.has_vdp else v_d[j]
-            e[j] = qv[j] - self.qref[j]
-        e_norm = sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
-        if e_norm > self.max_tracking_error:
-            # anti-windup on the reference (ours, not the paper's): eq. (11) integrates q_d
-            # open loop, so a robot held back left q_d running ahead; q_d is kept within
-            # the bound of the robot
-            pull = 1.0 - self.max_tracking_error / e_norm
-            for j in range(3):
-                self.qref[j] = self.qref[j] + pull * e[j]
-                e[j] = qv[j] - self.qref[j]
-        for j in range(3):
-            e_dot[j] = x.qd[j] - v_ref[j]
-        if not self.has_z1:  # the ESO starts at the first measurement (eso.py)
-            self.has_z1 = True
-            for j in range(3):
-                self.z1[j] = e_dot[j]
-        control_term(e, e_dot, self.z2, self.gamma_p, self.alpha, self.mu2, self.eps2,
-                     self.reach_low, self.reach_high, self.s_div, gamma, s)
-        # u = B_bar^-1 [q_d_ddot + A0 q_dot + A1 + Gamma; 0], q_d_ddot = (v_d - v_ref) / h
-        coulomb_term(&self.model, c, sphi, x.qd, a1)
-        for j in range(3):
-            gen[j] = (v_d[j] - v_ref[j]) / h + (self.model.A0[j][0] * x.qd[0]
-                     + self.model.A0[j][1] * x.qd[1] + self.model.A0[j][2] * x.qd[2]) \
-                     + a1[j] + gamma[j]
-        allocate(self.alloc, c, sphi, gen, u)
-        saturate_torques(u, self.max_torque)
-        o.nonfinite = not (isfinite(u[0]) and isfinite(u[1]) and isfinite(u[2]) and isfinite(u[3]))
-        for j in range(4):
-            o.torques[j] = 0.0 if o.nonfinite else u[j]
-
-        # observer (39) and reference integration (CLIK, eq. 11: the trapezoid of the
-        # first-order hold)
-        eso_advance(self.z1, self.z2, e_dot, gamma, self.mu1, self.mu2_eso, self.r1, self.r2,
-                    h, self.dt)
-        for j in range(3):
-            o.q_d[j] = self.qref[j]
-            self.qref[j] = self.qref[j] + 0.5 * h * (v_ref[j] + v_d[j])
-            self.vdp[j] = v_d[j]
-        self.has_vdp = True
+        self._drive(x, qv, v_d, e, s, o)
 
         # leader estimator (14), advanced to k+1 and shared; stale inputs predicted to
         # now, those older than stale_after left out (degradation.py)
@@ -1324,6 +1344,63 @@ cdef class Law:
                      speed_cap)
         self._step(&x, &o)
         return self._outputs(&o)
+
+    def drive(self, double t, q, q_dot, v_d, obstacles, robots, double h,
+              double horizon=0.0, double speed_cap=1.0):
+        """A law of the behavior level (agents/law_api.py) made ``v_d`` (3 floats, the
+        world-frame velocity it wants) from these inputs: the explicit limits, the safety
+        filter, the dynamic level, the observer and the reference, as the paper's own step
+        runs them after its behaviors (``_drive``). Returns (torques, v_cmd, e, s, q_d,
+        z2_hat, nonfinite, safety), safety as ``step`` gives it."""
+        cdef Inputs x
+        cdef Outputs o
+        cdef double v[3]
+        cdef double e[3]
+        cdef double s[3]
+        cdef int j, n_obs, n_rob
+        x.t, x.h = t, h
+        x.horizon = horizon if horizon > h else h
+        x.speed_cap = speed_cap if speed_cap < 1.0 else 1.0
+        for j in range(3):
+            x.q[j] = q[j]
+            x.qd[j] = q_dot[j]
+            v[j] = v_d[j]
+        x.has_ages, x.has_leader, x.n_nbr, x.nbr = False, False, 0, NULL
+        x.state_age = x.leader_age = 0.0
+        n_obs, n_rob = len(obstacles), len(robots)
+        x.n_obs, x.n_rob = n_obs, n_rob
+        x.bodies = self._bodies(n_obs + n_rob)
+        _copy_bodies(obstacles, x.bodies)
+        _copy_bodies(robots, x.bodies + 6 * n_obs)
+        self._room(1 + n_obs + n_rob, n_obs + n_rob)
+        self.speed_cap = x.speed_cap
+        self.n_tasks = 0
+        self._limited(v, h)
+        self._drive(&x, x.q, v, e, s, &o)
+        if not (isfinite(v[0]) and isfinite(v[1]) and isfinite(v[2])):
+            o.nonfinite = True
+            v[0] = v[1] = v[2] = 0.0
+        safety = None
+        if o.filtered:
+            safety = ((o.safety.vx, o.safety.vy), bool(o.safety.active), o.safety.binding,
+                      bool(o.safety.infeasible), o.safety.dv)
+        return ((o.torques[0], o.torques[1], o.torques[2], o.torques[3]), (v[0], v[1], v[2]),
+                (e[0], e[1], e[2]), (s[0], s[1], s[2]), (o.q_d[0], o.q_d[1], o.q_d[2]),
+                (self.z2[0], self.z2[1], self.z2[2]), bool(o.nonfinite), safety)
+
+    def predicted(self, q, q_dot, torques, double h):
+        """The robot's (q, q_dot) after ``h`` under ``torques``: eq. (4), RK4, no disturbance
+        (the model the look-ahead predicts with, ``plan``)."""
+        cdef double xq[3]
+        cdef double xv[3]
+        cdef double u[4]
+        cdef int j
+        for j in range(3):
+            xq[j], xv[j] = q[j], q_dot[j]
+        for j in range(4):
+            u[j] = torques[j]
+        rk4(&self.model, xq, xv, u, h)
+        return (xq[0], xq[1], xq[2]), (xv[0], xv[1], xv[2])
 
     cdef object _outputs(self, Outputs* o):
         cdef int i
