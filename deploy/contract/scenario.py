@@ -240,6 +240,15 @@ class Metrics(_S, kw_only=True):
     expect_unreached_why: str = ""
 
 
+class LawSection(_S, kw_only=True):
+    """The control law every agent runs (agents/laws/__init__.py, docs/laws.md)."""
+
+    # paper (the paper's law, compiled), a bundled law's name, module:Class, or
+    # path/to/file.py:Class (a path relative to this scenario's folder, or absolute)
+    use: str = "paper"
+    params: dict[str, float | int | bool | str] = msgspec.field(default_factory=dict)
+
+
 class ScenarioFile(_S, kw_only=True):
     name: str
     description: str = ""
@@ -263,6 +272,7 @@ class ScenarioFile(_S, kw_only=True):
     plant: PlantSection = msgspec.field(default_factory=PlantSection)
     degradation: Degradation = msgspec.field(default_factory=Degradation)
     metrics: Metrics = msgspec.field(default_factory=Metrics)
+    law: LawSection = msgspec.field(default_factory=LawSection)
 
 
 @dataclass(frozen=True)
@@ -321,6 +331,27 @@ class Scenario:
     def with_control_rate(self, hz: float) -> Scenario:
         """The same scenario stepped at another control rate."""
         return replace(self, spec=msgspec.structs.replace(self.spec, control_rate_hz=hz))
+
+    def with_law(self, spec: str, where: str = "--law") -> Scenario:
+        """The same scenario with every agent on law ``spec`` (``--law``; a file's path
+        relative to the working directory). Its ``[law] params`` stay when ``spec`` names
+        the scenario's own law, else the new law's defaults apply. ScenarioError naming
+        ``where`` when the law cannot be used."""
+        spec = _absolute_law(spec, Path.cwd())
+        params = self.spec.law.params if spec == self.spec.law.use else {}
+        law = LawSection(use=spec, params=dict(params))
+        _load_law(where, law)
+        return replace(self, spec=msgspec.structs.replace(self.spec, law=law))
+
+    @property
+    def law_name(self) -> str:
+        """The name the run's law goes by in reports (paper, consensus, a class's name)."""
+        cls, _ = self.law()
+        return "paper" if cls is None else cls.law_name()
+
+    def law(self) -> tuple[type | None, object]:
+        """(the law's class, its parameters): (None, None) for the paper's compiled law."""
+        return _load_law(self.path, self.spec.law)
 
     def scale_changes(self, index: int | None = None) -> tuple[ScaleChange, ...]:
         """The S(t) schedule as the agents use it: the formation's, or robot ``index``'s
@@ -662,9 +693,34 @@ def _check_all_finite(path: str, node, key: str = "") -> None:
             raise _fail(path, key, f"must be a finite number, got {node}")
 
 
+def _absolute_law(spec: str, folder: Path) -> str:
+    """A law named by a file's path, that path made absolute from ``folder`` (the nodes of
+    a run read the scenario from elsewhere, or start elsewhere)."""
+    where, sep, cls = spec.rpartition(":")
+    if sep and where.endswith(".py") and not Path(where).expanduser().is_absolute():
+        return f"{(folder / Path(where).expanduser()).resolve()}:{cls}"
+    return spec
+
+
+def _load_law(path: str, law: LawSection) -> tuple[type | None, object]:
+    """The law's class and parameters (agents/laws), or ScenarioError naming ``path``."""
+    from agents.laws import LawError, load, params_of
+
+    try:
+        cls = load(law.use)
+        return cls, params_of(cls, law.params, law.use)
+    except LawError as exc:
+        raise ScenarioError(f"{path}: law.use: {exc}") from exc
+
+
 def _validate(path: str, s: ScenarioFile) -> Scenario:
     notes: list[str] = []
     _check_all_finite(path, msgspec.to_builtins(s))
+    if s.law.use != "paper":  # a law of a file: its path from the scenario's folder
+        folder = Path(path).parent if Path(path).exists() else Path.cwd()
+        s = msgspec.structs.replace(s, law=msgspec.structs.replace(
+            s.law, use=_absolute_law(s.law.use, folder)))
+        _load_law(path, s.law)  # a law that cannot be used: said now, before anything runs
     if not (0 < s.control_rate_hz <= MAX_RATE_HZ):
         raise _fail(path, "control_rate_hz", f"must be in (0, {MAX_RATE_HZ:g}]")
     if s.duration_s * s.control_rate_hz < 1.0:

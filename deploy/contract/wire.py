@@ -41,6 +41,7 @@ WIRE_VERSION = 7
 MAX_BODIES = 256  # bodies per perception message
 MAX_ORDER_CHARS = 32
 MAX_ROLE_CHARS = 32
+MAX_LAW_ERROR_CHARS = 400  # a law's first error, one line (NodeReport.law_error)
 MAX_BATCH = 256  # steps per batched message (leader, telemetry, state log)
 MAX_CONTACTS = 10_000  # contact events carried by a plant's report (the count is exact)
 MAX_REPORT_SAMPLES = 200_000  # timing samples a report carries (node_runtime.MAX_SAMPLES)
@@ -340,11 +341,19 @@ class NodeReport(Message, frozen=True):
     # agent that rejoined a running fleet: from its process start to its first command, s
     # (-1: not a rejoin, or it sent none)
     rejoin_s: Finite = -1.0
+    # agent on a law of the lab's own (agents/plugged.py): steps it raised, steps whose
+    # output was refused (braked instead), steps longer than the period, and the first
+    # error's line
+    law_errors: int = 0
+    law_refused: int = 0
+    law_overruns: int = 0
+    law_error: Annotated[str, msgspec.Meta(max_length=MAX_LAW_ERROR_CHARS)] = ""
 
     def __post_init__(self) -> None:
         if min(self.sent, self.dropped, self.late, self.invalid, self.steps, self.nonfinite,
                self.deadline_misses, self.law_resets, self.nonfinite_commands,
                self.stale_samples, self.contacts_total, self.overloaded_steps,
+               self.law_errors, self.law_refused, self.law_overruns,
                self.longest_late_ns, self.unrecorded, *self.unanswered) < 0:
             raise ValueError("a negative count")  # a forged "invalid = -1000"
         if (len(self.latency_ns) > MAX_REPORT_SAMPLES or len(self.jitter_ns) > MAX_REPORT_SAMPLES

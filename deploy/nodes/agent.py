@@ -24,16 +24,18 @@ from typing import Any, NamedTuple
 import msgspec
 import numpy as np
 
-from agents.core import AgentCore, AgentOutput, Share
+from agents.core import AgentOutput, Share
 from agents.degradation import InputAges, predict
 from agents.look_ahead import LookAhead
 from agents.pace import LoopPace
+from agents.plugged import make_core
 from deploy.contract.fault_plan import FaultPlan
 from deploy.contract.options import DEFAULT_STEP_DEADLINE_S
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import (
     LAUNCHER_ROLE,
     LEADER_ROLE,
+    MAX_LAW_ERROR_CHARS,
     PLANT_ROLE,
     WIRE_VERSION,
     LeaderState,
@@ -187,7 +189,9 @@ class AgentNode:
         self.rid = robot_id
         q, qd = sc.initial_state()
         q0h, v0h = sc.initial_estimates(self.index)
-        self.core = AgentCore(sc.agent_config(self.index), q[self.index], qd[self.index], q0h, v0h)
+        self._law, self._law_params = sc.law()  # the paper's (None), or a lab's own
+        self.core = make_core(sc.agent_config(self.index), self._law, self._law_params,
+                              q[self.index], qd[self.index], q0h, v0h)
         self.neighbours = [j for j, _ in self.core.cfg.neighbours]
         self.hears_leader = self.core.cfg.leader_weight != 0.0
         self.inputs = AgentInputs.empty()
@@ -652,8 +656,8 @@ class AgentNode:
             v0 = tuple(np.mean([m.share.v0_hat for m in shares.values()], axis=0).tolist())
         else:
             return False
-        self.core = AgentCore(self.core.cfg, np.array(state.q), np.array(state.q_dot),
-                              np.array(q0), np.array(v0))
+        self.core = make_core(self.core.cfg, self._law, self._law_params, state.q,
+                              state.q_dot, q0, v0)
         print(f"{self.node.role}: rejoined at t = {state.t:.3f} s (plant step {state.k})",
               file=sys.stderr)
         return True
@@ -677,4 +681,17 @@ class AgentNode:
                        faults=self.faults.report(), law_resets=self.law_resets,
                        nonfinite_commands=self.nonfinite_commands,
                        stale_samples=self.stale_samples, overloaded_steps=self.overloaded_steps,
-                       rejoin_s=self.rejoin_s)
+                       rejoin_s=self.rejoin_s, **self._law_report())
+
+    def _law_report(self) -> dict:
+        """A law of the lab's: what it did wrong (agents/plugged.py), said once more here."""
+        faults = getattr(self.core, "faults", None)
+        if faults is None:
+            return {}
+        line = faults.error_line[:MAX_LAW_ERROR_CHARS]
+        if faults.errors or faults.refused or faults.overruns:
+            print(f"{self.node.role}: law {self.core.name}: raised {faults.errors}, refused "
+                  f"{faults.refused}, overran {faults.overruns} step(s)"
+                  + (f"; first: {line}" if line else ""), file=sys.stderr, flush=True)
+        return {"law_errors": faults.errors, "law_refused": faults.refused,
+                "law_overruns": faults.overruns, "law_error": line}

@@ -40,6 +40,8 @@ def run_scenario(args: argparse.Namespace) -> Scenario:
     """The scenario of ``args.scenario`` at ``--control-rate`` if given, for a run of
     ``--duration`` (OptionError when that is shorter than one control period)."""
     sc = load_scenario(args.scenario)
+    if getattr(args, "law", None):  # every agent on another law (docs/laws.md)
+        sc = sc.with_law(args.law)
     if args.control_rate is not None:
         sc = sc.with_control_rate(args.control_rate)
     check_duration(args.duration, sc.spec.control_rate_hz)
@@ -268,6 +270,7 @@ def add_node_options(p: argparse.ArgumentParser) -> None:
     add_option(p, "--control-rate")
     add_option(p, "--step-deadline")
     add_option(p, "--startup-timeout")
+    add_law_option(p)
     p.add_argument("--faults", metavar="PLAN",
                    help="a fault plan (TOML, docs/faults.md): this node applies the faults of "
                    "the links it receives on; give every node of a run the same plan")
@@ -279,6 +282,17 @@ def add_node_options(p: argparse.ArgumentParser) -> None:
     add_priority_argument(p, "for a control loop on the realtime clock on a host that "
                           f"runs other work (the launcher asks for {REALTIME_PRIORITY} there)")
     add_option(p, "--lost-peer-grace")
+
+
+def add_law_option(p: argparse.ArgumentParser) -> None:
+    """``--law``: every agent on another control law than the scenario's ``[law]``."""
+    from agents.laws import NAMES
+
+    p.add_argument("--law", metavar="LAW",
+                   help=f"the agents' control law instead of the scenario's [law] use: "
+                   f"{', '.join(NAMES)}, module:Class or path/to/file.py:Class (a class of "
+                   "agents/law_api.py; the scenario's [law] params apply when it names the "
+                   "same law; docs/laws.md)")
 
 
 def add_keys_options(p: argparse.ArgumentParser) -> None:

@@ -41,6 +41,7 @@ from deploy.report.timeseries import TimeSeries
 # metrics.json is a control figure and must not.
 TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "jitter_ms",
                "deadline_misses", "messages", "recording", "series_cells_filled", "early_load",
+               "law_overruns",
                "odometry_drift", "liveliness", "emulator_lag_ms", "bridge_faulted_fraction",
                "bridge_latency_ms",
                # what the nodes report of themselves (a distributed run only: in process
@@ -173,6 +174,7 @@ def compute_metrics(
                 f"expects: {u['why']}")
     return {
         "scenario": s.name,
+        "law": sc.law_name,  # the agents' control law (docs/laws.md)
         "plant": plant,
         "clock": clock,
         "robots": n,

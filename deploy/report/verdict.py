@@ -3,7 +3,8 @@
 PASS when every robot settles (|e| stays below ``settle_threshold``) before
 sqrt(2) T_p, nothing ever touches (no contact, every surface-to-surface gap > 0) and
 nothing is non-finite (no NaN/Inf in the states, and the control law never
-gave one), no robot ran on zero torque (its agent silent) for longer than the command
+gave one), a law of the lab's own (docs/laws.md) never raised nor had an output refused
+and kept its period, no robot ran on zero torque (its agent silent) for longer than the command
 timeout, the run was not interrupted, its recording did not fail, and it went to its
 end: a run ended early by a genuine ``ctl/stop`` or ``ctl/estop`` (``stopped_by`` in
 metrics.json) is never PASS. A run whose states become non-finite or absurd (a robot
@@ -121,8 +122,10 @@ def judge(metrics: dict[str, Any], diverged: dict[str, Any] | None = None) -> di
     whole = _whole(metrics, reasons)
     on_time = _on_time(metrics, reasons)
     in_formation = _in_formation(metrics, reasons)
+    law_sound = _law_sound(metrics, reasons)
     return {"pass": (bool(settled) and no_contact and finite and not unpowered and complete
-                     and not stopped and whole and on_time and in_formation),
+                     and not stopped and whole and on_time and in_formation and law_sound),
+            "law_sound": law_sound,
             "settled": settled, "in_formation": in_formation,
             "expected_unreached": [u["robot"] for u in metrics.get("formation_unreached") or []
                                    if u["expected"]],
@@ -131,6 +134,27 @@ def judge(metrics: dict[str, Any], diverged: dict[str, Any] | None = None) -> di
             "powered": not unpowered, "complete": complete, "stopped": bool(stopped),
             "whole": whole, "on_time": on_time, "realtime": metrics.get("clock") == "realtime",
             "diverged": diverged, "settling_bound_s": bound, "reasons": reasons}
+
+
+def _law_sound(metrics: dict[str, Any], reasons: list[str]) -> bool:
+    """A law of the lab's (agents/plugged.py) never raised nor gave an output that was
+    refused, and overran its period in at most ``MAX_MISS_SHARE`` of the steps; each
+    failure names the law, the robot and the first error's line."""
+    law = metrics.get("law", "paper")
+    ok = True
+    for i, f in enumerate(metrics.get("law_faults") or []):
+        if f and (f["errors"] or f["refused"]):
+            ok = False
+            reasons.append(f"law {law} on robot #{i + 1}: raised in {f['errors']} step(s), "
+                           f"its output refused in {f['refused']} (the robot braked instead)"
+                           + (f": {f['error']}" if f["error"] else ""))
+    asked = metrics.get("steps_asked") or metrics.get("steps") or 0
+    for i, n in enumerate(metrics.get("law_overruns") or []):
+        if n and asked and n > MAX_MISS_SHARE * asked:
+            ok = False
+            reasons.append(f"law {law} on robot #{i + 1} took longer than its period in {n} of "
+                           f"{asked} steps")
+    return ok
 
 
 def _in_formation(metrics: dict[str, Any], reasons: list[str]) -> bool:

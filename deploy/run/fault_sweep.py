@@ -31,6 +31,7 @@ from deploy.contract.fault_plan import uniform_drop_plan
 from deploy.contract.options import add_option, check_duration
 from deploy.contract.output_paths import check_folder
 from deploy.contract.scenario import load_scenario
+from deploy.nodes.cli import add_law_option
 from deploy.runtime.own_python import child_env, python_module
 
 
@@ -71,12 +72,15 @@ def row_from_run(drop: float, seed: int, run_dir: Path) -> SweepRow:
 
 
 def _run_in_process(scenario: str, drop: float, seed: int, run_dir: Path,
-                    duration: float | None, plant: str | None) -> SweepRow:
+                    duration: float | None, plant: str | None, law: str | None = None
+                    ) -> SweepRow:
     from deploy.report.outputs import write_run
     from deploy.run.runner import run_in_process
     from deploy.runtime.fault_model import fault_metrics
 
     sc = load_scenario(scenario)
+    if law:
+        sc = sc.with_law(law)
     plan = uniform_drop_plan(sc, drop, seed)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "faults.toml").write_text(plan_text(drop, seed))
@@ -88,7 +92,8 @@ def _run_in_process(scenario: str, drop: float, seed: int, run_dir: Path,
 
 
 def _run_distributed(scenario: str, drop: float, seed: int, run_dir: Path,
-                     duration: float | None, plant: str | None) -> SweepRow:
+                     duration: float | None, plant: str | None, law: str | None = None
+                     ) -> SweepRow:
     run_dir.mkdir(parents=True, exist_ok=True)
     plan = run_dir / "faults.toml"
     plan.write_text(plan_text(drop, seed))
@@ -98,6 +103,8 @@ def _run_distributed(scenario: str, drop: float, seed: int, run_dir: Path,
         cmd += ["--duration", repr(duration)]
     if plant is not None:
         cmd += ["--plant", plant]
+    if law:
+        cmd += ["--law", law]
     with open(run_dir / "run.log", "wb") as log:
         proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
                                 env=child_env(one_blas_thread=False))
@@ -116,7 +123,9 @@ def _run_distributed(scenario: str, drop: float, seed: int, run_dir: Path,
 def run_sweep(scenario: str, drops: list[float], seeds: int, out: Path, jobs: int,
               distributed: bool = False, duration: float | None = None,
               plant: str | None = None,
-              progress: Callable[[int, int, SweepRow], None] | None = None) -> list[SweepRow]:
+              progress: Callable[[int, int, SweepRow], None] | None = None,
+              law: str | None = None) -> list[SweepRow]:
+    """``law``: every agent on another law (--law; docs/laws.md)."""
     # without loss the seed decides nothing: one run stands for all
     grid = [(d, s) for d in drops for s in (range(1, seeds + 1) if d > 0.0 else (1,))]
     fn = _run_distributed if distributed else _run_in_process
@@ -127,7 +136,7 @@ def run_sweep(scenario: str, drops: list[float], seeds: int, out: Path, jobs: in
 
     if jobs <= 1 or distributed:
         for d, s in grid:
-            rows.append(fn(scenario, d, s, folder(d, s), duration, plant))
+            rows.append(fn(scenario, d, s, folder(d, s), duration, plant, law))
             if progress:
                 progress(len(rows), len(grid), rows[-1])
     else:
@@ -135,7 +144,7 @@ def run_sweep(scenario: str, drops: list[float], seeds: int, out: Path, jobs: in
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = [pool.submit(fn, scenario, d, s, folder(d, s), duration, plant)
+            futures = [pool.submit(fn, scenario, d, s, folder(d, s), duration, plant, law)
                        for d, s in grid]
             for f in as_completed(futures):
                 rows.append(f.result())
@@ -228,6 +237,8 @@ def _drops(text: str) -> list[float]:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     sc = load_scenario(args.scenario)  # a bad scenario fails here, before any run
+    if args.law:  # and a law that cannot be used (exit 2, cli.main)
+        sc = sc.with_law(args.law)
     check_duration(args.duration, sc.spec.control_rate_hz)
     out = check_folder(args.out or f"runs/{sc.name}-fault-sweep", "--out")  # exit 2 (cli.main)
     out.mkdir(parents=True, exist_ok=True)
@@ -245,7 +256,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     try:
         rows = run_sweep(args.scenario, args.drop, args.seeds, out, jobs, args.distributed,
-                         args.duration, args.plant, progress)
+                         args.duration, args.plant, progress,
+                         None if not args.law else sc.spec.law.use)
     except RuntimeError as exc:  # a distributed run failed: its log is named
         print(f"faults sweep: {exc}", file=sys.stderr)
         return 1
@@ -277,6 +289,7 @@ def add_faults_command(sub: argparse._SubParsersAction) -> None:
                    help="run each through `omnifleet run` (one process per node) instead of "
                    "in-process; same results, slower")
     add_option(p, "--duration", more_help="per run")
+    add_law_option(p)
     p.add_argument("--plant", choices=["pybullet", "model", "kinematic"], default=None,
                    help="default: the scenario's")
     p.add_argument("--out", metavar="DIR", help="default: runs/<scenario>-fault-sweep")

@@ -111,6 +111,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, label: str, live,
                     drawing=None):
     from deploy.report.outputs import write_run
+    from deploy.run.run_figures import law_fault_figures
     from deploy.run.runner import run_in_process, run_progress
 
     progress = _with_live(run_progress(label), live)
@@ -118,6 +119,7 @@ def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, l
                             on_series=None if live is None else live.follow)
     extra = {} if plan is None else {"faults": fault_metrics(plan, result.faults or {})}
     extra["law_resets"] = result.law_resets
+    extra |= law_fault_figures(result.law_faults)
     clipped = result.torque_clipped or {}
     extra["torque_clipped"] = [clipped.get(r, 0) for r in sc.robot_ids]  # per robot, a list
     recorder = None
@@ -207,6 +209,8 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         record=not args.no_record, fleet=args.fleet, endpoint=args.endpoint, gui=args.gui,
         faults=fault_plan(args, sc), realtime_priority=args.priority, recorder=recorder,
         lowlatency=args.zenoh_transport == "lowlatency", datagrams=args.data_path == "datagram",
+        # --law: the agents read the scenario's file, and are told (a file's path made absolute)
+        extra_agent_args=["--law", sc.spec.law.use] if args.law else [],
         **({} if args.driver is None else {"driver": args.driver}),
     )
     launcher = Launcher(sc, opts)

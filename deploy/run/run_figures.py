@@ -34,6 +34,27 @@ def agent_figures(agents: list[NodeReport | None]) -> dict[str, Any]:
             "overloaded_steps": each("overloaded_steps")}
 
 
+def law_fault_figures(faults: list[dict | None] | None) -> dict[str, Any]:
+    """A law of the lab's own (agents/plugged.py): per robot, the steps it raised and those
+    whose output was refused (braked instead), with its first error's line
+    (``law_faults``), and the steps it overran its period (``law_overruns``, a timing);
+    nothing for the paper's law. A robot whose report never came: None."""
+    if faults is None or all(f is None for f in faults):
+        return {}
+    return {"law_faults": [None if f is None else {k: f[k] for k in ("errors", "refused", "error")}
+                           for f in faults],
+            "law_overruns": [None if f is None else f["overruns"] for f in faults]}
+
+
+def agent_law_faults(agents: list[NodeReport | None], plugged: bool) -> list[dict | None] | None:
+    """The agents' reports as :func:`law_fault_figures` takes them (None: the paper's law)."""
+    if not plugged:
+        return None
+    return [None if r is None else {"errors": r.law_errors, "refused": r.law_refused,
+                                    "overruns": r.law_overruns, "error": r.law_error}
+            for r in agents]
+
+
 def zero_torque_figures(reports: list[NodeReport], robot_ids: list[int]) -> dict[str, Any]:
     """Each stretch a robot ran on zero torque for want of a fresh command (plant or CAN
     bridge, realtime), and per robot the longest (0 when none): the verdict compares it
@@ -139,7 +160,9 @@ def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: f
                                                      listener_cpu)}
     # per robot, in the scenario's order (None: its agent's report never came); a
     # restarted agent reports for its second life too (the collector keeps the last)
-    out |= agent_figures([reports.get(agent_role(r)) for r in sc.robot_ids])
+    agents = [reports.get(agent_role(r)) for r in sc.robot_ids]
+    out |= agent_figures(agents)
+    out |= law_fault_figures(agent_law_faults(agents, sc.spec.law.use != "paper"))
     # commands that asked for more torque than the bound, clipped: per robot, a list in the
     # scenario's order like every per-robot figure (the reports key them by id, as text)
     clipped = {str(r): 0 for r in sc.robot_ids}

@@ -17,6 +17,7 @@ import numpy as np
 from agents.core import AgentCore, Share
 from agents.leader import LeaderGenerator
 from agents.look_ahead import LookAhead
+from agents.plugged import PluggedCore, make_core
 from deploy.contract.fault_plan import FaultPlan
 from deploy.contract.scenario import PLANT_KINDS, Scenario
 from deploy.contract.wire import PLANT_ROLE, agent_role
@@ -44,15 +45,20 @@ class RunResult:
     # per robot id, the commands that asked for more torque than the bound (clipped), as
     # the plant node counts them (plant/command.py); the agents' own: none on a bounded law
     torque_clipped: dict[int, int] | None = None
+    # per robot, what a law of the lab's did wrong (agents/plugged.py); None: the paper's law
+    law_faults: list[dict] | None = None
 
 
-def make_agents(sc: Scenario) -> list[AgentCore]:
+def make_agents(sc: Scenario) -> list[AgentCore | PluggedCore]:
+    """Every robot's agent, on the scenario's law (``[law]``: the paper's compiled one, or
+    a law of the lab's, agents/plugged.py)."""
     q, qd = sc.initial_state()
     model = sc.model()
+    law, params = sc.law()
     agents = []
     for i in range(sc.n):
         q0h, v0h = sc.initial_estimates(i)
-        agents.append(AgentCore(sc.agent_config(i, model), q[i], qd[i], q0h, v0h))
+        agents.append(make_core(sc.agent_config(i, model), law, params, q[i], qd[i], q0h, v0h))
     return agents
 
 
@@ -189,9 +195,10 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
         step_unix_ns = step_unix_ns[:done]
     wall = time.perf_counter() - start
     series.target[:] = targets.along(series.t, series.leader_q)  # reported only: after the run
+    faults = [a.faults.as_json() for a in agents] if isinstance(agents[0], PluggedCore) else None
     return RunResult(sc, plant_kind, series, wall, contact_log(plant), model.report()
                      if model.plan is not None else None, step_unix_ns, law_resets, interrupted,
-                     clipped)
+                     clipped, faults)
 
 
 def terminal_progress(total_label: str) -> Callable[[int, int], None] | None:

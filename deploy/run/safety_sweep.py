@@ -20,6 +20,7 @@ from pathlib import Path
 
 from deploy.contract.options import add_option, check_duration
 from deploy.contract.output_paths import check_folder
+from deploy.nodes.cli import add_law_option
 
 SWEEP_HELP = ("Run seeds 0..K-1 of a seeded perturbation of SCENARIO (every obstacle and "
               "start jittered, as `omnifleet scenario perturb` writes them), each in process "
@@ -42,13 +43,15 @@ class SweepRow:
 
 
 def run_one(scenario: str, seed: int, plant: str | None, duration: float | None,
-            obstacle_jitter: float | None, start_jitter: float | None) -> SweepRow:
+            obstacle_jitter: float | None, start_jitter: float | None,
+            law: str | None = None) -> SweepRow:
     from deploy.contract.scenario import load_scenario
     from deploy.contract.scenario_variants import perturbed
     from deploy.report.metrics import compute_metrics
     from deploy.run.runner import run_in_process
 
-    sc = perturbed(load_scenario(scenario), seed, obstacle_jitter, start_jitter)
+    sc = load_scenario(scenario)
+    sc = perturbed(sc.with_law(law) if law else sc, seed, obstacle_jitter, start_jitter)
     res = run_in_process(sc, plant, duration)
     m = compute_metrics(sc, res.series, res.plant, "lockstep", res.wall_time_s,
                         contact_log=res.contacts)
@@ -90,6 +93,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     check_folder(args.out, "--out")  # OutputPathError: exit 2 (cli.main), before anything
     sc = load_scenario(args.scenario)  # ScenarioError: exit 2 with file and key (cli.main)
+    if args.law:  # a law that cannot be used: exit 2 too, before any run
+        sc = sc.with_law(args.law)
+    law = sc.spec.law.use if args.law else None
     check_duration(args.duration, sc.spec.control_rate_hz)  # OptionError: exit 2 (cli.main)
     plant = args.plant or sc.spec.plant.kind
     args.out.mkdir(parents=True, exist_ok=True)
@@ -97,7 +103,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     started = time.monotonic()
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         futures = {pool.submit(run_one, args.scenario, seed, plant, args.duration,
-                               args.obstacle_jitter, args.start_jitter): seed
+                               args.obstacle_jitter, args.start_jitter, law): seed
                    for seed in range(args.seeds)}
         for fut in as_completed(futures):
             row = fut.result()
@@ -128,6 +134,7 @@ def add_safety_command(sub: argparse._SubParsersAction) -> None:
     sw.add_argument("--plant", choices=["pybullet", "model", "kinematic"],
                     help="plant (default: the scenario's)")
     add_option(sw, "--duration")
+    add_law_option(sw)
     add_option(sw, "--obstacle-jitter")
     add_option(sw, "--start-jitter")
     add_option(sw, "--jobs", default=2, help="in-process runs at once")
