@@ -41,7 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
     from bridges.drivers import DEFAULT_DRIVER, DRIVERS
     from deploy.contract.options import add_option
     from deploy.contract.scenario import bundled_names
-    from deploy.nodes.cli import CLOCKS
+    from deploy.nodes.cli import CLOCKS, add_law_option
     from deploy.nodes.entry import add_every_node_command
     from deploy.run.run_cli import cmd_run
     from deploy.runtime.plants import CAN_EMULATED, PLANTS
@@ -109,6 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", metavar="DIR", help="output folder (default: runs/<scenario>)")
     add_option(run, "--duration")
     add_option(run, "--control-rate")
+    add_law_option(run)
     run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     run.add_argument("--overwrite", action="store_true",
                      help="--out already holds a run: remove its outputs first (without it "
@@ -138,9 +139,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_can_check_command(sub)
     add_bench_command(sub)
     add_faults_command(sub)
+    from deploy.run.compare import add_compare_command
     from deploy.run.safety_sweep import add_safety_command
 
     add_safety_command(sub)
+    add_compare_command(sub)
     from deploy.fleet.cli import add_deploy_commands
     from deploy.scenario_cli import add_scenario_commands
 
