@@ -117,6 +117,7 @@ LOAD_SAFE = {"test_bench", "test_cli", "test_fault_runs", "test_pybullet_runs", 
                  "test_a_node_that_dies_fails_the_run_and_is_named",
                  "test_a_bad_fleet_name_is_refused_before_anything_starts",
                  "test_each_node_links_only_to_the_nodes_it_talks_to")),
+             "test_laws_fleet::test_a_python_law_in_lockstep_equals_the_in_process_reference",
              "test_netns::test_lockstep_across_namespaces_equals_the_single_host_run"}
 SLOW_MODULES = {"test_safety_scenarios", "test_paper_consistent", "test_closed_loop",
                 "test_pybullet_plant", "test_look_ahead", "test_faults", "test_anti_windup"}
