@@ -15,6 +15,7 @@ from collections.abc import Callable
 import numpy as np
 
 from agents.core import AgentCore
+from agents.plugged import PluggedCore
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import (
     WIRE_VERSION,
@@ -35,9 +36,12 @@ from deploy.runtime.plants import make_plant
 
 
 def agent_step_us(sc: Scenario, duration_s: float, repeats: int) -> list[float]:
-    """Median wall time of AgentCore.step (µs), in closed loop on the model plant."""
+    """Median wall time of an agent's step (µs), in closed loop on the model plant: the
+    compiled paper law's (AgentCore.step), or the scenario's own law's with what wraps it
+    (PluggedCore.step, agents/plugged.py)."""
     samples = []
-    original = AgentCore.step
+    core_class = AgentCore if sc.law_name == "paper" else PluggedCore
+    original = core_class.step
     for _ in range(repeats):
         times: list[int] = []
 
@@ -47,11 +51,11 @@ def agent_step_us(sc: Scenario, duration_s: float, repeats: int) -> list[float]:
             times.append(time.perf_counter_ns() - t0)
             return out
 
-        AgentCore.step = timed  # type: ignore[method-assign]
+        core_class.step = timed  # type: ignore[method-assign]
         try:
             run_in_process(sc, "model", duration_s)
         finally:
-            AgentCore.step = original  # type: ignore[method-assign]
+            core_class.step = original  # type: ignore[method-assign]
         samples.append(statistics.median(times) / 1e3)
     return samples
 

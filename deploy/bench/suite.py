@@ -493,6 +493,13 @@ class Bench:
         self.log("costs underneath (agent math, plant step, codec, transport floor)")
         self.figure("cost.agent_step_us", "µs", "AgentCore.step, paper, per robot per step"
                     ).samples += agent_step_us(paper, self.s.agent_math_s, self.s.repeats)
+        # a law in plain Python in the paper law's place (docs/laws.md): what it costs a step
+        for law in ("consensus", "consensus-pd"):
+            self.figure(f"cost.agent_step_{law.replace('-', '_')}_us", "µs",
+                        f"the agent's step with the bundled Python law {law} (its step, "
+                        "the copies of its inputs, the checks, the compiled Law.drive), paper"
+                        ).samples += agent_step_us(paper.with_law(law), self.s.agent_math_s,
+                                                   self.s.repeats)
         # the safety filter inside that step (docs/safety.md): checking every perceived body on
         # paper (it never acts there), and solving its QP where it acts (gap at 1.05x)
         every, _ = safety_filter_us(paper, self.s.agent_math_s, self.s.repeats)
