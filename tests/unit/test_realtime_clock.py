@@ -12,6 +12,7 @@ from realtime_clock import (
     MachineLoad,
     clock_missed,
     judged,
+    late_with_misses,
     loop_missed,
     measured,
     once_more,
@@ -177,3 +178,26 @@ def test_the_suites_background_phase_is_not_counted_as_another_program():
     # what the group cannot account for is still others'
     assert MachineLoad(cores=2, wall_s=10.0, busy_cores=1.9, ours_cores=0.9,
                        background_cores=0.3).loaded
+
+
+def test_a_test_own_sign_of_a_missed_clock_retries_and_skips_a_starved_run():
+    late = {"settled": False, "reasons": ["robot #1 settled at 6.620 s >= 5.657 s"]}
+    calls = []
+
+    def run():
+        calls.append(1)
+        return _metrics(1.0, verdict=late)  # jitter within the period: the clock looks kept
+    assert clock_missed(run()) is None
+    calls.clear()
+    with pytest.raises(pytest.skip.Exception, match="settled at 6.620 s.*7 deadline misses"):
+        judged(run, lambda m: m, "x", _machine(LOADED), missed_also=late_with_misses)
+    assert len(calls) == 2
+    with pytest.raises(pytest.fail.Exception, match="left alone"):
+        judged(run, lambda m: m, "x", _machine(QUIET), missed_also=late_with_misses)
+
+
+def test_late_settling_without_a_missed_deadline_is_the_code_not_the_clock():
+    late = {"settled": False, "reasons": ["robot #1 settled at 6.620 s >= 5.657 s"]}
+    assert late_with_misses(_metrics(1.0, verdict=late, deadline_misses=0)) is None
+    assert late_with_misses(_metrics(1.0, verdict={"settled": True, "reasons": []})) is None
+    assert "robot #1 settled at 6.620 s" in late_with_misses(_metrics(1.0, verdict=late))
