@@ -106,6 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="serve the scene and plots over Foxglove's WebSocket protocol while the "
                      "run goes (default 127.0.0.1:8765; loopback unless HOST is given, e.g. "
                      "0.0.0.0:8765; port 0: any free one)")
+    from deploy.ros2.options import add_ros2_options
+
+    add_ros2_options(run)
     run.add_argument("--out", metavar="DIR", help="output folder (default: runs/<scenario>)")
     add_option(run, "--duration")
     add_option(run, "--control-rate")

@@ -118,6 +118,9 @@ OPTIONS: dict[str, Option] = {o.flag: o for o in (
     Option("--control-rate", RATE, "HZ",
            f"step every node at HZ instead of the scenario's control_rate_hz (at most "
            f"{MAX_RATE_HZ:g}; docs/control-rate.md)"),
+    Option("--ros2-rate", Bound(0.0, 1000.0, lo_open=True), "HZ",
+           "--ros2: publish each ROS 2 topic at most HZ times a (wall-clock) second; rows "
+           "between are skipped and counted", 50.0),
     Option("--step-deadline", WAIT, "S",
            "lockstep: how long a node waits for a step's inputs before going on with what "
            "it last had, counted as late", DEFAULT_STEP_DEADLINE_S),

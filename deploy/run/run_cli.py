@@ -68,6 +68,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     live = _start_live(args, sc)
     if live is False:
         return EXIT_BAD_INPUT
+    ros2 = _start_ros2(args, sc, plant)
+    if ros2 is False:
+        if live is not None:
+            live.close()
+        return EXIT_BAD_INPUT
+    watchers = Watchers([w for w in (live, ros2) if w is not None]) if ros2 else live
+    metrics = None
     drawing = None
     if not args.no_figures:  # the figure process gets ready while the run goes
         from deploy.report.figure_process import FigureProcess
@@ -76,10 +83,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         drawing.prepare()
     try:
         if args.in_process:
-            metrics = _run_in_process(sc, args, plant, plan, out, label, live, drawing)
+            metrics = _run_in_process(sc, args, plant, plan, out, label, watchers, drawing)
         else:
             with frozen_heap():  # what start-up built, out of the full passes (heap.py)
-                metrics = _run_distributed(sc, args, plant, out, label, live, drawing)
+                metrics = _run_distributed(sc, args, plant, out, label, watchers, drawing)
             if metrics is None:
                 return 1
     finally:
@@ -92,6 +99,9 @@ def cmd_run(args: argparse.Namespace) -> int:
                   f"client(s), {live.cpu_s:.2f} s CPU"
                   + (f"; {front.refused} client(s) refused (no Foxglove subprotocol offered)"
                      if front.refused else "") + "; stopped", file=sys.stderr)
+        if ros2 is not None:
+            ros2.close(None if metrics is None else metrics["verdict"])
+            print(ros2.summary(), file=sys.stderr)
     banner = divergence_banner(metrics["verdict"])
     if banner:
         print(banner, file=sys.stderr)
@@ -175,6 +185,54 @@ def _start_live(args: argparse.Namespace, sc):
     return live
 
 
+def _start_ros2(args: argparse.Namespace, sc, plant: str):
+    """The --ros2 gateway (None without it; False: a bad option, already said)."""
+    from deploy.ros2.options import Ros2OptionError, ros2_options
+
+    try:
+        opts = ros2_options(args)
+    except Ros2OptionError as exc:
+        print(f"omnifleet run: {exc}", file=sys.stderr)
+        return False
+    if opts is None:
+        return None
+    from deploy.ros2.gateway import Ros2Gateway
+    from deploy.runtime.plants import CAN_EMULATED
+
+    try:
+        gateway = Ros2Gateway(sc, opts, realtime=args.clock == "realtime",
+                              bridged=set(sc.robot_ids) if plant == CAN_EMULATED else set())
+    except Exception as exc:  # noqa: BLE001 - zenoh raises its own errors for a bad endpoint
+        print(f"omnifleet run: --ros2 {opts.endpoint}: {exc}", file=sys.stderr)
+        return False
+    print(f"ros2: the fleet on ROS 2 domain {opts.domain} through {opts.endpoint} "
+          f"({len(gateway.topics)} topics, {len(gateway.nodes)} nodes under "
+          f"{opts.namespace}/omnifleet, at most {opts.rate_hz:g} Hz; docs/ros2.md)",
+          file=sys.stderr, flush=True)
+    return gateway
+
+
+class Watchers:
+    """Several observers of the series (the live view, the ROS 2 gateway) as one."""
+
+    def __init__(self, members: list) -> None:
+        self.members = members
+
+    def follow(self, series, ready=None):
+        for w in self.members:
+            w.follow(series, ready)
+        return self
+
+    def publish(self, k: int) -> None:
+        for w in self.members:
+            w.publish(k)
+
+    def bind_observer(self, observer) -> None:
+        for w in self.members:
+            if hasattr(w, "bind_observer"):
+                w.bind_observer(observer)
+
+
 def _with_live(progress, live):
     """A progress callback that also tells the live view how far the series is."""
     if live is None:
@@ -222,6 +280,8 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         from deploy.report.live_view import collector_rows
 
         heard = launcher.observer.collector
+        if hasattr(live, "bind_observer"):
+            live.bind_observer(launcher.observer)
         live.follow(heard.ts, collector_rows(heard, args.clock == "realtime"))
     started = time.perf_counter()
     try:

@@ -1,0 +1,156 @@
+"""The run's state at one step as ROS 2 messages (pure: from the run's time series to
+``rosbags`` message objects; deploy/ros2/gateway.py puts them on the wire).
+
+Frames: ``world`` (the scenario's plane, z up), ``robot_N/base_link`` (robot N: x forward,
+as psi measures), ``leader``. Conventions are REP 103/105's, which nav2 and RViz assume:
+an Odometry's pose is in ``world`` and its twist in the robot's own ``base_link`` (the
+world-frame velocity q_dot rotated by -psi); a ``cmd_vel`` is body-frame too (the fused
+velocity v_d of the law, eq. (20), rotated the same way).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from deploy.ros2.types import make
+
+WORLD_FRAME = "world"
+LEADER_FRAME = "leader"
+WHEELS = 4
+ODOM, CMD_VEL, JOINTS = "nav_msgs/msg/Odometry", "geometry_msgs/msg/TwistStamped", \
+    "sensor_msgs/msg/JointState"
+POSE, TF, MARKERS = "geometry_msgs/msg/PoseStamped", "tf2_msgs/msg/TFMessage", \
+    "visualization_msgs/msg/MarkerArray"
+STATUS, CLOCK, TWIST = "diagnostic_msgs/msg/DiagnosticArray", "rosgraph_msgs/msg/Clock", \
+    "geometry_msgs/msg/Twist"
+OBSTACLE_HEIGHT_M = 1.0
+MIN_DRAWN_RADIUS_M = 0.15  # a point obstacle is drawn this big (as in the figures)
+
+
+def base_link(rid: int) -> str:
+    return f"robot_{rid}/base_link"
+
+
+def wheel_names(rid: int) -> list[str]:
+    """Wheels in the order of the rows of P, eq. (2) (the recording's torque order)."""
+    return [f"robot_{rid}/wheel_{w + 1}" for w in range(WHEELS)]
+
+
+def stamp(ns: int) -> Any:
+    return make("builtin_interfaces/msg/Time", sec=ns // 1_000_000_000,
+                nanosec=ns % 1_000_000_000)
+
+
+def header(ns: int, frame: str) -> Any:
+    return make("std_msgs/msg/Header", stamp=stamp(ns), frame_id=frame)
+
+
+def _quaternion(psi: float) -> Any:
+    return make("geometry_msgs/msg/Quaternion", z=math.sin(psi / 2), w=math.cos(psi / 2))
+
+
+def _pose(x: float, y: float, psi: float) -> Any:
+    return make("geometry_msgs/msg/Pose", position=make("geometry_msgs/msg/Point", x=x, y=y),
+                orientation=_quaternion(psi))
+
+
+def _twist(vx: float, vy: float, wz: float) -> Any:
+    return make(TWIST, linear=make("geometry_msgs/msg/Vector3", x=vx, y=vy),
+                angular=make("geometry_msgs/msg/Vector3", z=wz))
+
+
+def body_frame(psi: float, v_world: np.ndarray) -> tuple[float, float, float]:
+    """T(psi)^T v, eq. (3): a world-frame [x_dot, y_dot, psi_dot] in the body frame."""
+    c, s = math.cos(psi), math.sin(psi)
+    return (c * v_world[0] + s * v_world[1], -s * v_world[0] + c * v_world[1], float(v_world[2]))
+
+
+def odometry(rid: int, ns: int, q: np.ndarray, q_dot: np.ndarray) -> Any:
+    psi = float(q[2])
+    return make(ODOM, header=header(ns, WORLD_FRAME), child_frame_id=base_link(rid),
+                pose=make("geometry_msgs/msg/PoseWithCovariance",
+                          pose=_pose(float(q[0]), float(q[1]), psi)),
+                twist=make("geometry_msgs/msg/TwistWithCovariance",
+                           twist=_twist(*body_frame(psi, q_dot))))
+
+
+def cmd_vel(rid: int, ns: int, psi: float, v_cmd: np.ndarray) -> Any:
+    return make(CMD_VEL, header=header(ns, base_link(rid)),
+                twist=_twist(*body_frame(psi, v_cmd)))
+
+
+def joint_states(rid: int, ns: int, angle: np.ndarray, speed: np.ndarray,
+                 torque: np.ndarray) -> Any:
+    return make(JOINTS, header=header(ns, base_link(rid)), name=wheel_names(rid),
+                position=np.asarray(angle, np.float64), velocity=np.asarray(speed, np.float64),
+                effort=np.asarray(torque, np.float64))
+
+
+def leader_pose(ns: int, q0: np.ndarray) -> Any:
+    return make(POSE, header=header(ns, WORLD_FRAME),
+                pose=_pose(float(q0[0]), float(q0[1]), float(q0[2])))
+
+
+def _transform(ns: int, child: str, q: np.ndarray) -> Any:
+    return make("geometry_msgs/msg/TransformStamped", header=header(ns, WORLD_FRAME),
+                child_frame_id=child, transform=make(
+                    "geometry_msgs/msg/Transform",
+                    translation=make("geometry_msgs/msg/Vector3", x=float(q[0]), y=float(q[1])),
+                    rotation=_quaternion(float(q[2]))))
+
+
+def transforms(ns: int, robot_ids: list[int], q: np.ndarray, q0: np.ndarray) -> Any:
+    """world -> each robot_N/base_link, and world -> leader."""
+    return make(TF, transforms=[_transform(ns, base_link(r), q[i]) for i, r in
+                                enumerate(robot_ids)] + [_transform(ns, LEADER_FRAME, q0)])
+
+
+def clock(ns: int) -> Any:
+    return make(CLOCK, clock=stamp(ns))
+
+
+@dataclass(frozen=True)
+class ObstacleShapes:
+    discs: list[tuple[float, float, float]]  # x, y, radius
+    polygons: list[list[tuple[float, float]]]  # walls and polygons, their vertices
+
+
+def obstacle_markers(ns: int, shapes: ObstacleShapes) -> Any:
+    """Discs as cylinders, walls and polygons as closed outlines (LINE_STRIP), in world."""
+    grey = make("std_msgs/msg/ColorRGBA", r=0.3, g=0.3, b=0.3, a=1.0)
+    markers = []
+    for j, (x, y, r) in enumerate(shapes.discs):
+        d = 2 * max(r, MIN_DRAWN_RADIUS_M)
+        markers.append(make(
+            "visualization_msgs/msg/Marker", header=header(ns, WORLD_FRAME), ns="obstacles",
+            id=j + 1, type=3, action=0, color=grey,
+            pose=make("geometry_msgs/msg/Pose",
+                      position=make("geometry_msgs/msg/Point", x=x, y=y, z=OBSTACLE_HEIGHT_M / 2),
+                      orientation=_quaternion(0.0)),
+            scale=make("geometry_msgs/msg/Vector3", x=d, y=d, z=OBSTACLE_HEIGHT_M)))
+    for j, vertices in enumerate(shapes.polygons):
+        ring = [*vertices, vertices[0]]
+        markers.append(make(
+            "visualization_msgs/msg/Marker", header=header(ns, WORLD_FRAME), ns="obstacles",
+            id=len(shapes.discs) + j + 1, type=4, action=0, color=grey,
+            pose=make("geometry_msgs/msg/Pose", orientation=_quaternion(0.0)),
+            scale=make("geometry_msgs/msg/Vector3", x=0.05),
+            points=[make("geometry_msgs/msg/Point", x=float(px), y=float(py)) for px, py in ring]))
+    return make(MARKERS, markers=markers)
+
+
+LEVELS = {"ok": 0, "warn": 1, "error": 2, "stale": 3}
+
+
+def status(ns: int, entries: list[tuple[str, str, str, dict[str, str]]]) -> Any:
+    """``entries``: (name, level in LEVELS, message, values)."""
+    return make(STATUS, header=header(ns, ""), status=[
+        make("diagnostic_msgs/msg/DiagnosticStatus", level=LEVELS[level], name=name,
+             message=message, hardware_id=name,
+             values=[make("diagnostic_msgs/msg/KeyValue", key=k, value=v)
+                     for k, v in values.items()])
+        for name, level, message, values in entries])

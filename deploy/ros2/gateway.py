@@ -1,0 +1,312 @@
+"""``--ros2``: the run's state as ROS 2 topics over rmw_zenoh, from the listener's side.
+
+The gateway is a thread of the process that already hears the whole run (the launcher,
+or ``omnifleet record`` across hosts): it reads the newest rows of the run's time series
+at ``rate_hz`` (wall clock) and puts them on its own Zenoh session, connected to the ROS 2
+router at ``endpoint``, as rmw_zenoh would (deploy/ros2/graph.py). No control process
+imports this package or spends a cycle on ROS 2: a step's CPU budget is untouched
+(docs/ros2.md says why this is not one publisher per node). A tick that finds the
+gateway behind publishes the newest row only; the rows it skipped are counted.
+
+What a ROS 2 graph sees: one node per omnifleet node (``/omnifleet/plant``,
+``/omnifleet/agent_N``, ``/omnifleet/leader``, ``/omnifleet/launcher``; ``bridge_N`` for
+a CAN robot), each with its publishers' liveliness tokens, all under one session.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from deploy.ros2 import fleet_messages as fm
+from deploy.ros2.graph import TRANSIENT_LOCAL, Qos, Ros2Node, attachment, data_key, gid
+from deploy.ros2.options import Ros2Options
+from deploy.ros2.types import encode, type_hash
+
+NODE_NAMESPACE = "omnifleet"
+DEFAULT_QOS = Qos()  # reliable, volatile, keep last 10 (a ROS 2 publisher's default)
+
+
+@dataclass
+class _Topic:
+    name: str
+    ros_type: str
+    node: Ros2Node
+    entity: int
+    publisher: Any
+    token: Any
+    gid: bytes
+    seq: int = 0
+
+
+@dataclass
+class GatewayCounts:
+    published: int = 0
+    rows_skipped: int = 0  # rows newer than the last published, never published
+    late_ticks: int = 0  # ticks that took longer than the period (the gateway fell behind)
+    errors: int = 0
+    cpu_s: float = 0.0
+    by_topic: dict[str, int] = field(default_factory=dict)
+
+
+def _node_names(sc: Any, bridged: set[int]) -> dict[str, str]:
+    """omnifleet node -> ROS 2 node name (role -> name)."""
+    names = {"launcher": "launcher", "leader": "leader"}
+    if len(bridged) < sc.n:
+        names["plant"] = "plant"
+    for rid in sc.robot_ids:
+        names[f"agent-{rid}"] = f"agent_{rid}"
+        if rid in bridged:
+            names[f"bridge-{rid}"] = f"bridge_{rid}"
+    return names
+
+
+class Ros2Gateway:
+    """Publishes the run to ROS 2 (``follow`` a series, ``close`` at the end)."""
+
+    def __init__(self, sc: Any, opts: Ros2Options, realtime: bool,
+                 bridged: set[int] | None = None,
+                 start_unix_ns: Callable[[], int | None] = lambda: None,
+                 refused: Callable[[], int] = lambda: 0,
+                 session_factory: Callable[[Ros2Options], Any] | None = None) -> None:
+        self.sc, self.opts, self.realtime = sc, opts, realtime
+        self.bridged = bridged or set()
+        self.start_unix_ns, self.refused = start_unix_ns, refused
+        self.counts = GatewayCounts()
+        self.session = (session_factory or open_session)(opts)
+        self.zid = str(self.session.info.zid())
+        self._ids = itertools.count()
+        ns_nodes = f"{opts.namespace}/{NODE_NAMESPACE}"
+        self.nodes = {role: Ros2Node(opts.domain, self.zid, next(self._ids), ns_nodes, name)
+                      for role, name in _node_names(sc, self.bridged).items()}
+        self._node_tokens = [self.session.liveliness().declare_token(n.token())
+                             for n in self.nodes.values()]
+        self.topics: dict[str, _Topic] = {}
+        self._declare_all()
+        model = sc.model()
+        self._wheels_of_twist = model.P / model.params.wheel_radius_m  # eq. (1) inverted
+        self._wheel_angle = np.zeros((sc.n, fm.WHEELS))
+        self._speeds = np.zeros((sc.n, fm.WHEELS))
+        self._obstacles = fm.ObstacleShapes(
+            discs=[(float(o.position[0]), float(o.position[1]), float(o.radius_m))
+                   for o in sc.spec.obstacles],
+            polygons=[[tuple(map(float, v)) for v in p.vertices] for p in sc.obstacle_shapes()])
+        self._series: Any = None
+        self._ready: Callable[[], int] | None = None
+        self._newest = -1
+        self._sent = -1
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        # static: latched (transient local) from the moment the topic appears
+        ns = time.time_ns() if realtime else 0
+        self.put(self.topic_name("obstacles"), fm.obstacle_markers(ns, self._obstacles), ns)
+
+    # -- the graph ---------------------------------------------------------------------
+
+    def topic_name(self, relative: str) -> str:
+        return f"{self.opts.namespace}/{relative}"
+
+    def _declare(self, role: str, relative: str, ros_type: str, qos: Qos = DEFAULT_QOS,
+                 absolute: str | None = None) -> None:
+        import zenoh
+
+        node = self.nodes[role]
+        name = absolute or self.topic_name(relative)
+        entity = next(self._ids)
+        h = type_hash(ros_type)
+        key = data_key(self.opts.domain, name, ros_type, h)
+        if qos.durability == TRANSIENT_LOCAL:  # late joiners get the last sample (rmw_zenoh)
+            import zenoh.ext as zext
+
+            pub = zext.declare_advanced_publisher(
+                self.session, key, cache=zext.CacheConfig(max_samples=qos.depth),
+                publisher_detection=True)
+        else:
+            pub = self.session.declare_publisher(
+                key, congestion_control=zenoh.CongestionControl.DROP)
+        token = self.session.liveliness().declare_token(
+            node.endpoint_token(entity, "MP", name, ros_type, h, qos))
+        self.topics[name] = _Topic(name, ros_type, node, entity, pub, token,
+                                   gid(self.zid, node.node_id, entity))
+
+    def _declare_all(self) -> None:
+        for rid in self.sc.robot_ids:
+            holder = f"bridge-{rid}" if rid in self.bridged else "plant"
+            self._declare(holder, f"robot_{rid}/odom", fm.ODOM)
+            self._declare(holder, f"robot_{rid}/joint_states", fm.JOINTS)
+            self._declare(f"agent-{rid}", f"robot_{rid}/cmd_vel", fm.CMD_VEL)
+        self._declare("leader", "leader/pose", fm.POSE)
+        self._declare("launcher", "tf", fm.TF)
+        self._declare("launcher", "obstacles", fm.MARKERS, Qos(durability=TRANSIENT_LOCAL,
+                                                               depth=1))
+        self._declare("launcher", "fleet/status", fm.STATUS)
+        if not self.realtime:  # simulated time for use_sim_time nodes
+            self._declare("launcher", "clock", fm.CLOCK, Qos(depth=1), absolute="/clock")
+
+    def put(self, name: str, msg: Any, stamp_ns: int) -> None:
+        topic = self.topics[name]
+        topic.publisher.put(encode(msg), attachment=attachment(topic.seq, stamp_ns, topic.gid))
+        topic.seq += 1
+        self.counts.published += 1
+        self.counts.by_topic[name] = self.counts.by_topic.get(name, 0) + 1
+
+    # -- the run's rows -----------------------------------------------------------------
+
+    def follow(self, series: Any, ready: Callable[[], int] | None = None) -> Ros2Gateway:
+        """Publish rows of ``series``; ``ready()`` gives the newest filled row (else
+        :meth:`publish` says it)."""
+        self._series, self._ready = series, ready
+        self._thread = threading.Thread(target=self._loop, name="ros2-gateway", daemon=True)
+        self._thread.start()
+        return self
+
+    def publish(self, k: int) -> None:
+        """Rows 0..k are filled (cheap: called from the run's own thread)."""
+        self._newest = k
+
+    def _loop(self) -> None:
+        period = 1.0 / self.opts.rate_hz
+        next_at = time.monotonic()
+        while True:
+            next_at += period
+            if self._stop.wait(max(0.0, next_at - time.monotonic())):
+                return
+            self.tick()
+            now = time.monotonic()
+            if now > next_at + period:  # fell behind: start again from now
+                self.counts.late_ticks += 1
+                next_at = now
+
+    def stamp_ns(self, k: int) -> int:
+        t_ns = int(round(k * self.sc.dt * 1e9))  # the listener's series fills t at its end
+        if not self.realtime:
+            return t_ns  # simulated time, the /clock's
+        t0 = self.start_unix_ns()
+        return t_ns + t0 if t0 is not None else time.time_ns()
+
+    def tick(self) -> None:
+        ts = self._series
+        k = self._ready() if self._ready is not None else self._newest
+        if ts is None or k < 0:
+            return
+        k = min(k, ts.steps - 1)
+        with self._lock:
+            if k <= self._sent:
+                return
+            cpu = time.thread_time()
+            try:
+                self._advance_wheels(ts, self._sent, k)
+                self._send(ts, k)
+                self.counts.rows_skipped += max(0, k - self._sent - 1)
+            except Exception:  # noqa: BLE001 - ROS 2 never stops a run; counted
+                self.counts.errors += 1
+            self._sent = k
+            self.counts.cpu_s += time.thread_time() - cpu
+
+    def _advance_wheels(self, ts: Any, after: int, k: int) -> None:
+        """Wheel angles: theta_dot = (1/R) P T(psi)^T q_dot, eq. (1), summed over every row
+        since the last tick (the series holds them all)."""
+        rows = slice(after + 1, k + 1)
+        q, q_dot = ts.q[rows], ts.q_dot[rows]
+        c, s = np.cos(q[..., 2]), np.sin(q[..., 2])
+        body = np.stack([c * q_dot[..., 0] + s * q_dot[..., 1],
+                         -s * q_dot[..., 0] + c * q_dot[..., 1], q_dot[..., 2]], axis=-1)
+        speeds = body @ self._wheels_of_twist.T  # (rows, n, 4)
+        self._wheel_angle += speeds.sum(axis=0) * self.sc.dt  # rectangle rule, the plant's dt
+        self._speeds = speeds[-1]
+
+    def _send(self, ts: Any, k: int) -> None:
+        ns = self.stamp_ns(k)
+        if not self.realtime:
+            self.put("/clock", fm.clock(ns), ns)
+        q, q_dot, q0 = ts.q[k], ts.q_dot[k], ts.leader_q[k]
+        for i, rid in enumerate(self.sc.robot_ids):
+            self.put(self.topic_name(f"robot_{rid}/odom"), fm.odometry(rid, ns, q[i], q_dot[i]), ns)
+            self.put(self.topic_name(f"robot_{rid}/cmd_vel"),
+                     fm.cmd_vel(rid, ns, float(q[i, 2]), ts.v_cmd[k, i]), ns)
+            self.put(self.topic_name(f"robot_{rid}/joint_states"),
+                     fm.joint_states(rid, ns, self._wheel_angle[i], self._speeds[i],
+                                     ts.torque[k, i]), ns)
+        self.put(self.topic_name("leader/pose"), fm.leader_pose(ns, q0), ns)
+        self.put(self.topic_name("tf"), fm.transforms(ns, list(self.sc.robot_ids), q, q0), ns)
+        self.put(self.topic_name("fleet/status"), fm.status(ns, self._status(ts, k)), ns)
+
+    def _status(self, ts: Any, k: int, verdict: dict | None = None) -> list:
+        out = []
+        for i, rid in enumerate(self.sc.robot_ids):
+            nonfinite, infeasible = bool(ts.nonfinite[k, i]), bool(ts.safety_infeasible[k, i])
+            level = "error" if nonfinite else "warn" if infeasible else "ok"
+            message = ("the law gave a non-finite value: torques zeroed" if nonfinite else
+                       "no command met every barrier" if infeasible else "running")
+            out.append((f"{NODE_NAMESPACE}/agent_{rid}", level, message, {
+                "t_s": f"{ts.t[k]:.3f}", "speed_factor": f"{ts.speed_factor[k, i]:.3f}",
+                "input_age_s": f"{ts.input_age[k, i]:.4f}",
+                "safety_filter_dv_mps": f"{ts.safety_dv[k, i]:.4f}",
+                "active_behaviours": str(ts.order[k, i])}))
+        values = {"refused_messages": str(self.refused()),
+                  "ros2_rows_skipped": str(self.counts.rows_skipped),
+                  "ros2_late_ticks": str(self.counts.late_ticks)}
+        if verdict is None:
+            out.append((f"{NODE_NAMESPACE}/launcher", "ok", "running", values))
+        else:
+            ok = bool(verdict.get("pass"))
+            out.append((f"{NODE_NAMESPACE}/launcher", "ok" if ok else "error",
+                        "verdict: PASS" if ok else "verdict: FAIL: " + "; ".join(
+                            verdict.get("reasons", []))[:400], values))
+        return out
+
+    def bind_observer(self, observer: Any) -> None:
+        """Stamps on the run's clock (realtime: t = 0 from ``ctl/start``) and the
+        listener's refusals in /fleet/status."""
+        def start_unix_ns() -> int | None:
+            if observer.run_t0 is None:
+                return None
+            return time.time_ns() - int((time.monotonic() - observer.run_t0) * 1e9)
+
+        self.start_unix_ns = start_unix_ns
+        self.refused = lambda: observer.invalid
+
+    def summary(self) -> str:
+        c = self.counts
+        return (f"ros2: {c.published} messages published ({c.rows_skipped} rows skipped at "
+                f"{self.opts.rate_hz:g} Hz, {c.late_ticks} late ticks, {c.errors} errors), "
+                f"{c.cpu_s:.2f} s CPU; left the ROS 2 graph")
+
+    def close(self, verdict: dict | None = None) -> None:
+        """Publish the last row (and the verdict, when given), then leave the graph."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        self.tick()
+        if verdict is not None and self._series is not None and self._sent >= 0:
+            ns = self.stamp_ns(self._sent)
+            self.put(self.topic_name("fleet/status"),
+                     fm.status(ns, self._status(self._series, self._sent, verdict)), ns)
+        for t in self.topics.values():
+            t.token.undeclare()
+        for tok in self._node_tokens:
+            tok.undeclare()
+        self.session.close()
+
+
+def open_session(opts: Ros2Options) -> Any:
+    """A peer session connected to the ROS 2 router (rmw_zenoh's default session:
+    peer mode, multicast scouting off, timestamps on, the router at its endpoint)."""
+    import json
+
+    import zenoh
+
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"peer"')
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    cfg.insert_json5("connect/endpoints", json.dumps([opts.endpoint]))
+    # rmw_zenoh's sessions stamp samples (its transient-local cache orders by them)
+    cfg.insert_json5("timestamping/enabled", "true")
+    return zenoh.open(cfg)

@@ -1,0 +1,248 @@
+"""ROS 2 sees the fleet (docs/ros2.md), checked with code that is not ours: zenoh-ros2-sdk,
+a pure-Python implementation of rmw_zenoh's protocol, discovers the run through its
+liveliness tokens, computes the RIHS01 hashes itself from ROS 2's .msg definitions
+(tests/ros2_msgs, nothing fetched) and subscribes with them; its CDR decoder is
+rosbags'. The values it decodes are the run's timeseries.npz at the same stamps.
+
+Each test starts a Zenoh router of its own (``omnifleet router`` on a free loopback
+port, ended by pid) and a run of ``lab`` with ``--ros2`` to it."""
+
+from __future__ import annotations
+
+import json
+import math
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from procs import finish, kill_run, start
+
+pytest.importorskip("zenoh")
+pytest.importorskip("zenoh_ros2_sdk")
+
+REPO = Path(__file__).resolve().parents[2]
+MSGS = REPO / "tests" / "ros2_msgs"
+ROBOTS = (1, 2, 3)  # lab's
+TOPICS = {  # lab on the model plant: every topic and its type
+    **{f"/robot_{r}/odom": "nav_msgs/msg/Odometry" for r in ROBOTS},
+    **{f"/robot_{r}/cmd_vel": "geometry_msgs/msg/TwistStamped" for r in ROBOTS},
+    **{f"/robot_{r}/joint_states": "sensor_msgs/msg/JointState" for r in ROBOTS},
+    "/leader/pose": "geometry_msgs/msg/PoseStamped", "/tf": "tf2_msgs/msg/TFMessage",
+    "/obstacles": "visualization_msgs/msg/MarkerArray",
+    "/fleet/status": "diagnostic_msgs/msg/DiagnosticArray",
+}
+NODES = {"plant", "leader", "launcher", *(f"agent_{r}" for r in ROBOTS)}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _listening(port: int) -> bool:
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+@pytest.fixture(scope="module")
+def router() -> Iterator[int]:
+    """A Zenoh router on a free loopback port (the SDK's session binds to the first one
+    it is given: one router for the module)."""
+    port = _free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "deploy.cli", "router", "--listen",
+                             f"tcp/127.0.0.1:{port}"], cwd=REPO, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 30
+        while not _listening(port):
+            assert proc.poll() is None, proc.stderr.read().decode()
+            assert time.monotonic() < deadline, "the router did not listen within 30 s"
+            time.sleep(0.05)  # polling a condition (the port), not standing in for one
+        from zenoh_ros2_sdk.message_registry import get_registry
+
+        get_registry(str(MSGS))  # ROS 2's definitions from the repository, never fetched
+        yield port
+    finally:
+        kill_run(proc)
+
+
+class Heard:
+    """Messages an SDK subscriber decoded, with the attachment rmw_zenoh sends."""
+
+    def __init__(self) -> None:
+        self.msgs: list = []
+        self.lock = threading.Lock()
+
+    def __call__(self, msg) -> None:
+        with self.lock:
+            self.msgs.append(msg)
+
+
+def _subscribe(port: int, topic: str, ros_type: str, heard: Heard, **kw):
+    from zenoh_ros2_sdk.subscriber import ROS2Subscriber
+
+    return ROS2Subscriber(topic, ros_type, heard, router_port=port, **kw)
+
+
+def _stamp_s(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def _yaw(q) -> float:
+    return 2.0 * math.atan2(q.z, q.w)
+
+
+def test_decoded_topics_equal_the_run_series_at_their_stamps(router, tmp_path: Path):
+    """Lockstep, under a namespace: every header is stamped in simulated time, /clock
+    (global) moves forward, and robot_1/odom, cmd_vel and joint_states decode to the series' values at that step
+    (the twist in the robot's frame, REP 105)."""
+    heard = {t: Heard() for t in ("odom", "cmd", "joints", "clock")}
+    ns = "/lab_1"  # every topic under it, but /clock
+    subs = [_subscribe(router, f"{ns}/robot_1/odom", "nav_msgs/msg/Odometry", heard["odom"]),
+            _subscribe(router, f"{ns}/robot_1/cmd_vel", "geometry_msgs/msg/TwistStamped",
+                       heard["cmd"]),
+            _subscribe(router, f"{ns}/robot_1/joint_states", "sensor_msgs/msg/JointState",
+                       heard["joints"]),
+            _subscribe(router, "/clock", "rosgraph_msgs/msg/Clock", heard["clock"])]
+    out = tmp_path / "run"
+    try:
+        rc, _, err = finish(start("run", "lab", "--plant", "model", "--duration", "6",
+                                  "--ros2", f"tcp/127.0.0.1:{router}", "--ros2-rate", "100",
+                                  "--ros2-namespace", ns,
+                                  "--out", str(out), "--no-figures", "--no-record"))
+    finally:
+        for s in subs:
+            s.close()
+    assert rc == 0, err
+    assert "ros2: " in err and " 0 errors" in err, err
+    series = np.load(out / "timeseries.npz")
+    dt = float(series["t"][1] - series["t"][0])
+    odom = heard["odom"].msgs
+    assert len(odom) >= 10, f"only {len(odom)} odometry messages arrived"
+    worst_pose = worst_twist = 0.0
+    for m in odom:
+        k = round(_stamp_s(m) / dt)
+        assert abs(series["t"][k] - _stamp_s(m)) < 1e-9
+        q, v = series["q"][k, 0], series["q_dot"][k, 0]
+        p = m.pose.pose
+        worst_pose = max(worst_pose, abs(p.position.x - q[0]), abs(p.position.y - q[1]),
+                         abs(math.remainder(_yaw(p.orientation) - q[2], 2 * math.pi)))
+        c, s = math.cos(q[2]), math.sin(q[2])
+        body = (c * v[0] + s * v[1], -s * v[0] + c * v[1], v[2])
+        tw = m.twist.twist
+        worst_twist = max(worst_twist, *(abs(a - b) for a, b in zip(
+            (tw.linear.x, tw.linear.y, tw.angular.z), body, strict=True)))
+        assert m.header.frame_id == "world" and m.child_frame_id == "robot_1/base_link"
+    assert worst_pose < 1e-12 and worst_twist < 1e-12, (worst_pose, worst_twist)
+    for m in heard["cmd"].msgs:
+        k = round(_stamp_s(m) / dt)
+        q, v = series["q"][k, 0], series["v_cmd"][k, 0]
+        c, s = math.cos(q[2]), math.sin(q[2])
+        assert abs(m.twist.linear.x - (c * v[0] + s * v[1])) < 1e-12
+        assert abs(m.twist.angular.z - v[2]) < 1e-12
+    joints = heard["joints"].msgs
+    assert joints and all(list(m.name) == [f"robot_1/wheel_{w}" for w in range(1, 5)]
+                          for m in joints)
+    for m in joints:
+        k = round(_stamp_s(m) / dt)
+        assert np.array_equal(np.asarray(m.effort), series["torque"][k, 0])
+    clock = [c.clock.sec + c.clock.nanosec * 1e-9 for c in heard["clock"].msgs]
+    assert len(clock) >= 10 and all(b > a for a, b in zip(clock, clock[1:], strict=False))
+    assert clock[-1] == pytest.approx(series["t"][-1], abs=1e-9)  # the last row is published
+
+
+def _tokens(port: int, kind: str) -> list[str]:
+    from zenoh_ros2_sdk.session import ZenohSession
+
+    session = ZenohSession.get_instance("127.0.0.1", port)
+    return [str(r.ok.key_expr) for r in session.liveliness.get(f"@ros2_lv/0/**/{kind}/**",
+                                                                timeout=1.0)
+            if r.ok is not None]
+
+
+def _while_running(proc: subprocess.Popen, ask):
+    """``ask()`` until it answers (a liveliness query may come back before the router
+    has answered for every token, as ``ros2 topic list`` within its spin time), as long
+    as the run goes."""
+    while proc.poll() is None:
+        answer = ask()
+        if answer:
+            return answer
+    pytest.fail(f"the run ended (exit {proc.returncode}) before discovery answered")
+
+
+def test_a_ros2_graph_discovers_every_node_and_topic_and_the_latched_obstacles(
+        router, tmp_path: Path):
+    """Realtime: while the run goes, discovery through liveliness tokens (what
+    ``ros2 topic list -t`` and ``ros2 topic info -v`` do) finds every topic with its type,
+    its publisher's node under /omnifleet, the hash the SDK computes from ROS 2's .msg
+    files and the QoS; a subscriber that joins late still gets /obstacles (transient
+    local); after the run every token is gone."""
+    from zenoh_ros2_sdk.discovery import get_topic_info, get_topic_names_and_types
+    from zenoh_ros2_sdk.qos import QosDurability, QosProfile, QosReliability
+
+    ns = ""  # the lockstep test's run is under /lab_1: nothing of it is taken for this one's
+    topics_here = {f"{ns}{t}": ty for t, ty in TOPICS.items()}
+    proc = start("run", "lab", "--plant", "model", "--clock", "realtime", "--duration", "8",
+                 "--ros2", f"tcp/127.0.0.1:{router}", "--ros2-namespace", ns,
+                 "--out", str(tmp_path / "run"), "--no-figures", "--no-record")
+    try:
+        def every_topic():
+            found = dict(get_topic_names_and_types(router_port=router, timeout=1.0))
+            return found if set(topics_here) <= set(found) else None
+
+        topics = _while_running(proc, every_topic)
+        assert {t: topics[t] for t in topics_here} == {t: [ty] for t, ty in topics_here.items()}
+        assert "/clock" not in topics  # realtime: the wall clock is ROS 2's time
+
+        def publishers(topic: str):
+            info = get_topic_info(topic, router_port=router, verbose=True, timeout=1.0)
+            return None if info is None else info.publishers
+
+        (pub,) = _while_running(proc, lambda: publishers(f"{ns}/robot_1/odom"))
+        assert (pub.node_name, pub.node_namespace) == ("plant", f"{ns}/omnifleet")
+        sdk = _subscribe(router, f"{ns}/robot_2/odom", "nav_msgs/msg/Odometry", Heard())
+        assert pub.type_hash == sdk.type_hash  # the SDK's own hash of ROS 2's definition
+        sdk.close()
+        qos = QosProfile.decode(pub.qos)
+        assert (qos.reliability, qos.durability, qos.history_depth) == (
+            QosReliability.RELIABLE, QosDurability.VOLATILE, 10)
+        (latched,) = _while_running(proc, lambda: publishers(f"{ns}/obstacles"))
+        assert QosProfile.decode(latched.qos).durability == QosDurability.TRANSIENT_LOCAL
+        nodes = _while_running(proc, lambda: NODES <= (
+            found := {k.split("/")[8] for k in _tokens(router, "NN")
+                      if k.split("/")[7] == f"{ns}/omnifleet".replace("/", "%")}) and found)
+        assert NODES <= nodes, nodes
+
+        def latched_sample():
+            markers = Heard()
+            _subscribe(router, f"{ns}/obstacles", "visualization_msgs/msg/MarkerArray", markers,
+                       qos=QosProfile(durability=QosDurability.TRANSIENT_LOCAL,
+                                      history_depth=1)).close()
+            return markers.msgs  # the cached sample, queried as the subscriber joined
+
+        (array,) = _while_running(proc, latched_sample)
+        rc, _, err = finish(proc)
+    finally:
+        kill_run(proc)
+    assert rc == 0, err
+    sc = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert sc["scenario"] == "lab"
+    assert len(array.markers) >= 1 and all(m.header.frame_id == "world" for m in array.markers)
+    assert not [k for k in _tokens(router, "NN") if f"{ns}/omnifleet/" in k.replace("%", "/")]
+
+
+@pytest.mark.parametrize("bad", [["--ros2", "localhost"], ["--ros2-rate", "nan"],
+                                 ["--ros2", "--ros2-namespace", "/2x"]])
+def test_a_bad_ros2_option_exits_2_before_anything_starts(bad, tmp_path: Path):
+    out = tmp_path / "run"
+    rc, _, err = finish(start("run", "lab", "--duration", "1", "--out", str(out), *bad))
+    assert rc == 2, err
+    assert "ros2" in err and not out.exists(), err
