@@ -30,6 +30,7 @@ from deploy.ros2.options import Ros2Options
 from deploy.ros2.types import encode, type_hash
 
 NODE_NAMESPACE = "omnifleet"
+STATUS_PERIOD_S = 1.0  # /fleet/status once a second (of the wall): diagnostics' usual rate
 DEFAULT_QOS = Qos()  # reliable, volatile, keep last 10 (a ROS 2 publisher's default)
 
 
@@ -51,6 +52,7 @@ class GatewayCounts:
     rows_skipped: int = 0  # rows newer than the last published, never published
     late_ticks: int = 0  # ticks that took longer than the period (the gateway fell behind)
     errors: int = 0
+    unmatched: int = 0  # messages not built: no subscriber listened
     cpu_s: float = 0.0
     by_topic: dict[str, int] = field(default_factory=dict)
 
@@ -93,6 +95,7 @@ class Ros2Gateway:
         self._wheels_of_twist = model.P / model.params.wheel_radius_m  # eq. (1) inverted
         self._wheel_angle = np.zeros((sc.n, fm.WHEELS))
         self._speeds = np.zeros((sc.n, fm.WHEELS))
+        self._status_due = 0.0
         self._obstacles = fm.ObstacleShapes(
             discs=[(float(o.position[0]), float(o.position[1]), float(o.radius_m))
                    for o in sc.spec.obstacles],
@@ -222,21 +225,39 @@ class Ros2Gateway:
         self._wheel_angle += speeds.sum(axis=0) * self.sc.dt  # rectangle rule, the plant's dt
         self._speeds = speeds[-1]
 
+    def _wanted(self, relative: str) -> bool:
+        """Whether some subscriber listens (zenoh's matching status): a message nobody
+        reads is not built (a ROS 2 graph that watches nothing costs the wheel sums)."""
+        topic = self.topics[self.topic_name(relative)]
+        if topic.publisher.matching_status.matching:
+            return True
+        self.counts.unmatched += 1
+        return False
+
     def _send(self, ts: Any, k: int) -> None:
         ns = self.stamp_ns(k)
-        if not self.realtime:
+        if not self.realtime and self.topics["/clock"].publisher.matching_status.matching:
             self.put("/clock", fm.clock(ns), ns)
         q, q_dot, q0 = ts.q[k], ts.q_dot[k], ts.leader_q[k]
         for i, rid in enumerate(self.sc.robot_ids):
-            self.put(self.topic_name(f"robot_{rid}/odom"), fm.odometry(rid, ns, q[i], q_dot[i]), ns)
-            self.put(self.topic_name(f"robot_{rid}/cmd_vel"),
-                     fm.cmd_vel(rid, ns, float(q[i, 2]), ts.v_cmd[k, i]), ns)
-            self.put(self.topic_name(f"robot_{rid}/joint_states"),
-                     fm.joint_states(rid, ns, self._wheel_angle[i], self._speeds[i],
-                                     ts.torque[k, i]), ns)
-        self.put(self.topic_name("leader/pose"), fm.leader_pose(ns, q0), ns)
-        self.put(self.topic_name("tf"), fm.transforms(ns, list(self.sc.robot_ids), q, q0), ns)
-        self.put(self.topic_name("fleet/status"), fm.status(ns, self._status(ts, k)), ns)
+            if self._wanted(f"robot_{rid}/odom"):
+                self.put(self.topic_name(f"robot_{rid}/odom"),
+                         fm.odometry(rid, ns, q[i], q_dot[i]), ns)
+            if self._wanted(f"robot_{rid}/cmd_vel"):
+                self.put(self.topic_name(f"robot_{rid}/cmd_vel"),
+                         fm.cmd_vel(rid, ns, float(q[i, 2]), ts.v_cmd[k, i]), ns)
+            if self._wanted(f"robot_{rid}/joint_states"):
+                self.put(self.topic_name(f"robot_{rid}/joint_states"),
+                         fm.joint_states(rid, ns, self._wheel_angle[i], self._speeds[i],
+                                         ts.torque[k, i]), ns)
+        if self._wanted("leader/pose"):
+            self.put(self.topic_name("leader/pose"), fm.leader_pose(ns, q0), ns)
+        if self._wanted("tf"):
+            self.put(self.topic_name("tf"), fm.transforms(ns, list(self.sc.robot_ids), q, q0), ns)
+        now = time.monotonic()
+        if now >= self._status_due and self._wanted("fleet/status"):
+            self._status_due = now + STATUS_PERIOD_S
+            self.put(self.topic_name("fleet/status"), fm.status(ns, self._status(ts, k)), ns)
 
     def _status(self, ts: Any, k: int, verdict: dict | None = None) -> list:
         out = []
@@ -275,8 +296,9 @@ class Ros2Gateway:
 
     def summary(self) -> str:
         c = self.counts
-        return (f"ros2: {c.published} messages published ({c.rows_skipped} rows skipped at "
-                f"{self.opts.rate_hz:g} Hz, {c.late_ticks} late ticks, {c.errors} errors), "
+        return (f"ros2: {c.published} messages published, {c.unmatched} not built (no "
+                f"subscriber), {c.rows_skipped} rows skipped at {self.opts.rate_hz:g} Hz, "
+                f"{c.late_ticks} late ticks, {c.errors} errors, "
                 f"{c.cpu_s:.2f} s CPU; left the ROS 2 graph")
 
     def close(self, verdict: dict | None = None) -> None:
@@ -310,3 +332,31 @@ def open_session(opts: Ros2Options) -> Any:
     # rmw_zenoh's sessions stamp samples (its transient-local cache orders by them)
     cfg.insert_json5("timestamping/enabled", "true")
     return zenoh.open(cfg)
+
+
+def gateway_from_args(args: Any, sc: Any, plant: str, command: str) -> Ros2Gateway | None | bool:
+    """The --ros2 gateway of a command (None without --ros2; False: a bad option or an
+    endpoint zenoh refused, said on stderr: the command exits 2)."""
+    import sys
+
+    from deploy.ros2.options import Ros2OptionError, ros2_options
+    from deploy.runtime.plants import CAN_EMULATED
+
+    try:
+        opts = ros2_options(args)
+    except Ros2OptionError as exc:
+        print(f"{command}: {exc}", file=sys.stderr)
+        return False
+    if opts is None:
+        return None
+    try:
+        gateway = Ros2Gateway(sc, opts, realtime=args.clock == "realtime",
+                              bridged=set(sc.robot_ids) if plant == CAN_EMULATED else set())
+    except Exception as exc:  # noqa: BLE001 - zenoh raises its own errors for a bad endpoint
+        print(f"{command}: --ros2 {opts.endpoint}: {exc}", file=sys.stderr)
+        return False
+    print(f"ros2: the fleet on ROS 2 domain {opts.domain} through {opts.endpoint} "
+          f"({len(gateway.topics)} topics, {len(gateway.nodes)} nodes under "
+          f"{opts.namespace}/{NODE_NAMESPACE}, at most {opts.rate_hz:g} Hz; docs/ros2.md)",
+          file=sys.stderr, flush=True)
+    return gateway

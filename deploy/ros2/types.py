@@ -40,34 +40,38 @@ def definition(ros_type: str) -> str:
 def _zero(node: tuple) -> Any:
     kind, detail = node
     if kind == 1:  # BASE
-        name = detail[0]
-        return _ZERO.get(name, 0)
+        return _ZERO.get(detail[0], 0)
     if kind == 2:  # NAME
         return make(detail)
     inner, size = detail
-    if kind == 3 and inner[0] == 1 and inner[1][0] in _DTYPES:  # fixed array of numbers
-        return np.zeros(size, _DTYPES[inner[1][0]])
-    if kind == 3:
-        return [_zero(inner) for _ in range(size)]
-    if inner[0] == 1 and inner[1][0] in _DTYPES:  # a sequence of numbers
-        return np.zeros(0, _DTYPES[inner[1][0]])
-    return []
+    numbers = inner[0] == 1 and inner[1][0] in _DTYPES
+    if kind == 3:  # a fixed array
+        return np.zeros(size, _DTYPES[inner[1][0]]) if numbers else [
+            _zero(inner) for _ in range(size)]
+    return np.zeros(0, _DTYPES[inner[1][0]]) if numbers else []  # an empty sequence
+
+
+@cache
+def _shape(ros_type: str) -> tuple[Any, frozenset[str], dict[str, Any]]:
+    """A type's class, field names and zero values, built once. The zeros are shared
+    between messages: a message here is built, encoded and dropped, never changed."""
+    st = store()
+    _, defs = st.fielddefs[ros_type]
+    return st.types[ros_type], frozenset(n for n, _ in defs), {n: _zero(d) for n, d in defs}
 
 
 def make(ros_type: str, **fields: Any) -> Any:
     """A message of ``ros_type``: the fields given, every other one zero (as a ROS 2
     constructor leaves them)."""
-    st = store()
-    _, defs = st.fielddefs[ros_type]
-    values = {name: fields.pop(name) if name in fields else _zero(node) for name, node in defs}
-    if fields:
-        raise TypeError(f"{ros_type} has no field {next(iter(fields))!r}")
-    return st.types[ros_type](**values)
+    cls, names, zeros = _shape(ros_type)
+    if not names.issuperset(fields):
+        raise TypeError(f"{ros_type} has no field {sorted(set(fields) - names)[0]!r}")
+    return cls(**(zeros | fields))
 
 
 def encode(msg: Any) -> bytes:
     """CDR, little-endian, with its 4-byte encapsulation header."""
-    return bytes(store().serialize_cdr(msg, msg.__msgtype__))
+    return bytes(store().serialize_cdr(msg, msg.__msgtype__, little_endian=True))
 
 
 def decode(raw: bytes, ros_type: str) -> Any:

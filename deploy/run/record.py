@@ -169,12 +169,27 @@ def _cmd_record(args: argparse.Namespace) -> int:
                                  sim_dt=sc.dt if args.clock == "lockstep" else None)
         opts.recorder = recording
     rec = Recorder(sc, opts, args.zenoh_config, args.listen, args.connect, keyring)
+    from deploy.ros2.gateway import gateway_from_args
+
+    ros2 = gateway_from_args(args, sc, plant, "omnifleet record")
+    if ros2 is False:
+        if recording is not None:
+            recording.close()
+        return EXIT_BAD_INPUT
+    if ros2 is not None:
+        from deploy.report.live_view import collector_rows
+
+        ros2.bind_observer(rec.observer)
+        ros2.follow(rec.observer.collector.ts,
+                    collector_rows(rec.observer.collector, args.clock == "realtime"))
     try:
         extra = rec.run(terminal_progress(f"{sc.name} ({plant}, {args.clock})")
                         or log_progress())
     except BaseException as exc:
         if recording is not None:
             recording.close()  # flushed, also when the run did not end
+        if ros2 is not None:
+            ros2.close()
         if isinstance(exc, TimeoutError):
             print(f"omnifleet record: {exc}", file=sys.stderr)
             return 4
@@ -191,6 +206,9 @@ def _cmd_record(args: argparse.Namespace) -> int:
                         contacts_total=total, recorder=recording, steps_asked=opts.steps(sc),
                         **run_wall_clock(end_unix_ns, wall, rec.observer.run_t0, series.steps,
                                          args.clock == "lockstep"))
+    if ros2 is not None:
+        ros2.close(metrics["verdict"])
+        print(ros2.summary(), file=sys.stderr)
     print(f"omnifleet record: {series.steps} steps written to {args.out} "
           f"({', '.join(metrics['files'])})", file=sys.stderr)
     broken = (metrics.get("recording") or {}).get("error")
@@ -224,6 +242,9 @@ def add_record_command(sub: argparse._SubParsersAction) -> None:
     add_option(p, "--control-rate", more_help="give the nodes the same")
     add_option(p, "--startup-timeout", default=120.0)
     p.add_argument("--no-record", action="store_true", help="no recording.mcap")
+    from deploy.ros2.options import add_ros2_options
+
+    add_ros2_options(p)
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--overwrite", action="store_true",
                    help="--out already holds a run: remove its outputs first (else refused)")

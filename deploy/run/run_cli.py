@@ -68,7 +68,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     live = _start_live(args, sc)
     if live is False:
         return EXIT_BAD_INPUT
-    ros2 = _start_ros2(args, sc, plant)
+    from deploy.ros2.gateway import gateway_from_args
+
+    ros2 = gateway_from_args(args, sc, plant, "omnifleet run")
     if ros2 is False:
         if live is not None:
             live.close()
@@ -183,33 +185,6 @@ def _start_live(args: argparse.Namespace, sc):
     print(f"live view: {url(host, live.port)} (Foxglove or Lichtblick: Open connection -> "
           "Foxglove WebSocket; layout docs/foxglove-layout.json)", file=sys.stderr, flush=True)
     return live
-
-
-def _start_ros2(args: argparse.Namespace, sc, plant: str):
-    """The --ros2 gateway (None without it; False: a bad option, already said)."""
-    from deploy.ros2.options import Ros2OptionError, ros2_options
-
-    try:
-        opts = ros2_options(args)
-    except Ros2OptionError as exc:
-        print(f"omnifleet run: {exc}", file=sys.stderr)
-        return False
-    if opts is None:
-        return None
-    from deploy.ros2.gateway import Ros2Gateway
-    from deploy.runtime.plants import CAN_EMULATED
-
-    try:
-        gateway = Ros2Gateway(sc, opts, realtime=args.clock == "realtime",
-                              bridged=set(sc.robot_ids) if plant == CAN_EMULATED else set())
-    except Exception as exc:  # noqa: BLE001 - zenoh raises its own errors for a bad endpoint
-        print(f"omnifleet run: --ros2 {opts.endpoint}: {exc}", file=sys.stderr)
-        return False
-    print(f"ros2: the fleet on ROS 2 domain {opts.domain} through {opts.endpoint} "
-          f"({len(gateway.topics)} topics, {len(gateway.nodes)} nodes under "
-          f"{opts.namespace}/omnifleet, at most {opts.rate_hz:g} Hz; docs/ros2.md)",
-          file=sys.stderr, flush=True)
-    return gateway
 
 
 class Watchers:
