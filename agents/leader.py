@@ -17,6 +17,7 @@ from math import atan2, cos, pi, sin
 
 import numpy as np
 
+from agents.steered_leader import SteeredLeader, SteeredSpec
 from agents.waypoint_path import WaypointPath
 
 
@@ -51,6 +52,7 @@ class LeaderSpec:
     follow_gain: float = 3.5
     heading: str = "tangent"  # | "polar"
     waypoints: WaypointPath | None = None  # instead of x, y
+    steered: SteeredSpec | None = None  # no path: steered from outside (agents/steered_leader.py)
 
 
 def _wrap(a: float) -> float:
@@ -157,3 +159,10 @@ class LeaderGenerator:
             self._vel = self._path_velocity(t_next)
         self.k += 1
         self._heading += _wrap(self._raw_heading(t_next) - self._heading)
+
+
+def leader_generator(spec: LeaderSpec, dt: float) -> LeaderGenerator | SteeredLeader:
+    """The leader of ``spec``: on its path, or steered from outside."""
+    if spec.steered is not None:
+        return SteeredLeader(spec.steered, dt)
+    return LeaderGenerator(spec, dt)

@@ -12,8 +12,8 @@ Per role:
 - **publishes**: agent i only ``robot/i/cmd`` (its reply: command and share), its
   telemetry and its own report; the plant the samples, its state log, its report
   and control; the leader ``leader/state`` and its report; bridge i robot i's
-  sample, its state log and its report; the launcher control only (it starts and
-  ends a run on CAN; the recorder across hosts publishes nothing); a router
+  sample, its state log and its report; the launcher control (it starts and
+  ends a run on CAN) and ``leader/steer`` (the recorder across hosts publishes nothing); a router
   forwards everything.
 - **receives**: agent i its robot's sample, the replies of its neighbours j
   (a_ij != 0: it reads their shares in them), ``leader/state`` iff b_i != 0, and
@@ -66,7 +66,7 @@ def robot_of(role: str, prefix: str) -> int | None:
 def all_keys(sc: Scenario, keys: Keys, roles: Iterable[str]) -> set[str]:
     """Every key expression the fleet's wire contract uses (concrete, no wildcards:
     then what a node may send to a peer is a plain set intersection)."""
-    out = {keys.leader_state, *(keys.ctl(c) for c in CONTROL_COMMANDS),
+    out = {keys.leader_state, keys.leader_steer, *(keys.ctl(c) for c in CONTROL_COMMANDS),
            *(keys.report(r) for r in roles)}
     for r in sc.robot_ids:
         out |= {keys.sample(r), keys.cmd(r), keys.telemetry(r)}
@@ -80,7 +80,9 @@ def publishes(role: str, sc: Scenario, keys: Keys, roles: Iterable[str]) -> set[
     if role == ROUTER_ROLE:
         return all_keys(sc, keys, roles)  # a router forwards all
     if role == LAUNCHER_ROLE:
-        return ctl  # start and end when it keeps the run's time (CAN); stop, estop
+        # start and end when it keeps the run's time (CAN); stop, estop; a steered leader's
+        # commands
+        return ctl | {keys.leader_steer}
     if role == PLANT_ROLE:
         return ({keys.sample(r) for r in sc.robot_ids} | ctl | {keys.report(role),
                                                                   keys.state_log(role)})
@@ -101,7 +103,7 @@ def receives(role: str, sc: Scenario, keys: Keys, roles: Iterable[str]) -> set[s
     if role == PLANT_ROLE:
         return {keys.cmd(r) for r in sc.robot_ids} | ctl
     if role == LEADER_ROLE:
-        return ctl
+        return ctl | {keys.leader_steer}
     if (r := robot_of(role, "agent-")) is not None:
         cfg = sc.agent_config(sc.index_of(r))
         out = {keys.sample(r)} | ctl

@@ -24,7 +24,8 @@ from agents.degradation import MAX_COMMAND_HORIZON, DegradationConfig
 from agents.eso import EsoGains
 from agents.estimator import EstimatorGains
 from agents.formation import ScaleChange
-from agents.leader import Harmonic, LeaderGenerator, LeaderSpec
+from agents.leader import Harmonic, LeaderSpec, leader_generator
+from agents.steered_leader import SteeredSpec
 from agents.waypoint_path import waypoint_path
 from deploy.contract.options import MAX_RATE_HZ
 from deploy.contract.schema_hints import readable
@@ -103,11 +104,20 @@ class PathComponent(_S, kw_only=True):
     offset: float = 0.0
 
 
+STEERED_YAW_RATE_RADPS = 0.5  # path = "ros2": the default bound on the yaw rate
+# path = "ros2": the default command timeout. Longer than a robot's (0.1 s): a command
+# reaches the leader through the launcher's 50 ms loop and the leader's 50 ms batches
+STEERED_TIMEOUT_S = 0.5
+
+
 class Leader(_S, kw_only=True):
     kind: Literal["analytic", "path_follower"] = "analytic"
     # "harmonic": x, y as one sin/cos term each; "waypoints": a C2 spline through
     # ``waypoints`` driven at ``speed_mps`` with ramps of ``accel_mps2`` (agents/waypoint_path.py)
-    path: Literal["harmonic", "waypoints"] = "harmonic"
+    # "ros2": no path; the leader follows a twist on the ROS 2 topic /leader/cmd_vel (realtime
+    # runs with --ros2; agents/steered_leader.py), from ``start``, bounded by ``speed_mps`` and
+    # ``yaw_rate_radps``, stopping when none came for ``command_timeout_s``
+    path: Literal["harmonic", "waypoints", "ros2"] = "harmonic"
     x: PathComponent | None = None
     y: PathComponent | None = None
     waypoints: list[list[float]] | None = None
@@ -119,6 +129,9 @@ class Leader(_S, kw_only=True):
     theta_rate: float | None = None
     follow_gain: float = 3.5
     heading: Literal["tangent", "polar"] = "tangent"
+    start: list[float] | None = None  # path = "ros2": [x, y, psi] at t = 0 (default 0, 0, 0)
+    yaw_rate_radps: float | None = None  # path = "ros2": the bound on the yaw rate (default 0.5)
+    command_timeout_s: float | None = None  # path = "ros2": stop after this long without one
 
 
 class Formation(_S, kw_only=True):
@@ -382,12 +395,17 @@ class Scenario:
         def harm(c: PathComponent | None) -> Harmonic | None:
             return None if c is None else Harmonic(c.fn, c.amp, c.freq, c.phase, c.offset)
 
-        wp = None
+        wp = steered = None
         if ld.path == "waypoints":
             wp = waypoint_path(ld.waypoints, ld.speed_mps, ld.accel_mps2)
+        if ld.path == "ros2":
+            steered = SteeredSpec(
+                tuple(ld.start or (0.0, 0.0, 0.0)), ld.speed_mps,
+                STEERED_YAW_RATE_RADPS if ld.yaw_rate_radps is None else ld.yaw_rate_radps,
+                STEERED_TIMEOUT_S if ld.command_timeout_s is None else ld.command_timeout_s)
         return LeaderSpec(harm(ld.x), harm(ld.y), 0.0 if ld.theta0 is None else ld.theta0,
                           1.0 if ld.theta_rate is None else ld.theta_rate, ld.kind,
-                          ld.follow_gain, ld.heading, wp)
+                          ld.follow_gain, ld.heading, wp, steered)
 
     def obstacle_bodies(self) -> list[Body]:
         return [
@@ -431,7 +449,7 @@ class Scenario:
     def initial_estimates(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         r = self.spec.robots[index]
         if self.spec.estimator.init == "leader":
-            q, qd = LeaderGenerator(self.leader_spec(), self.dt).state()
+            q, qd = leader_generator(self.leader_spec(), self.dt).state()
         else:
             qs, qds = self.initial_state()
             q, qd = qs[index], qds[index]
@@ -574,9 +592,39 @@ def _check_scales(path: str, key: str, initial: list[float] | None,
         last_end = c.end_s
 
 
+def _check_steered_leader(path: str, ld: Leader) -> None:
+    """``path = "ros2"``: no path of its own, a positive speed bound, a start pose."""
+    for key in ("x", "y", "theta0", "theta_rate", "waypoints", "accel_mps2"):
+        if getattr(ld, key) is not None:
+            raise _fail(path, f"leader.{key}", 'not with path = "ros2" (the leader follows '
+                        "/leader/cmd_vel; its bounds are speed_mps and yaw_rate_radps)")
+    if ld.kind != "analytic":
+        raise _fail(path, "leader.kind", 'path = "ros2" follows its commands: leave kind out')
+    if ld.speed_mps is None:
+        raise _fail(path, "leader.speed_mps", 'required with path = "ros2": the bound on the '
+                    "leader's speed, m/s")
+    if ld.start is not None:
+        _check_len(path, "leader.start", ld.start, 3)
+        _check_coordinates(path, "leader.start", ld.start[:2])
+        _check_finite(path, "leader.start", ld.start)
+    for key, value in (("speed_mps", ld.speed_mps), ("yaw_rate_radps", ld.yaw_rate_radps),
+                       ("command_timeout_s", ld.command_timeout_s)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise _fail(path, f"leader.{key}", f"must be a positive number, got {value}")
+
+
 def _check_leader_path(path: str, ld: Leader, notes: list[str]) -> None:
     """``path = "harmonic"`` needs x and y and nothing of the waypoints; ``"waypoints"``
-    needs at least two distinct consecutive points and a positive speed and acceleration."""
+    needs at least two distinct consecutive points and a positive speed and acceleration;
+    ``"ros2"``: see :func:`_check_steered_leader`."""
+    if ld.path == "ros2":
+        _check_steered_leader(path, ld)
+        return
+    steered = {"start": ld.start, "yaw_rate_radps": ld.yaw_rate_radps,
+               "command_timeout_s": ld.command_timeout_s}
+    for key, value in steered.items():
+        if value is not None:
+            raise _fail(path, f"leader.{key}", 'only with path = "ros2"')
     wp_keys = {"waypoints": ld.waypoints, "speed_mps": ld.speed_mps, "accel_mps2": ld.accel_mps2}
     if ld.path == "harmonic":
         extra = [k for k, v in wp_keys.items() if v is not None]

@@ -258,6 +258,13 @@ class StateLog(Message, frozen=True):
 CONTROL_COMMANDS = ("start", "tick", "end", "stop", "estop")
 
 
+class LeaderSteer(Message, frozen=True):
+    """The launcher's newest command for a leader steered from outside (leader.path =
+    "ros2"; agents/steered_leader.py), to the leader alone."""
+
+    velocity: Vec3  # the leader's body twist [vx, vy, wz], m/s and rad/s
+
+
 class Control(Message, frozen=True):
     command: str  # one of CONTROL_COMMANDS
     k: int = 0  # tick: the step the plant is publishing
@@ -372,7 +379,8 @@ class NodeReport(Message, frozen=True):
             raise ValueError("too many contact records")
 
 
-MESSAGE_TYPES = (LeaderState, Sample, Reply, Telemetry, StateLog, Control, NodeReport)
+MESSAGE_TYPES = (LeaderState, Sample, Reply, Telemetry, StateLog, Control, NodeReport,
+                 LeaderSteer)
 
 _encoder = msgspec.msgpack.Encoder()
 # the header of any version: an array whose first element is the version
@@ -494,6 +502,11 @@ class Keys:
     def leader_state(self) -> str:
         return f"{self.root}/leader/state"
 
+    @property
+    def leader_steer(self) -> str:
+        """Launcher -> leader: a steered leader's newest command (:class:`LeaderSteer`)."""
+        return f"{self.root}/leader/steer"
+
     def sample(self, robot: int) -> str:
         """Plant or bridge -> agent i: state + perception of step k (:class:`Sample`)."""
         return f"{self.root}/robot/{robot}/sample"
@@ -551,6 +564,8 @@ class Keys:
         match parts:
             case ["leader", "state"]:
                 return LeaderState, None
+            case ["leader", "steer"]:
+                return LeaderSteer, None
             case ["robot", r, "sample"] if r.lstrip("-").isdigit():
                 return Sample, int(r)
             case ["robot", r, "cmd"] if r.lstrip("-").isdigit():

@@ -13,10 +13,18 @@ own step, as in lockstep (deploy/nodes/agent.py).
 from __future__ import annotations
 
 import math
+import time
 
-from agents.leader import LeaderGenerator
+from agents.leader import leader_generator
+from agents.steered_leader import SteeredLeader
 from deploy.contract.scenario import Scenario
-from deploy.contract.wire import LAUNCHER_ROLE, WIRE_VERSION, LeaderState, agent_role
+from deploy.contract.wire import (
+    LAUNCHER_ROLE,
+    WIRE_VERSION,
+    LeaderState,
+    LeaderSteer,
+    agent_role,
+)
 from deploy.runtime.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
 from deploy.runtime.transport import Node
 
@@ -38,14 +46,26 @@ class LeaderNode:
     def __init__(self, sc: Scenario, node: Node, stop: StopFlag,
                  with_recorder: bool = False) -> None:
         self.sc, self.node, self.stop = sc, node, stop
-        self.generator = LeaderGenerator(sc.leader_spec(), sc.dt)
+        self.generator = leader_generator(sc.leader_spec(), sc.dt)
         self.k_next = 0  # the step whose state the generator holds
         self.timing = Timing()
         self.peers = [agent_role(r) for r, b in zip(sc.robot_ids, sc.leader_weights) if b != 0]
         if with_recorder:
             self.peers.append(LAUNCHER_ROLE)
         self.control = ControlInbox(node, stop)
+        self.t0_mono: float | None = None  # realtime: t = 0 of the run on our clock
+        self.steered = 0  # steer commands taken (a leader steered from outside)
+        if isinstance(self.generator, SteeredLeader):
+            node.subscribe(node.keys.leader_steer, LeaderSteer, self._on_steer)
         node.declare_alive()
+
+    def _on_steer(self, msg: LeaderSteer) -> None:
+        """The newest command of a leader steered from outside (from the launcher,
+        authenticated), received now on the run's clock."""
+        if self.t0_mono is None:
+            return  # before the run's start: no time to stamp it with (and nothing moves)
+        self.generator.steer(msg.velocity, time.monotonic() - self.t0_mono)
+        self.steered += 1
 
     @property
     def steps_done(self) -> int:
@@ -87,6 +107,7 @@ class LeaderNode:
         a batch ahead of the wall clock. A wake more than a batch late skips what is
         past (published from the step now due)."""
         n = realtime_batch(self.sc.dt)
+        self.t0_mono = t0_mono
         self.node.wake_on(())  # its timer only (it hears nothing on the data path)
         ticker = Periodic(t0_mono, n * self.sc.dt, self.timing, self.node.mailbox)
         while not self.stop():

@@ -30,7 +30,7 @@ from typing import Any
 
 from deploy.contract.keyring import Keyring, keyring_text, new_master
 from deploy.contract.scenario import Scenario
-from deploy.contract.wire import LAUNCHER_ROLE, Keys, control
+from deploy.contract.wire import LAUNCHER_ROLE, WIRE_VERSION, Keys, LeaderSteer, control
 from deploy.report.timeseries import TimeSeries
 from deploy.run.early_load import EarlyLoad, EarlyLoadProbe
 from deploy.run.kill_schedule import KillSchedule
@@ -246,10 +246,13 @@ class Launcher:
         if self.opts.clock == "realtime":  # does this machine keep the fleet's clock?
             pids = {c.role: c.proc.pid for c in self.supervisor.children if c.proc is not None}
             probe = EarlyLoadProbe({**pids, LAUNCHER_ROLE: os.getpid()}, self.sc.dt)
+        steered = -1  # the number of the last steering command passed on
         while not obs.ended:
             if self.stop():
                 raise Interrupted(self.stop.reason)
             obs.ended = self.supervisor.check(obs.ended)
+            if self.opts.steering is not None and obs.run_t0 is not None:
+                steered = self._pass_steering(node, steered)
             if probe is not None and obs.run_t0 is not None:
                 self._judge_early_load(probe, obs.run_t0)
             if obs.t0_mono is not None and time.monotonic() >= obs.t0_mono + self.steps * self.sc.dt:
@@ -264,6 +267,17 @@ class Launcher:
             node.mailbox.wait_until(lambda: obs.ended or self.stop(),
                                     0.05 if not self.kills.pending else 0.005, bounded=True,
                                     coalesce_s=0.0 if self.kills.pending else HEAR_EVERY_S)
+
+    def _pass_steering(self, node: Node, passed: int) -> int:
+        """A steered leader's newest command (deploy/ros2/gateway.py), to the leader when
+        it is newer than the last one passed (its number); returns that number."""
+        newest = self.opts.steering()
+        if newest is None or newest[0] == passed:
+            return passed
+        velocity = newest[1]
+        node.publish(self.observer.keys.leader_steer, lambda seq, stamp: LeaderSteer(
+            WIRE_VERSION, 0, seq, stamp, velocity=velocity))
+        return newest[0]
 
     def _judge_early_load(self, probe: EarlyLoadProbe, run_t0: float) -> None:
         """At the run's start, and a second later: say at once when this machine cannot

@@ -96,6 +96,9 @@ class LaunchOptions:
     # a McapRecorder made (and closed) by the caller, who adds the run's scene to it at
     # the end; None: the launcher makes its own and closes it
     recorder: Any = None
+    # a leader steered from outside (path = "ros2"): the newest command as (its number,
+    # [vx, vy, wz]) or None, read by the launcher's loop and passed on as ``ctl/steer``
+    steering: Any = None
 
     def steps(self, sc: Scenario) -> int:
         return sc.steps if self.duration_s is None else int(round(self.duration_s / sc.dt))

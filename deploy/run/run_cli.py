@@ -46,6 +46,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.in_process and args.clock == "realtime":
         print("omnifleet run: --in-process runs lockstep only", file=sys.stderr)
         return EXIT_BAD_INPUT
+    if sc.leader_spec().steered is not None and (args.clock != "realtime" or args.ros2 is None):
+        print('omnifleet run: this scenario\'s leader follows ROS 2 (leader.path = "ros2"): '
+              "run it with --clock realtime --ros2 [ENDPOINT] (a ROS 2 node then drives it on "
+              "/leader/cmd_vel; docs/ros2.md)", file=sys.stderr)
+        return EXIT_BAD_INPUT
     plan = fault_plan(args, sc)
     if plan is not None and plan.kills and args.clock != "realtime":
         print("omnifleet run: a fault plan that kills processes needs --clock realtime (in "
@@ -88,7 +93,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             metrics = _run_in_process(sc, args, plant, plan, out, label, watchers, drawing)
         else:
             with frozen_heap():  # what start-up built, out of the full passes (heap.py)
-                metrics = _run_distributed(sc, args, plant, out, label, watchers, drawing)
+                metrics = _run_distributed(sc, args, plant, out, label, watchers, drawing,
+                                           ros2 or None)
             if metrics is None:
                 return 1
     finally:
@@ -222,7 +228,7 @@ def _with_live(progress, live):
 
 
 def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label: str, live=None,
-                     drawing=None):
+                     drawing=None, ros2=None):
     import time
 
     from deploy.report.outputs import run_wall_clock, write_run
@@ -244,6 +250,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         lowlatency=args.zenoh_transport == "lowlatency", datagrams=args.data_path == "datagram",
         # --law: the agents read the scenario's file, and are told (a file's path made absolute)
         extra_agent_args=["--law", sc.spec.law.use] if args.law else [],
+        steering=None if ros2 is None else ros2.steering,
         **({} if args.driver is None else {"driver": args.driver}),
     )
     launcher = Launcher(sc, opts)
@@ -280,6 +287,8 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
             recorder.close()  # flushed, also after Ctrl-C
         raise
     end_unix_ns = time.time_ns()
+    if ros2 is not None:
+        extra["ros2"] = ros2.counts_json()
     series = launcher.final_series()
     if args.clock == "realtime":
         extra["series_cells_filled"] = launcher.observer.collector.filled

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.core import AgentCore, Share
-from agents.leader import LeaderGenerator
+from agents.leader import leader_generator
 from agents.look_ahead import LookAhead
 from agents.plugged import PluggedCore, make_core
 from deploy.contract.fault_plan import FaultPlan
@@ -95,7 +95,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
          on_series: Callable[[TimeSeries], None] | None = None) -> RunResult:
     dt = sc.dt
     agents = make_agents(sc)
-    leader = LeaderGenerator(sc.leader_spec(), dt)
+    leader = leader_generator(sc.leader_spec(), dt)  # a steered one gets no command here: it stays
     sense = sensor_for(plant, sc)
     ids = sc.robot_ids
     series = TimeSeries.allocate(steps, sc.n)

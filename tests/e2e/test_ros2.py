@@ -101,8 +101,8 @@ def _yaw(q) -> float:
 
 def test_decoded_topics_equal_the_run_series_at_their_stamps(router, tmp_path: Path):
     """Lockstep, under a namespace: every header is stamped in simulated time, /clock
-    (global) moves forward, and robot_1/odom, cmd_vel and joint_states decode to the series' values at that step
-    (the twist in the robot's frame, REP 105)."""
+    (global) moves forward, and robot_1/odom, cmd_vel and joint_states decode to the
+    series' values at that step (the twist in the robot's frame, REP 105)."""
     heard = {t: Heard() for t in ("odom", "cmd", "joints", "clock")}
     ns = "/lab_1"  # every topic under it, but /clock
     subs = [_subscribe(router, f"{ns}/robot_1/odom", "nav_msgs/msg/Odometry", heard["odom"]),
@@ -246,3 +246,64 @@ def test_a_bad_ros2_option_exits_2_before_anything_starts(bad, tmp_path: Path):
     rc, _, err = finish(start("run", "lab", "--duration", "1", "--out", str(out), *bad))
     assert rc == 2, err
     assert "ros2" in err and not out.exists(), err
+
+
+def test_a_ros2_node_drives_the_leader_and_bad_commands_are_refused(router, tmp_path: Path):
+    """teleop (leader.path = "ros2"), realtime: a ROS 2 publisher on /leader/cmd_vel drives
+    the leader, bounded by the scenario (0.6 m/s) and stopped by its timeout; malformed
+    CDR, NaN twists and a flood are refused and counted, and no robot touches."""
+    from zenoh_ros2_sdk.discovery import get_topic_info
+    from zenoh_ros2_sdk.publisher import ROS2Publisher
+
+    out = tmp_path / "run"
+    proc = start("run", "teleop", "--plant", "model", "--clock", "realtime", "--duration", "9",
+                 "--ros2", f"tcp/127.0.0.1:{router}", "--ros2-namespace", "/teleop",
+                 "--out", str(out), "--no-figures", "--no-record")
+    pub = ROS2Publisher("/teleop/leader/cmd_vel", "geometry_msgs/msg/Twist",
+                        router_port=router)
+    poses = Heard()
+    sub = _subscribe(router, "/teleop/leader/pose", "geometry_msgs/msg/PoseStamped", poses)
+    vec = pub.session_mgr.store.types["geometry_msgs/msg/Vector3"]
+    try:
+        def subscribed():
+            info = get_topic_info("/teleop/leader/cmd_vel", router_port=router, verbose=True,
+                                  timeout=1.0)
+            return info is not None and [s for s in info.subscribers if s.node_name == "leader"]
+
+        _while_running(proc, subscribed)  # the leader's subscription, as ROS 2 sees it
+        _while_running(proc, lambda: poses.msgs)  # the run has started
+        for _ in range(3):
+            pub.pub.put(b"\x00\x01\x00\x00garbage")  # not CDR of a Twist
+        for _ in range(4):
+            pub.publish(linear=vec(x=math.nan, y=0.0, z=0.0), angular=vec(x=0.0, y=0.0, z=0.0))
+        for _ in range(2000):  # a flood, as fast as this loop goes
+            pub.publish(linear=vec(x=0.0, y=0.0, z=0.0), angular=vec(x=0.0, y=0.0, z=0.0))
+        time.sleep(0.2)  # the next commands come at a teleop's rate: 20 Hz
+        for vx, seconds in ((3.0, 1.0), (0.3, 2.0)):  # 3 m/s: five times the bound
+            for _ in range(round(seconds * 20)):
+                pub.publish(linear=vec(x=vx, y=0.0, z=0.0), angular=vec(x=0.0, y=0.0, z=0.0))
+                time.sleep(0.05)
+        rc, _, err = finish(proc)
+    finally:
+        pub.close()
+        sub.close()
+        kill_run(proc)
+    assert rc == 0, err
+    m = json.loads((out / "metrics.json").read_text())
+    steer = m["ros2"]["leader_cmd_vel"]
+    refused = steer["refused"]
+    assert refused.get("not a Twist (11 bytes)") == 3, refused
+    assert refused.get("non-finite") == 4, refused
+    assert refused.get("over 100 a second", 0) > 1000, refused
+    assert steer["taken"] >= 60, steer
+    assert m["contacts"] == 0 and m["verdict"]["no_contact"], m["verdict"]["reasons"]
+    series = np.load(out / "timeseries.npz")
+    q0, v0 = series["leader_q"], series["leader_v"]
+    assert np.isfinite(q0).all() and np.isfinite(v0).all()
+    speed = np.hypot(v0[:, 0], v0[:, 1])
+    assert speed.max() <= 0.6 + 1e-9, speed.max()  # the scenario's bound, never more
+    travelled = q0[-1, 0] - q0[0, 0]
+    # 1 s at the bound (0.6 m) and 2 s at 0.3 m/s (0.6 m), each late by at most the
+    # launcher's loop and the leader's batches, then stopped by the 0.5 s timeout
+    assert 0.9 <= travelled <= 1.5, travelled
+    assert abs(q0[-1, 1] - q0[0, 1]) < 1e-9 and speed[-1] == 0.0

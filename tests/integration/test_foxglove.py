@@ -92,7 +92,7 @@ def test_the_json_from_msgspec_equals_the_field_walk(kind):
             pass
     for msg in msgs:
         assert json.loads(codec.encode(msg)) == json.loads(walk.encode(codec.as_object(msg)))
-    mirrored = {"LeaderState", "Sample", "Reply", "Telemetry", "Control"}
+    mirrored = {"LeaderState", "Sample", "Reply", "Telemetry", "Control", "LeaderSteer"}
     assert (codec._mirror is not None) == (kind.__name__ in mirrored)
 
 

@@ -25,7 +25,7 @@ ALLOWED = {
 
 # deploy's sub-packages, bottom to top; a module imports only its own layer or below.
 # Modules directly in deploy/ (cli.py, scenario_cli.py) are the roof.
-DEPLOY_LAYERS = ("contract", "runtime", "nodes", "fleet", "report", "run", "bench", "")
+DEPLOY_LAYERS = ("contract", "runtime", "nodes", "fleet", "report", "ros2", "run", "bench", "")
 
 
 def modules() -> dict[str, Path]:
