@@ -66,17 +66,22 @@ def _clamp_ns(t: int) -> int:
 
 
 class McapRecorder:
-    def __init__(self, path: Path, sim_dt: float | None = None) -> None:
-        """``sim_dt``: the step of a lockstep run; log time is then simulation time."""
+    def __init__(self, path: Path, sim_dt: float | None = None, profile: str = "") -> None:
+        """``sim_dt``: the step of a lockstep run; log time is then simulation time.
+        ``profile``: the MCAP profile ("ros2": a file of ROS 2 channels only, as rosbag2
+        readers ask, deploy/ros2/bag.py)."""
         self.path = path
         self.sim_dt = sim_dt
         self._file = open(path, "wb")  # noqa: SIM115 - closed in close()
         self._writer = Writer(self._file)
-        self._writer.start(profile="", library=LIBRARY)
+        self._writer.start(profile=profile, library=LIBRARY)
         self._lock = threading.Lock()  # the mcap writer is not thread-safe
         self._json: dict[type, tuple[StructJson, int]] = {}  # type -> (codec, schema id)
         self._schemas: dict[str, int] = {}  # protobuf schema name -> id
         self._channels: dict[str, int] = {}
+        # called with (this recorder, sc, series, t0_unix_ns) as the scene is written, under
+        # the writer's lock: more channels from the run's series (deploy/ros2/bag.py)
+        self.with_scene: list[Any] = []
         self._by_key: dict[tuple[str, type], tuple[StructJson, int]] = {}  # the wire's keys
         self._sequence: dict[int, int] = {}  # channel -> next sequence (messages without seq)
         self._queue: deque[tuple[str, int, Any]] = deque()
@@ -277,6 +282,25 @@ class McapRecorder:
                 if k in scene_rows:
                     for topic, msg in fs.scene_messages(series, k).items():
                         self.write_message(topic, msg, log, wall)
+            for more in self.with_scene:
+                more(self, sc, series, t0)
+
+    def write_cdr(self, topic: str, ros_type: str, definition: str, data: bytes,
+                  log_time_ns: int, publish_time_ns: int) -> None:
+        """One ROS 2 message, CDR-encoded, on a channel with its ``ros2msg`` schema (what
+        rosbag2's MCAP storage and Foxglove read as a ROS 2 topic)."""
+        ch = self._channels.get(topic)
+        if ch is None:
+            sid = self._schemas.get(ros_type)
+            if sid is None:
+                sid = self._schemas[ros_type] = self._writer.register_schema(
+                    name=ros_type, encoding="ros2msg", data=definition.encode())
+            ch = self._channels[topic] = self._writer.register_channel(topic, "cdr", sid)
+        if self.broken is not None:
+            self.lost += 1
+            return
+        self._add(ch, _clamp_ns(log_time_ns), data, _clamp_ns(publish_time_ns),
+                  self._next_sequence(ch) & UINT32, what=topic)
 
     # -- the end --------------------------------------------------------------------
     def close(self, metadata: dict[str, str] | None = None) -> None:

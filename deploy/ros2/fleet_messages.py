@@ -154,3 +154,84 @@ def status(ns: int, entries: list[tuple[str, str, str, dict[str, str]]]) -> Any:
              values=[make("diagnostic_msgs/msg/KeyValue", key=k, value=v)
                      for k, v in values.items()])
         for name, level, message, values in entries])
+
+
+class FleetFrames:
+    """The run's rows as ROS 2 messages, one row at a time, in order: the wheel angles are
+    summed over every row since the last (the series holds them all), so a row's joint
+    positions do not depend on which rows were published before it.
+
+    ``robot_ids``, ``dt``: the run's; ``wheels_of_twist``: (1/R) P of eq. (1), 4 x 3."""
+
+    def __init__(self, robot_ids: list[int], dt: float, wheels_of_twist: np.ndarray) -> None:
+        self.robot_ids, self.dt = list(robot_ids), dt
+        self.wheels_of_twist = wheels_of_twist
+        self.wheel_angle = np.zeros((len(self.robot_ids), WHEELS))
+        self.wheel_speed = np.zeros((len(self.robot_ids), WHEELS))
+        self.last = -1  # the newest row summed
+
+    def advance(self, ts: Any, k: int) -> None:
+        """Sum the wheels' turns over rows last+1..k: theta_dot = (1/R) P T(psi)^T q_dot,
+        eq. (1), the rectangle rule at the run's dt."""
+        rows = slice(self.last + 1, k + 1)
+        q, q_dot = ts.q[rows], ts.q_dot[rows]
+        c, s = np.cos(q[..., 2]), np.sin(q[..., 2])
+        body = np.stack([c * q_dot[..., 0] + s * q_dot[..., 1],
+                         -s * q_dot[..., 0] + c * q_dot[..., 1], q_dot[..., 2]], axis=-1)
+        speeds = body @ self.wheels_of_twist.T  # (rows, n, 4)
+        if len(speeds):
+            self.wheel_angle += speeds.sum(axis=0) * self.dt
+            self.wheel_speed = speeds[-1]
+        self.last = max(self.last, k)
+
+    def messages(self, ts: Any, k: int, ns: int,
+                 wanted: Any = lambda _topic: True) -> list[tuple[str, Any]]:
+        """(topic relative to the namespace, message) of row ``k`` (after
+        :meth:`advance` to it), stamped ``ns``; only the topics ``wanted`` says yes to
+        are built. /clock, /obstacles and /fleet/status are the caller's."""
+        out: list[tuple[str, Any]] = []
+        q, q_dot, q0 = ts.q[k], ts.q_dot[k], ts.leader_q[k]
+        for i, rid in enumerate(self.robot_ids):
+            if wanted(f"robot_{rid}/odom"):
+                out.append((f"robot_{rid}/odom", odometry(rid, ns, q[i], q_dot[i])))
+            if wanted(f"robot_{rid}/cmd_vel"):
+                out.append((f"robot_{rid}/cmd_vel", cmd_vel(rid, ns, float(q[i, 2]),
+                                                            ts.v_cmd[k, i])))
+            if wanted(f"robot_{rid}/joint_states"):
+                out.append((f"robot_{rid}/joint_states", joint_states(
+                    rid, ns, self.wheel_angle[i], self.wheel_speed[i], ts.torque[k, i])))
+        if wanted("leader/pose"):
+            out.append(("leader/pose", leader_pose(ns, q0)))
+        if wanted("tf"):
+            out.append(("tf", transforms(ns, self.robot_ids, q, q0)))
+        return out
+
+
+def robot_status(ts: Any, k: int, t_s: float, robot_ids: list[int], prefix: str
+                 ) -> list[tuple[str, str, str, dict[str, str]]]:
+    """Each agent's health at row ``k`` (time ``t_s``), as :func:`status` takes it."""
+    out = []
+    for i, rid in enumerate(robot_ids):
+        nonfinite, infeasible = bool(ts.nonfinite[k, i]), bool(ts.safety_infeasible[k, i])
+        level = "error" if nonfinite else "warn" if infeasible else "ok"
+        message = ("the law gave a non-finite value: torques zeroed" if nonfinite else
+                   "no command met every barrier" if infeasible else "running")
+        out.append((f"{prefix}/agent_{rid}", level, message, {
+            "t_s": f"{t_s:.3f}", "speed_factor": f"{ts.speed_factor[k, i]:.3f}",
+            "input_age_s": f"{ts.input_age[k, i]:.4f}",
+            "safety_filter_dv_mps": f"{ts.safety_dv[k, i]:.4f}",
+            "active_behaviours": str(ts.order[k, i])}))
+    return out
+
+
+def obstacle_shapes_of(sc: Any) -> ObstacleShapes:
+    """A scenario's discs, walls and polygons."""
+    return ObstacleShapes(
+        discs=[(float(o.position[0]), float(o.position[1]), float(o.radius_m))
+               for o in sc.spec.obstacles],
+        polygons=[[tuple(map(float, v)) for v in p.vertices] for p in sc.obstacle_shapes()])
+
+
+def frames_for(sc: Any) -> FleetFrames:
+    model = sc.model()
+    return FleetFrames(list(sc.robot_ids), sc.dt, model.P / model.params.wheel_radius_m)

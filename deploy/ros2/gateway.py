@@ -23,8 +23,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 import deploy.ros2.fleet_messages as fm
 from deploy.ros2.graph import TRANSIENT_LOCAL, Qos, Ros2Node, attachment, data_key, gid
 from deploy.ros2.options import Ros2Options
@@ -101,15 +99,9 @@ class Ros2Gateway:
         self._steer_sub = self._steer_token = None
         if sc.leader_spec().steered is not None:
             self._subscribe_steering()
-        model = sc.model()
-        self._wheels_of_twist = model.P / model.params.wheel_radius_m  # eq. (1) inverted
-        self._wheel_angle = np.zeros((sc.n, fm.WHEELS))
-        self._speeds = np.zeros((sc.n, fm.WHEELS))
+        self.frames = fm.frames_for(sc)
         self._status_due = 0.0
-        self._obstacles = fm.ObstacleShapes(
-            discs=[(float(o.position[0]), float(o.position[1]), float(o.radius_m))
-                   for o in sc.spec.obstacles],
-            polygons=[[tuple(map(float, v)) for v in p.vertices] for p in sc.obstacle_shapes()])
+        self._obstacles = fm.obstacle_shapes_of(sc)
         self._series: Any = None
         self._ready: Callable[[], int] | None = None
         self._newest = -1
@@ -251,25 +243,13 @@ class Ros2Gateway:
                 return
             cpu = time.thread_time()
             try:
-                self._advance_wheels(ts, self._sent, k)
+                self.frames.advance(ts, k)
                 self._send(ts, k)
                 self.counts.rows_skipped += max(0, k - self._sent - 1)
             except Exception:  # noqa: BLE001 - ROS 2 never stops a run; counted
                 self.counts.errors += 1
             self._sent = k
             self.counts.cpu_s += time.thread_time() - cpu
-
-    def _advance_wheels(self, ts: Any, after: int, k: int) -> None:
-        """Wheel angles: theta_dot = (1/R) P T(psi)^T q_dot, eq. (1), summed over every row
-        since the last tick (the series holds them all)."""
-        rows = slice(after + 1, k + 1)
-        q, q_dot = ts.q[rows], ts.q_dot[rows]
-        c, s = np.cos(q[..., 2]), np.sin(q[..., 2])
-        body = np.stack([c * q_dot[..., 0] + s * q_dot[..., 1],
-                         -s * q_dot[..., 0] + c * q_dot[..., 1], q_dot[..., 2]], axis=-1)
-        speeds = body @ self._wheels_of_twist.T  # (rows, n, 4)
-        self._wheel_angle += speeds.sum(axis=0) * self.sc.dt  # rectangle rule, the plant's dt
-        self._speeds = speeds[-1]
 
     def _wanted(self, relative: str) -> bool:
         """Whether some subscriber listens (zenoh's matching status): a message nobody
@@ -284,39 +264,15 @@ class Ros2Gateway:
         ns = self.stamp_ns(k)
         if not self.realtime and self.topics["/clock"].publisher.matching_status.matching:
             self.put("/clock", fm.clock(ns), ns)
-        q, q_dot, q0 = ts.q[k], ts.q_dot[k], ts.leader_q[k]
-        for i, rid in enumerate(self.sc.robot_ids):
-            if self._wanted(f"robot_{rid}/odom"):
-                self.put(self.topic_name(f"robot_{rid}/odom"),
-                         fm.odometry(rid, ns, q[i], q_dot[i]), ns)
-            if self._wanted(f"robot_{rid}/cmd_vel"):
-                self.put(self.topic_name(f"robot_{rid}/cmd_vel"),
-                         fm.cmd_vel(rid, ns, float(q[i, 2]), ts.v_cmd[k, i]), ns)
-            if self._wanted(f"robot_{rid}/joint_states"):
-                self.put(self.topic_name(f"robot_{rid}/joint_states"),
-                         fm.joint_states(rid, ns, self._wheel_angle[i], self._speeds[i],
-                                         ts.torque[k, i]), ns)
-        if self._wanted("leader/pose"):
-            self.put(self.topic_name("leader/pose"), fm.leader_pose(ns, q0), ns)
-        if self._wanted("tf"):
-            self.put(self.topic_name("tf"), fm.transforms(ns, list(self.sc.robot_ids), q, q0), ns)
+        for relative, msg in self.frames.messages(ts, k, ns, self._wanted):
+            self.put(self.topic_name(relative), msg, ns)
         now = time.monotonic()
         if now >= self._status_due and self._wanted("fleet/status"):
             self._status_due = now + STATUS_PERIOD_S
             self.put(self.topic_name("fleet/status"), fm.status(ns, self._status(ts, k)), ns)
 
     def _status(self, ts: Any, k: int, verdict: dict | None = None) -> list:
-        out = []
-        for i, rid in enumerate(self.sc.robot_ids):
-            nonfinite, infeasible = bool(ts.nonfinite[k, i]), bool(ts.safety_infeasible[k, i])
-            level = "error" if nonfinite else "warn" if infeasible else "ok"
-            message = ("the law gave a non-finite value: torques zeroed" if nonfinite else
-                       "no command met every barrier" if infeasible else "running")
-            out.append((f"{NODE_NAMESPACE}/agent_{rid}", level, message, {
-                "t_s": f"{ts.t[k]:.3f}", "speed_factor": f"{ts.speed_factor[k, i]:.3f}",
-                "input_age_s": f"{ts.input_age[k, i]:.4f}",
-                "safety_filter_dv_mps": f"{ts.safety_dv[k, i]:.4f}",
-                "active_behaviours": str(ts.order[k, i])}))
+        out = fm.robot_status(ts, k, k * self.sc.dt, list(self.sc.robot_ids), NODE_NAMESPACE)
         values = {"refused_messages": str(self.refused()),
                   "ros2_rows_skipped": str(self.counts.rows_skipped),
                   "ros2_late_ticks": str(self.counts.late_ticks)}

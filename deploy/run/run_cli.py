@@ -82,6 +82,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     watchers = Watchers([w for w in (live, ros2) if w is not None]) if ros2 else live
     metrics = None
+    bag = None
+    if ros2 and not args.no_record:  # the recording holds the ROS 2 topics too
+        from deploy.ros2.bag import BagTopics
+
+        bag = BagTopics(ros2.opts, realtime=args.clock == "realtime")
     drawing = None
     if not args.no_figures:  # the figure process gets ready while the run goes
         from deploy.report.figure_process import FigureProcess
@@ -90,11 +95,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         drawing.prepare()
     try:
         if args.in_process:
-            metrics = _run_in_process(sc, args, plant, plan, out, label, watchers, drawing)
+            metrics = _run_in_process(sc, args, plant, plan, out, label, watchers, drawing, bag)
         else:
             with frozen_heap():  # what start-up built, out of the full passes (heap.py)
                 metrics = _run_distributed(sc, args, plant, out, label, watchers, drawing,
-                                           ros2 or None)
+                                           ros2 or None, bag)
             if metrics is None:
                 return 1
     finally:
@@ -110,6 +115,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         if ros2 is not None:
             ros2.close(None if metrics is None else metrics["verdict"])
             print(ros2.summary(), file=sys.stderr)
+    if bag is not None and bag.counts and bag.broken is None:
+        _write_bag_metadata(bag, metrics)
     banner = divergence_banner(metrics["verdict"])
     if banner:
         print(banner, file=sys.stderr)
@@ -127,7 +134,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, label: str, live,
-                    drawing=None):
+                    drawing=None, bag=None):
     from deploy.report.outputs import write_run
     from deploy.run.run_figures import law_fault_figures
     from deploy.run.runner import run_in_process, run_progress
@@ -152,6 +159,8 @@ def _run_in_process(sc, args: argparse.Namespace, plant: str, plan, out: Path, l
         from deploy.report.recorder import McapRecorder  # mcap: only for a recording
 
         recorder = McapRecorder(out / RECORDING, sim_dt=sc.dt)
+        if bag is not None:
+            recorder.with_scene.append(bag)
     if result.interrupted:
         from deploy.report.outputs import write_interrupted
 
@@ -193,6 +202,16 @@ def _start_live(args: argparse.Namespace, sc):
     return live
 
 
+def _write_bag_metadata(bag, metrics: dict) -> None:
+    """The run folder as a rosbag2 bag: its metadata.yaml, named among the run's files."""
+    from deploy.report.metrics import write_metrics
+
+    folder = Path(metrics["folder"])
+    bag.write_metadata(folder)
+    metrics["files"] += ["ros2.mcap", "metadata.yaml"]
+    write_metrics(metrics, folder / "metrics.json")
+
+
 class Watchers:
     """Several observers of the series (the live view, the ROS 2 gateway) as one."""
 
@@ -228,7 +247,7 @@ def _with_live(progress, live):
 
 
 def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label: str, live=None,
-                     drawing=None, ros2=None):
+                     drawing=None, ros2=None, bag=None):
     import time
 
     from deploy.report.outputs import run_wall_clock, write_run
@@ -241,6 +260,8 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         out.mkdir(parents=True, exist_ok=True)
         recorder = McapRecorder(out / RECORDING,
                                 sim_dt=sc.dt if args.clock == "lockstep" else None)
+        if bag is not None:
+            recorder.with_scene.append(bag)
     opts = LaunchOptions(
         scenario_arg=args.scenario, plant=plant, clock=args.clock, out=out,
         duration_s=args.duration, control_rate_hz=args.control_rate,
