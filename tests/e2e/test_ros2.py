@@ -349,3 +349,32 @@ def test_a_ros2_run_folder_opens_as_a_rosbag2_bag_of_the_run(router, tmp_path: P
     from deploy.ros2.types import type_hash
 
     assert all(h == type_hash(topics[t][0]) for t, h in hashes.items())
+
+
+def test_a_fleet_started_by_hand_is_seen_through_record(router, tmp_path: Path):
+    """Nodes started by hand (as on several machines) and `omnifleet record --ros2`: the
+    recorder's gateway publishes what it hears; odometry decodes to its series."""
+    port = _free_port()
+    heard = Heard()
+    sub = _subscribe(router, "/by_hand/robot_1/odom", "nav_msgs/msg/Odometry", heard)
+    common = ("--scenario", "lab", "--duration", "3")
+    procs = [start("record", *common, "--listen", f"tcp/127.0.0.1:{port}", "--out",
+                   str(tmp_path / "rec"), "--no-figures", "--ros2", f"tcp/127.0.0.1:{router}",
+                   "--ros2-namespace", "/by_hand")]
+    try:
+        node = ("--connect", f"tcp/127.0.0.1:{port}", "--wait-recorder")
+        procs += [start("plant", *common, *node, "--plant", "model"),
+                  start("leader", *common, *node)]
+        procs += [start("agent", *common, *node, "--robot", str(r)) for r in ROBOTS]
+        results = [finish(p) for p in procs]
+    finally:
+        sub.close()
+        for p in procs:
+            kill_run(p)
+    assert [rc for rc, _, _ in results] == [0] * len(procs), [e for _, _, e in results]
+    assert "ros2: " in results[0][2] and " 0 errors" in results[0][2], results[0][2]
+    series = np.load(tmp_path / "rec" / "timeseries.npz")
+    assert len(heard.msgs) >= 3
+    for m in heard.msgs:
+        k = round(_stamp_s(m) / 0.005)
+        assert (m.pose.pose.position.x, m.pose.pose.position.y) == tuple(series["q"][k, 0, :2])
