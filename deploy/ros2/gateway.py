@@ -16,7 +16,6 @@ a CAN robot), each with its publishers' liveliness tokens, all under one session
 from __future__ import annotations
 
 import itertools
-import math
 import threading
 import time
 from collections.abc import Callable
@@ -26,11 +25,10 @@ from typing import Any
 import deploy.ros2.fleet_messages as fm
 from deploy.ros2.graph import TRANSIENT_LOCAL, Qos, Ros2Node, attachment, data_key, gid
 from deploy.ros2.options import Ros2Options
-from deploy.ros2.types import decode, encode, type_hash
+from deploy.ros2.steering import STEER_TOPIC, Steering
+from deploy.ros2.types import encode, type_hash
 
 NODE_NAMESPACE = "omnifleet"
-MAX_STEER_HZ = 100.0  # /leader/cmd_vel: samples a second looked at; beyond, refused undecoded
-STEER_TOPIC = "leader/cmd_vel"
 STATUS_PERIOD_S = 1.0  # /fleet/status once a second (of the wall): diagnostics' usual rate
 DEFAULT_QOS = Qos()  # reliable, volatile, keep last 10 (a ROS 2 publisher's default)
 
@@ -53,8 +51,6 @@ class GatewayCounts:
     rows_skipped: int = 0  # rows newer than the last published, never published
     late_ticks: int = 0  # ticks that took longer than the period (the gateway fell behind)
     errors: int = 0
-    steer_taken: int = 0  # /leader/cmd_vel samples taken (the newest is passed on)
-    steer_refused: dict[str, int] = field(default_factory=dict)  # by reason
     unmatched: int = 0  # messages not built: no subscriber listened
     cpu_s: float = 0.0
     by_topic: dict[str, int] = field(default_factory=dict)
@@ -94,11 +90,10 @@ class Ros2Gateway:
                              for n in self.nodes.values()]
         self.topics: dict[str, _Topic] = {}
         self._declare_all()
-        self._steer: tuple[int, tuple[float, float, float]] | None = None
-        self._steer_budget, self._steer_refill = MAX_STEER_HZ / 10, time.monotonic()
-        self._steer_sub = self._steer_token = None
+        self.steer: Steering | None = None  # a leader steered from ROS 2: its input
         if sc.leader_spec().steered is not None:
-            self._subscribe_steering()
+            self.steer = Steering(self.session, self.nodes["leader"], next(self._ids),
+                                  self.topic_name(STEER_TOPIC), DEFAULT_QOS)
         self.frames = fm.frames_for(sc)
         self._status_due = 0.0
         self._obstacles = fm.obstacle_shapes_of(sc)
@@ -155,41 +150,9 @@ class Ros2Gateway:
         if not self.realtime:  # simulated time for use_sim_time nodes
             self._declare("launcher", "clock", fm.CLOCK, Qos(depth=1), absolute="/clock")
 
-    def _subscribe_steering(self) -> None:
-        """The leader's ROS 2 subscription: geometry_msgs/msg/Twist on /leader/cmd_vel."""
-        node, name = self.nodes["leader"], self.topic_name(STEER_TOPIC)
-        h = type_hash(fm.TWIST)
-        self._steer_sub = self.session.declare_subscriber(
-            data_key(self.opts.domain, name, fm.TWIST, h), self._on_steer)
-        self._steer_token = self.session.liveliness().declare_token(
-            node.endpoint_token(next(self._ids), "MS", name, fm.TWIST, h, DEFAULT_QOS))
-
-    def _refuse_steer(self, why: str) -> None:
-        self.counts.steer_refused[why] = self.counts.steer_refused.get(why, 0) + 1
-
-    def _on_steer(self, sample: Any) -> None:
-        """On zenoh's thread: at most MAX_STEER_HZ samples a second are decoded (a flood
-        costs a counter each); a sample that is not one finite Twist is refused."""
-        now = time.monotonic()
-        self._steer_budget = min(MAX_STEER_HZ / 10,
-                                 self._steer_budget + (now - self._steer_refill) * MAX_STEER_HZ)
-        self._steer_refill = now
-        if self._steer_budget < 1.0:
-            self._refuse_steer(f"over {MAX_STEER_HZ:g} a second")
-            return
-        self._steer_budget -= 1.0
-        try:
-            v = twist_of(bytes(sample.payload.to_bytes()))
-        except ValueError as exc:
-            self._refuse_steer(str(exc))
-            return
-        n = 0 if self._steer is None else self._steer[0] + 1
-        self._steer = (n, v)
-        self.counts.steer_taken += 1
-
     def steering(self) -> tuple[int, tuple[float, float, float]] | None:
-        """The newest accepted command: (its number, [vx, vy, wz]); None before any."""
-        return self._steer
+        """A steered leader's newest command from ROS 2 (None: none, or not steered)."""
+        return None if self.steer is None else self.steer.newest()
 
     def put(self, name: str, msg: Any, stamp_ns: int) -> None:
         topic = self.topics[name]
@@ -301,18 +264,13 @@ class Ros2Gateway:
         out = {"published": c.published, "not_built_unsubscribed": c.unmatched,
                "rows_skipped": c.rows_skipped, "late_ticks": c.late_ticks, "errors": c.errors,
                "cpu_s": round(c.cpu_s, 3), "rate_hz": self.opts.rate_hz}
-        if self._steer_sub is not None:
-            out["leader_cmd_vel"] = {"taken": c.steer_taken, "refused": dict(c.steer_refused)}
+        if self.steer is not None:
+            out["leader_cmd_vel"] = self.steer.counts()
         return out
 
     def summary(self) -> str:
         c = self.counts
-        steer = ""
-        if self._steer_sub is not None:
-            refused = sum(c.steer_refused.values())
-            steer = (f"; /leader/cmd_vel: {c.steer_taken} taken, {refused} refused"
-                     + (f" ({', '.join(f'{k}: {n}' for k, n in c.steer_refused.items())})"
-                        if refused else ""))
+        steer = "" if self.steer is None else "; " + self.steer.summary()
         return (f"ros2: {c.published} messages published, {c.unmatched} not built (no "
                 f"subscriber), {c.rows_skipped} rows skipped at {self.opts.rate_hz:g} Hz, "
                 f"{c.late_ticks} late ticks, {c.errors} errors, "
@@ -328,33 +286,13 @@ class Ros2Gateway:
             ns = self.stamp_ns(self._sent)
             self.put(self.topic_name("fleet/status"),
                      fm.status(ns, self._status(self._series, self._sent, verdict)), ns)
-        for entity in (self._steer_sub, self._steer_token):
-            if entity is not None:
-                entity.undeclare()
+        if self.steer is not None:
+            self.steer.close()
         for t in self.topics.values():
             t.token.undeclare()
         for tok in self._node_tokens:
             tok.undeclare()
         self.session.close()
-
-
-TWIST_CDR_BYTES = 4 + 6 * 8  # encapsulation header, then six float64
-
-
-def twist_of(raw: bytes) -> tuple[float, float, float]:
-    """[linear.x, linear.y, angular.z] of a CDR geometry_msgs/msg/Twist; ValueError with
-    the reason when it is not one, or not finite (linear.z, angular.x, angular.y: a
-    planar leader ignores them)."""
-    if len(raw) != TWIST_CDR_BYTES:
-        raise ValueError(f"not a Twist ({len(raw)} bytes)")
-    try:
-        msg = decode(raw, fm.TWIST)
-    except Exception as exc:  # noqa: BLE001 - rosbags raises several kinds on bad CDR
-        raise ValueError("malformed CDR") from exc
-    v = (float(msg.linear.x), float(msg.linear.y), float(msg.angular.z))
-    if not all(map(math.isfinite, v)):
-        raise ValueError("non-finite")
-    return v
 
 
 def open_session(opts: Ros2Options) -> Any:

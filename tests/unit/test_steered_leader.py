@@ -13,7 +13,7 @@ import pytest
 from agents.steered_leader import SteeredLeader, SteeredSpec, bounded
 from deploy.contract.scenario import ScenarioError, load_scenario
 from deploy.ros2 import fleet_messages as fm
-from deploy.ros2.gateway import twist_of
+from deploy.ros2.steering import twist_of
 from deploy.ros2.types import encode, make
 
 SPEC = SteeredSpec(start=(1.0, 2.0, math.pi / 2), max_speed_mps=0.6, max_yaw_rate_radps=0.5,
