@@ -73,7 +73,6 @@ class BagTopics:
                         fm.obstacle_markers(offset, fm.obstacle_shapes_of(sc)), offset)
         for k in rows:
             ns = offset + int(round(k * sc.dt * 1e9))
-            frames.advance(series, k)
             if not self.realtime:
                 self._write(recorder, "/clock", fm.clock(ns), ns)
             for relative, msg in frames.messages(series, k, ns):

@@ -157,9 +157,10 @@ def status(ns: int, entries: list[tuple[str, str, str, dict[str, str]]]) -> Any:
 
 
 class FleetFrames:
-    """The run's rows as ROS 2 messages, one row at a time, in order: the wheel angles are
-    summed over every row since the last (the series holds them all), so a row's joint
-    positions do not depend on which rows were published before it.
+    """The run's rows as ROS 2 messages, newest row by newest row: the wheel angles are
+    summed over every row since the last sum (the series holds them all), and only when a
+    row's joint states are built, so a row's joint positions do not depend on which rows
+    were published before it, and nobody watching the wheels costs no sum.
 
     ``robot_ids``, ``dt``: the run's; ``wheels_of_twist``: (1/R) P of eq. (1), 4 x 3."""
 
@@ -186,9 +187,9 @@ class FleetFrames:
 
     def messages(self, ts: Any, k: int, ns: int,
                  wanted: Any = lambda _topic: True) -> list[tuple[str, Any]]:
-        """(topic relative to the namespace, message) of row ``k`` (after
-        :meth:`advance` to it), stamped ``ns``; only the topics ``wanted`` says yes to
-        are built. /clock, /obstacles and /fleet/status are the caller's."""
+        """(topic relative to the namespace, message) of row ``k``, stamped ``ns``; only
+        the topics ``wanted`` says yes to are built. /clock, /obstacles and /fleet/status
+        are the caller's."""
         out: list[tuple[str, Any]] = []
         q, q_dot, q0 = ts.q[k], ts.q_dot[k], ts.leader_q[k]
         for i, rid in enumerate(self.robot_ids):
@@ -198,6 +199,8 @@ class FleetFrames:
                 out.append((f"robot_{rid}/cmd_vel", cmd_vel(rid, ns, float(q[i, 2]),
                                                             ts.v_cmd[k, i])))
             if wanted(f"robot_{rid}/joint_states"):
+                if self.last < k:
+                    self.advance(ts, k)
                 out.append((f"robot_{rid}/joint_states", joint_states(
                     rid, ns, self.wheel_angle[i], self.wheel_speed[i], ts.torque[k, i])))
         if wanted("leader/pose"):

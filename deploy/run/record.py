@@ -181,10 +181,15 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
         ros2.bind_observer(rec.observer)
         ros2.follow(rec.observer.collector.ts,
-                    collector_rows(rec.observer.collector, args.clock == "realtime"))
+                    collector_rows(rec.observer.collector, args.clock == "realtime"),
+                    driven=True)
+    progress = terminal_progress(f"{sc.name} ({plant}, {args.clock})") or log_progress()
+    if ros2 is not None:
+        from deploy.ros2.gateway import polling
+
+        progress = polling(progress, ros2)
     try:
-        extra = rec.run(terminal_progress(f"{sc.name} ({plant}, {args.clock})")
-                        or log_progress())
+        extra = rec.run(progress)
     except BaseException as exc:
         if recording is not None:
             recording.close()  # flushed, also when the run did not end

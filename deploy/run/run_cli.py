@@ -80,7 +80,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         if live is not None:
             live.close()
         return EXIT_BAD_INPUT
-    watchers = Watchers([w for w in (live, ros2) if w is not None]) if ros2 else live
+    # in process the gateway runs a thread of its own beside the live view; one process per
+    # node: the launcher's loop drives it (_run_distributed)
+    watchers = Watchers([w for w in (live, ros2) if w is not None]) \
+        if ros2 and args.in_process else live
     metrics = None
     bag = None
     if ros2 and not args.no_record:  # the recording holds the ROS 2 topics too
@@ -227,11 +230,6 @@ class Watchers:
         for w in self.members:
             w.publish(k)
 
-    def bind_observer(self, observer) -> None:
-        for w in self.members:
-            if hasattr(w, "bind_observer"):
-                w.bind_observer(observer)
-
 
 def _with_live(progress, live):
     """A progress callback that also tells the live view how far the series is."""
@@ -283,12 +281,20 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         from deploy.report.live_view import collector_rows
 
         heard = launcher.observer.collector
-        if hasattr(live, "bind_observer"):
-            live.bind_observer(launcher.observer)
         live.follow(heard.ts, collector_rows(heard, args.clock == "realtime"))
+    progress = run_progress(label)
+    if ros2 is not None:
+        from deploy.report.live_view import collector_rows
+
+        heard = launcher.observer.collector
+        ros2.bind_observer(launcher.observer)
+        ros2.follow(heard.ts, collector_rows(heard, args.clock == "realtime"), driven=True)
+        from deploy.ros2.gateway import polling
+
+        progress = polling(progress, ros2)
     started = time.perf_counter()
     try:
-        extra = launcher.run(run_progress(label))
+        extra = launcher.run(progress)
     except RunFailed as exc:
         print(f"omnifleet run: FAILED: {exc}", file=sys.stderr)
         if recorder is not None:
