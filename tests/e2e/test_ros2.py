@@ -168,6 +168,11 @@ def _tokens(port: int, kind: str) -> list[str]:
             if r.ok is not None]
 
 
+def _shapes(markers) -> list[tuple]:
+    return [(m.id, m.type, m.pose.position.x, m.pose.position.y, m.scale.x)
+            for m in markers.markers]
+
+
 def _while_running(proc: subprocess.Popen, ask):
     """``ask()`` until it answers (a liveliness query may come back before the router
     has answered for every token, as ``ros2 topic list`` within its spin time), as long
@@ -232,14 +237,18 @@ def test_a_ros2_graph_discovers_every_node_and_topic_and_the_latched_obstacles(
                                       history_depth=1)).close()
             return markers.msgs  # the cached sample, queried as the subscriber joined
 
-        (array,) = _while_running(proc, latched_sample)
+        # the cached sample (zenoh may answer the query on more than one route: the same
+        # sample twice, as happened under CI's load)
+        arrays = _while_running(proc, latched_sample)
+        array = arrays[0]
+        assert all(_shapes(a) == _shapes(array) for a in arrays), len(arrays)
         rc, _, err = finish(proc)
     finally:
         kill_run(proc)
     assert rc == 0, err
     sc = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert sc["scenario"] == "lab"
-    assert len(array.markers) >= 1 and all(m.header.frame_id == "world" for m in array.markers)
+    assert len(array.markers) == 3 and all(m.header.frame_id == "world" for m in array.markers)
     assert not [k for k in _tokens(router, "NN") if f"{ns}/omnifleet/" in k.replace("%", "/")]
 
 
@@ -283,10 +292,13 @@ def test_a_ros2_node_drives_the_leader_and_bad_commands_are_refused(router, tmp_
         for _ in range(2000):  # a flood, as fast as this loop goes
             pub.publish(linear=vec(x=0.0, y=0.0, z=0.0), angular=vec(x=0.0, y=0.0, z=0.0))
         time.sleep(0.2)  # the next commands come at a teleop's rate: 20 Hz
+        lasted = []  # each phase's wall time, as this process kept it
         for vx, seconds in ((3.0, 1.0), (0.3, 2.0)):  # 3 m/s: five times the bound
+            began = time.monotonic()
             for _ in range(round(seconds * 20)):
                 pub.publish(linear=vec(x=vx, y=0.0, z=0.0), angular=vec(x=0.0, y=0.0, z=0.0))
                 time.sleep(0.05)
+            lasted.append(time.monotonic() - began)
         rc, _, err = finish(proc)
     finally:
         pub.close()
@@ -307,9 +319,12 @@ def test_a_ros2_node_drives_the_leader_and_bad_commands_are_refused(router, tmp_
     speed = np.hypot(v0[:, 0], v0[:, 1])
     assert speed.max() <= 0.6 + 1e-9, speed.max()  # the scenario's bound, never more
     travelled = q0[-1, 0] - q0[0, 0]
-    # 1 s at the bound (0.6 m) and 2 s at 0.3 m/s (0.6 m), each late by at most the
-    # launcher's loop and the leader's batches, then stopped by the 0.5 s timeout
-    assert 0.9 <= travelled <= 1.5, travelled
+    # the first phase at the bound, the second at 0.3 m/s, as long as this process sent
+    # them; then at most the 0.5 s timeout at 0.3 m/s more. Each command reaches the leader
+    # later by the launcher's loop and the leader's batches (~0.1 s), and the run's
+    # processes may lag this one: a few tenths of a metre either way
+    sent = 0.6 * lasted[0] + 0.3 * lasted[1]
+    assert sent - 0.3 <= travelled <= sent + 0.15 + 0.2, (travelled, lasted)
     assert abs(q0[-1, 1] - q0[0, 1]) < 1e-9 and speed[-1] == 0.0
 
 
