@@ -1,12 +1,13 @@
 """``--ros2``: the run's state as ROS 2 topics over rmw_zenoh, from the listener's side.
 
-The gateway is a thread of the process that already hears the whole run (the launcher,
-or ``omnifleet record`` across hosts): it reads the newest rows of the run's time series
-at ``rate_hz`` (wall clock) and puts them on its own Zenoh session, connected to the ROS 2
-router at ``endpoint``, as rmw_zenoh would (deploy/ros2/graph.py). No control process
-imports this package or spends a cycle on ROS 2: a step's CPU budget is untouched
-(docs/ros2.md says why this is not one publisher per node). A tick that finds the
-gateway behind publishes the newest row only; the rows it skipped are counted.
+The gateway lives in the process that already hears the whole run (the launcher, or
+``omnifleet record`` across hosts): at most ``rate_hz`` times a (wall-clock) second it reads
+the newest row of the run's time series and puts it on its own Zenoh session, connected to
+the ROS 2 router at ``endpoint``, as rmw_zenoh would (deploy/ros2/graph.py). In a fleet the
+launcher's loop drives it (:meth:`Ros2Gateway.poll`); in process a thread of its own does.
+No control process imports this package or spends a cycle on ROS 2: a step's CPU budget is
+untouched (docs/ros2.md says why this is not one publisher per node). Rows between two
+ticks are not published, and counted.
 
 What a ROS 2 graph sees: one node per omnifleet node (``/omnifleet/plant``,
 ``/omnifleet/agent_N``, ``/omnifleet/leader``, ``/omnifleet/launcher``; ``bridge_N`` for
