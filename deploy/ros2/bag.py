@@ -42,9 +42,12 @@ class BagTopics:
     def _name(self, relative: str) -> str:
         return f"{self.opts.namespace}/{relative}"
 
-    def _write(self, recorder: Any, topic: str, msg: Any, log_ns: int) -> None:
-        ros_type = msg.__msgtype__
-        recorder.write_cdr(topic, ros_type, definition(ros_type), encode(msg), log_ns, log_ns)
+    def _write(self, recorder: Any, topic: str, msg: Any, log_ns: int,
+               ros_type: str | None = None) -> None:
+        """``msg``: a rosbags message, or its CDR bytes with their ``ros_type``."""
+        ros_type = ros_type or msg.__msgtype__
+        data = msg if isinstance(msg, bytes) else encode(msg)
+        recorder.write_cdr(topic, ros_type, definition(ros_type), data, log_ns, log_ns)
         n = self.counts.get(topic, (ros_type, 0))[1]
         self.counts[topic] = (ros_type, n + 1)
         self.first_ns = log_ns if self.first_ns is None else min(self.first_ns, log_ns)
@@ -74,9 +77,9 @@ class BagTopics:
         for k in rows:
             ns = offset + int(round(k * sc.dt * 1e9))
             if not self.realtime:
-                self._write(recorder, "/clock", fm.clock(ns), ns)
-            for relative, msg in frames.messages(series, k, ns):
-                self._write(recorder, self._name(relative), msg, ns)
+                self._write(recorder, "/clock", frames.clock_bytes(ns), ns, fm.CLOCK)
+            for relative, ros_type, data in frames.encoded(series, k, ns):
+                self._write(recorder, self._name(relative), data, ns, ros_type)
             if k % status_stride == 0:
                 self._write(recorder, self._name("fleet/status"), fm.status(ns, fm.robot_status(
                     series, k, k * sc.dt, list(sc.robot_ids), NODE_NAMESPACE)), ns)

@@ -86,8 +86,8 @@ def cmd_vel(rid: int, ns: int, psi: float, v_cmd: np.ndarray) -> Any:
 def joint_states(rid: int, ns: int, angle: np.ndarray, speed: np.ndarray,
                  torque: np.ndarray) -> Any:
     return make(JOINTS, header=header(ns, base_link(rid)), name=wheel_names(rid),
-                position=np.asarray(angle, np.float64), velocity=np.asarray(speed, np.float64),
-                effort=np.asarray(torque, np.float64))
+                position=np.array(angle, np.float64), velocity=np.array(speed, np.float64),
+                effort=np.array(torque, np.float64))  # copies: never the caller's arrays
 
 
 def leader_pose(ns: int, q0: np.ndarray) -> Any:
@@ -210,6 +210,82 @@ class FleetFrames:
         return out
 
 
+_STAMP = ["header.stamp.sec", "header.stamp.nanosec"]
+_XY_YAW = ["position.x", "position.y", "orientation.z", "orientation.w"]
+_TWIST = ["linear.x", "linear.y", "angular.z"]
+
+
+def _sec_ns(ns: int) -> tuple[int, int]:
+    return ns // 1_000_000_000, ns % 1_000_000_000
+
+
+class EncodedFrames(FleetFrames):
+    """:class:`FleetFrames` whose messages come as CDR bytes, packed into layouts rosbags
+    made (deploy/ros2/fixed_layout.py): equal, byte for byte, to ``encode`` of
+    :meth:`FleetFrames.messages` (tests/unit/test_ros2_graph.py), ~3 µs a message
+    instead of ~40."""
+
+    def __init__(self, robot_ids: list[int], dt: float, wheels_of_twist: np.ndarray) -> None:
+        super().__init__(robot_ids, dt, wheels_of_twist)
+        from deploy.ros2.fixed_layout import FixedLayout
+
+        z3, z4 = np.zeros(3), np.zeros(WHEELS)
+        n = len(self.robot_ids)
+        self.odom = {r: FixedLayout(odometry(r, 0, z3, z3), _STAMP + [
+            f"pose.pose.{f}" for f in _XY_YAW] + [f"twist.twist.{f}" for f in _TWIST],
+            "iIddddddd") for r in self.robot_ids}
+        self.cmd = {r: FixedLayout(cmd_vel(r, 0, 0.0, z3), _STAMP + [
+            f"twist.{f}" for f in _TWIST], "iIddd") for r in self.robot_ids}
+        self.joints = {r: FixedLayout(joint_states(r, 0, z4, z4, z4), _STAMP + [
+            f"{c}[{w}]" for c in ("position", "velocity", "effort") for w in range(WHEELS)],
+            "iI" + "d" * 3 * WHEELS) for r in self.robot_ids}
+        self.pose = FixedLayout(leader_pose(0, z3), _STAMP + [f"pose.{f}" for f in _XY_YAW],
+                                "iIdddd")
+        self.tf = FixedLayout(transforms(0, self.robot_ids, np.zeros((n, 3)), z3), [
+            f"transforms[{i}].{f}" for i in range(n + 1) for f in _STAMP + [
+                "transform.translation.x", "transform.translation.y",
+                "transform.rotation.z", "transform.rotation.w"]], "iIdddd" * (n + 1))
+        self.clock_layout = FixedLayout(clock(0), ["clock.sec", "clock.nanosec"], "iI")
+
+    def clock_bytes(self, ns: int) -> bytes:
+        return self.clock_layout.pack(*_sec_ns(ns))
+
+    def encoded(self, ts: Any, k: int, ns: int,
+                wanted: Any = lambda _topic: True) -> list[tuple[str, str, bytes]]:
+        """(topic relative to the namespace, type, CDR bytes) of row ``k``: what
+        :meth:`FleetFrames.messages` gives, encoded."""
+        out: list[tuple[str, str, bytes]] = []
+        sec, nsec = _sec_ns(ns)
+        q, q_dot, q0 = ts.q[k], ts.q_dot[k], ts.leader_q[k]
+        for i, rid in enumerate(self.robot_ids):
+            psi = float(q[i, 2])
+            if wanted(f"robot_{rid}/odom"):
+                out.append((f"robot_{rid}/odom", ODOM, self.odom[rid].pack(
+                    sec, nsec, float(q[i, 0]), float(q[i, 1]), math.sin(psi / 2),
+                    math.cos(psi / 2), *body_frame(psi, q_dot[i]))))
+            if wanted(f"robot_{rid}/cmd_vel"):
+                out.append((f"robot_{rid}/cmd_vel", CMD_VEL, self.cmd[rid].pack(
+                    sec, nsec, *body_frame(psi, ts.v_cmd[k, i]))))
+            if wanted(f"robot_{rid}/joint_states"):
+                if self.last < k:
+                    self.advance(ts, k)
+                out.append((f"robot_{rid}/joint_states", JOINTS, self.joints[rid].pack(
+                    sec, nsec, *map(float, self.wheel_angle[i]),
+                    *map(float, self.wheel_speed[i]), *map(float, ts.torque[k, i]))))
+        if wanted("leader/pose"):
+            psi0 = float(q0[2])
+            out.append(("leader/pose", POSE, self.pose.pack(
+                sec, nsec, float(q0[0]), float(q0[1]), math.sin(psi0 / 2), math.cos(psi0 / 2))))
+        if wanted("tf"):
+            values: list[float] = []
+            for pose in (*q, q0):
+                psi = float(pose[2])
+                values += [sec, nsec, float(pose[0]), float(pose[1]), math.sin(psi / 2),
+                           math.cos(psi / 2)]
+            out.append(("tf", TF, self.tf.pack(*values)))
+        return out
+
+
 def robot_status(ts: Any, k: int, t_s: float, robot_ids: list[int], prefix: str
                  ) -> list[tuple[str, str, str, dict[str, str]]]:
     """Each agent's health at row ``k`` (time ``t_s``), as :func:`status` takes it."""
@@ -235,6 +311,6 @@ def obstacle_shapes_of(sc: Any) -> ObstacleShapes:
         polygons=[[tuple(map(float, v)) for v in p.vertices] for p in sc.obstacle_shapes()])
 
 
-def frames_for(sc: Any) -> FleetFrames:
+def frames_for(sc: Any) -> EncodedFrames:
     model = sc.model()
-    return FleetFrames(list(sc.robot_ids), sc.dt, model.P / model.params.wheel_radius_m)
+    return EncodedFrames(list(sc.robot_ids), sc.dt, model.P / model.params.wheel_radius_m)

@@ -44,6 +44,8 @@ class _Topic:
     token: Any
     gid: bytes
     seq: int = 0
+    matching: bool = True  # some subscriber listens (zenoh's matching status)
+    listener: Any = None  # zenoh's matching listener that keeps ``matching``
 
 
 @dataclass
@@ -135,8 +137,17 @@ class Ros2Gateway:
                 key, congestion_control=zenoh.CongestionControl.DROP)
         token = self.session.liveliness().declare_token(
             node.endpoint_token(entity, "MP", name, ros_type, h, qos))
-        self.topics[name] = _Topic(name, ros_type, node, entity, pub, token,
-                                   gid(self.zid, node.node_id, entity))
+        topic = self.topics[name] = _Topic(name, ros_type, node, entity, pub, token,
+                                           gid(self.zid, node.node_id, entity))
+        if qos.durability != TRANSIENT_LOCAL:
+            # whether someone subscribes, kept by zenoh's callback: no call into zenoh a
+            # tick per topic to ask it
+            topic.matching = pub.matching_status.matching
+
+            def on_matching(status: Any, topic: _Topic = topic) -> None:
+                topic.matching = status.matching
+
+            topic.listener = pub.declare_matching_listener(on_matching)
 
     def _declare_all(self) -> None:
         for rid in self.sc.robot_ids:
@@ -157,8 +168,10 @@ class Ros2Gateway:
         return None if self.steer is None else self.steer.newest()
 
     def put(self, name: str, msg: Any, stamp_ns: int) -> None:
+        """A message (a rosbags object, or its CDR bytes) on topic ``name``."""
         topic = self.topics[name]
-        topic.publisher.put(encode(msg), attachment=attachment(topic.seq, stamp_ns, topic.gid))
+        data = msg if isinstance(msg, bytes) else encode(msg)
+        topic.publisher.put(data, attachment=attachment(topic.seq, stamp_ns, topic.gid))
         topic.seq += 1
         self.counts.published += 1
         self.counts.by_topic[name] = self.counts.by_topic.get(name, 0) + 1
@@ -232,18 +245,17 @@ class Ros2Gateway:
     def _wanted(self, relative: str) -> bool:
         """Whether some subscriber listens (zenoh's matching status): a message nobody
         reads is not built (a ROS 2 graph that watches nothing costs the wheel sums)."""
-        topic = self.topics[self.topic_name(relative)]
-        if topic.publisher.matching_status.matching:
+        if self.topics[self.topic_name(relative)].matching:
             return True
         self.counts.unmatched += 1
         return False
 
     def _send(self, ts: Any, k: int) -> None:
         ns = self.stamp_ns(k)
-        if not self.realtime and self.topics["/clock"].publisher.matching_status.matching:
-            self.put("/clock", fm.clock(ns), ns)
-        for relative, msg in self.frames.messages(ts, k, ns, self._wanted):
-            self.put(self.topic_name(relative), msg, ns)
+        if not self.realtime and self.topics["/clock"].matching:
+            self.put("/clock", self.frames.clock_bytes(ns), ns)
+        for relative, _type, data in self.frames.encoded(ts, k, ns, self._wanted):
+            self.put(self.topic_name(relative), data, ns)
         now = time.monotonic()
         if now >= self._status_due and self._wanted("fleet/status"):
             self._status_due = now + STATUS_PERIOD_S
@@ -304,6 +316,8 @@ class Ros2Gateway:
         if self.steer is not None:
             self.steer.close()
         for t in self.topics.values():
+            if t.listener is not None:
+                t.listener.undeclare()
             t.token.undeclare()
         for tok in self._node_tokens:
             tok.undeclare()

@@ -140,3 +140,24 @@ def test_options_refuse_a_bad_endpoint_domain_or_namespace(monkeypatch):
         ros2_options(_Args(ros2="localhost"))
     with pytest.raises(Ros2OptionError, match="namespace"):
         ros2_options(_Args(ns="/a b"))
+
+
+def test_the_packed_bytes_are_rosbags_bytes_for_any_row():
+    """The gateway's CDR (layouts rosbags made, numbers packed in) equals rosbags' own
+    encoding of the same messages, for random rows of a three-robot run."""
+    from deploy.contract.scenario import load_scenario
+    from deploy.report.timeseries import TimeSeries
+
+    sc = load_scenario("lab")
+    ts = TimeSeries.allocate(50, sc.n)
+    rng = np.random.default_rng(7)
+    for name in ("q", "q_dot", "v_cmd", "torque", "leader_q"):
+        getattr(ts, name)[:] = rng.normal(0.0, 3.0, getattr(ts, name).shape)
+    fast, slow = fm.frames_for(sc), fm.frames_for(sc)
+    for k in (0, 7, 31, 49):
+        ns = 1_700_000_000_123_456_789 + k * 5_000_000
+        packed = fast.encoded(ts, k, ns)
+        built = slow.messages(ts, k, ns)
+        assert [(t, ty) for t, ty, _ in packed] == [(t, m.__msgtype__) for t, m in built]
+        assert [b for _, _, b in packed] == [encode(m) for _, m in built]
+        assert fast.clock_bytes(ns) == encode(fm.clock(ns))
