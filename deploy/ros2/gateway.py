@@ -82,6 +82,8 @@ class Ros2Gateway:
         self.sc, self.opts, self.realtime = sc, opts, realtime
         self.bridged = bridged or set()
         self.start_unix_ns, self.refused = start_unix_ns, refused
+        # role -> "running", "exited N", "killed by the fault plan" (the launcher's children)
+        self.processes: Callable[[], dict[str, str]] = lambda: {}
         self.counts = GatewayCounts()
         self.session = (session_factory or open_session)(opts)
         self.zid = str(self.session.info.zid())
@@ -263,6 +265,21 @@ class Ros2Gateway:
 
     def _status(self, ts: Any, k: int, verdict: dict | None = None) -> list:
         out = fm.robot_status(ts, k, k * self.sc.dt, list(self.sc.robot_ids), NODE_NAMESPACE)
+        processes = self.processes()
+        merged = []
+        for name, level, message, values in out:  # an agent's process beside its health
+            state = processes.pop("agent-" + name.rsplit("_", 1)[1], None)
+            if state is not None:
+                values["process"] = state
+                if state != "running":  # gone while the run goes: an error until it ends
+                    message = f"{message}; its process: {state}"
+                    level = "error" if verdict is None else level
+            merged.append((name, level, message, values))
+        out = merged
+        for role, state in sorted(processes.items()):
+            out.append((f"{NODE_NAMESPACE}/{role.replace('-', '_')}",
+                        "ok" if state == "running" or verdict is not None else "error",
+                        state, {"process": state}))
         values = {"refused_messages": str(self.refused()),
                   "ros2_rows_skipped": str(self.counts.rows_skipped),
                   "ros2_late_ticks": str(self.counts.late_ticks)}

@@ -205,6 +205,13 @@ def _start_live(args: argparse.Namespace, sc):
     return live
 
 
+def process_state(child) -> str:
+    """A child of the run as /fleet/status says it (read on the launcher's thread)."""
+    if child.killed:
+        return "killed by the fault plan"
+    return "running" if child.exit_code is None else f"exited {child.exit_code}"
+
+
 def _write_bag_metadata(bag, metrics: dict) -> None:
     """The run folder as a rosbag2 bag: its metadata.yaml, named among the run's files."""
     from deploy.report.metrics import write_metrics
@@ -288,6 +295,8 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
 
         heard = launcher.observer.collector
         ros2.bind_observer(launcher.observer)
+        ros2.processes = lambda: {c.role: process_state(c) for c in launcher.supervisor.children
+                                  if c.proc is not None}
         ros2.follow(heard.ts, collector_rows(heard, args.clock == "realtime"), driven=True)
         from deploy.ros2.gateway import polling
 

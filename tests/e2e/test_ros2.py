@@ -223,6 +223,9 @@ def test_a_ros2_graph_discovers_every_node_and_topic_and_the_latched_obstacles(
         qos = QosProfile.decode(pub.qos)
         assert (qos.reliability, qos.durability, qos.history_depth) == (
             QosReliability.RELIABLE, QosDurability.VOLATILE, 10)
+        statuses = Heard()
+        status_sub = _subscribe(router, f"{ns}/fleet/status",
+                                "diagnostic_msgs/msg/DiagnosticArray", statuses)
         (latched,) = _while_running(proc, lambda: publishers(f"{ns}/obstacles"))
         assert QosProfile.decode(latched.qos).durability == QosDurability.TRANSIENT_LOCAL
         nodes = _while_running(proc, lambda: NODES <= (
@@ -243,11 +246,23 @@ def test_a_ros2_graph_discovers_every_node_and_topic_and_the_latched_obstacles(
         array = arrays[0]
         assert all(_shapes(a) == _shapes(array) for a in arrays), len(arrays)
         rc, _, err = finish(proc)
+        status_sub.close()
     finally:
         kill_run(proc)
     assert rc == 0, err
     sc = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert sc["scenario"] == "lab"
+    # /fleet/status: every process of the run while it goes, each agent's health, and the
+    # verdict as the run ends
+    during = [{st.name: st for st in m.status} for m in statuses.msgs]
+    assert any({f"omnifleet/{r}" for r in ("plant", "leader", "agent_1", "agent_2",
+                                           "agent_3", "launcher")} <= set(d) for d in during)
+    running = next(d for d in during if "omnifleet/plant" in d)
+    assert running["omnifleet/plant"].message == "running"
+    assert {kv.key for kv in running["omnifleet/agent_1"].values} >= {
+        "process", "speed_factor", "input_age_s", "safety_filter_dv_mps"}
+    last = during[-1]["omnifleet/launcher"].message
+    assert last.startswith("verdict: ") and (last == "verdict: PASS") == sc["verdict"]["pass"]
     assert len(array.markers) == 3 and all(m.header.frame_id == "world" for m in array.markers)
     assert not [k for k in _tokens(router, "NN") if f"{ns}/omnifleet/" in k.replace("%", "/")]
 
