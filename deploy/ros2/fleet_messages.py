@@ -5,7 +5,7 @@ Frames: ``world`` (the scenario's plane, z up), ``robot_N/base_link`` (robot N: 
 as psi measures), ``leader``. Conventions are REP 103/105's, which nav2 and RViz assume:
 an Odometry's pose is in ``world`` and its twist in the robot's own ``base_link`` (the
 world-frame velocity q_dot rotated by -psi); a ``cmd_vel`` is body-frame too (the fused
-velocity v_d of the law, eq. (20), rotated the same way).
+velocity command v_d of eq. (26), the series' v_cmd, rotated the same way).
 """
 
 from __future__ import annotations

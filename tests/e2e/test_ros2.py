@@ -409,3 +409,14 @@ def test_a_fleet_started_by_hand_is_seen_through_record(router, tmp_path: Path):
     for m in heard.msgs:
         k = round(_stamp_s(m) / 0.005)
         assert (m.pose.pose.position.x, m.pose.pose.position.y) == tuple(series["q"][k, 0, :2])
+
+
+@pytest.mark.parametrize("how", [["--clock", "realtime"], ["--ros2"], ["--in-process"]])
+def test_a_steered_leader_runs_only_realtime_with_ros2(how, tmp_path: Path):
+    """teleop's leader follows ROS 2: without --ros2, or on the lockstep clock (in process
+    too), nothing could steer it, and the run says so before anything starts (exit 2)."""
+    out = tmp_path / "run"
+    rc, _, err = finish(start("run", "teleop", "--duration", "1", "--out", str(out), *how))
+    assert rc == 2, err
+    assert 'leader.path = "ros2"' in err and "--clock realtime --ros2" in err, err
+    assert not (out / "metrics.json").exists()
