@@ -1291,15 +1291,9 @@ cdef class Law:
     cdef int _inputs(self, Inputs* x, double t, q, q_dot, nbr, ages, leader,
                      obstacles, robots, double h, double horizon=0.0,
                      double speed_cap=1.0) except -1:
-        cdef int i, j, n_obs, n_rob
+        cdef int i, j
         cdef double* row
-        cdef const double[:, ::1] arr
-        x.t, x.h = t, h
-        x.horizon = horizon if horizon > h else h
-        x.speed_cap = speed_cap if speed_cap < 1.0 else 1.0
-        for j in range(3):
-            x.q[j] = q[j]
-            x.qd[j] = q_dot[j]
+        self._own_inputs(x, t, q, q_dot, obstacles, robots, h, horizon, speed_cap)
         x.has_ages = ages is not None
         x.state_age = ages[0] if ages is not None else 0.0
         x.leader_age = ages[1] if ages is not None else 0.0
@@ -1320,6 +1314,19 @@ cdef class Law:
                 row[3 * j], row[3 * j + 1], row[3 * j + 2] = part[0], part[1], part[2]
             row[18] = sh.info_age_s
             row[19] = ages[2][i] if ages is not None else 0.0
+        return 0
+
+    cdef int _own_inputs(self, Inputs* x, double t, q, q_dot, obstacles, robots, double h,
+                         double horizon, double speed_cap) except -1:
+        """The inputs every step takes (its own state, the bodies it senses, the step's
+        times), for ``step`` and ``drive`` alike."""
+        cdef int j, n_obs, n_rob
+        x.t, x.h = t, h
+        x.horizon = horizon if horizon > h else h
+        x.speed_cap = speed_cap if speed_cap < 1.0 else 1.0
+        for j in range(3):
+            x.q[j] = q[j]
+            x.qd[j] = q_dot[j]
         n_obs, n_rob = len(obstacles), len(robots)
         x.n_obs, x.n_rob = n_obs, n_rob
         x.bodies = self._bodies(n_obs + n_rob)
@@ -1357,22 +1364,12 @@ cdef class Law:
         cdef double v[3]
         cdef double e[3]
         cdef double s[3]
-        cdef int j, n_obs, n_rob
-        x.t, x.h = t, h
-        x.horizon = horizon if horizon > h else h
-        x.speed_cap = speed_cap if speed_cap < 1.0 else 1.0
+        cdef int j
+        self._own_inputs(&x, t, q, q_dot, obstacles, robots, h, horizon, speed_cap)
         for j in range(3):
-            x.q[j] = q[j]
-            x.qd[j] = q_dot[j]
             v[j] = v_d[j]
         x.has_ages, x.has_leader, x.n_nbr, x.nbr = False, False, 0, NULL
         x.state_age = x.leader_age = 0.0
-        n_obs, n_rob = len(obstacles), len(robots)
-        x.n_obs, x.n_rob = n_obs, n_rob
-        x.bodies = self._bodies(n_obs + n_rob)
-        _copy_bodies(obstacles, x.bodies)
-        _copy_bodies(robots, x.bodies + 6 * n_obs)
-        self._room(1 + n_obs + n_rob, n_obs + n_rob)
         self.speed_cap = x.speed_cap
         self.n_tasks = 0
         self._limited(v, h)

@@ -20,7 +20,7 @@ import itertools
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import deploy.ros2.fleet_messages as fm
@@ -36,10 +36,8 @@ DEFAULT_QOS = Qos()  # reliable, volatile, keep last 10 (a ROS 2 publisher's def
 
 @dataclass
 class _Topic:
-    name: str
-    ros_type: str
-    node: Ros2Node
-    entity: int
+    """One publisher of the gateway: its zenoh publisher, liveliness token and GID."""
+
     publisher: Any
     token: Any
     gid: bytes
@@ -56,7 +54,6 @@ class GatewayCounts:
     errors: int = 0
     unmatched: int = 0  # messages not built: no subscriber listened
     cpu_s: float = 0.0
-    by_topic: dict[str, int] = field(default_factory=dict)
 
 
 def _node_names(sc: Any, bridged: set[int]) -> dict[str, str]:
@@ -102,7 +99,6 @@ class Ros2Gateway:
         self.frames = fm.frames_for(sc)
         self._status_due = 0.0
         self._due = 0.0  # driven: when the next tick may run
-        self._obstacles = fm.obstacle_shapes_of(sc)
         self._series: Any = None
         self._ready: Callable[[], int] | None = None
         self._newest = -1
@@ -112,7 +108,8 @@ class Ros2Gateway:
         self._lock = threading.Lock()
         # static: latched (transient local) from the moment the topic appears
         ns = time.time_ns() if realtime else 0
-        self.put(self.topic_name("obstacles"), fm.obstacle_markers(ns, self._obstacles), ns)
+        self.put(self.topic_name("obstacles"),
+                 fm.obstacle_markers(ns, fm.obstacle_shapes_of(sc)), ns)
 
     # -- the graph ---------------------------------------------------------------------
 
@@ -139,8 +136,7 @@ class Ros2Gateway:
                 key, congestion_control=zenoh.CongestionControl.DROP)
         token = self.session.liveliness().declare_token(
             node.endpoint_token(entity, "MP", name, ros_type, h, qos))
-        topic = self.topics[name] = _Topic(name, ros_type, node, entity, pub, token,
-                                           gid(self.zid, node.node_id, entity))
+        topic = self.topics[name] = _Topic(pub, token, gid(self.zid, node.node_id, entity))
         if qos.durability != TRANSIENT_LOCAL:
             # whether someone subscribes, kept by zenoh's callback: no call into zenoh a
             # tick per topic to ask it
@@ -176,7 +172,6 @@ class Ros2Gateway:
         topic.publisher.put(data, attachment=attachment(topic.seq, stamp_ns, topic.gid))
         topic.seq += 1
         self.counts.published += 1
-        self.counts.by_topic[name] = self.counts.by_topic.get(name, 0) + 1
 
     # -- the run's rows -----------------------------------------------------------------
 

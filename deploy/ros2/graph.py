@@ -1,6 +1,6 @@
 """rmw_zenoh's names on the Zenoh wire: data keys, liveliness tokens, QoS strings,
-the attachment of every sample (rmw_zenoh_cpp, Jazzy and Kilted: ``docs/design.md`` and
-``liveliness_utils.cpp``). Pure: strings and bytes, no session.
+the attachment of every sample (rmw_zenoh_cpp, Jazzy and Kilted: rmw_zenoh's design
+document and its ``liveliness_utils.cpp``). Pure: strings and bytes, no session.
 
 - data: ``<domain>/<topic without its leading />/<DDS type name>/<type hash>``;
 - a node's token: ``@ros2_lv/<domain>/<zid>/<node id>/<node id>/NN/<enclave>/<ns>/<name>``;
