@@ -104,12 +104,13 @@ def _commander(sc, fleet: str):
     return node, keys, endpoint, states, reports
 
 
-def _drive(node, keys, states, seconds: float, torque: float) -> float:
-    """Publish ``torque`` on every wheel at 100 Hz, answering the newest state; when the
-    last command went out (pacing, not synchronisation)."""
+def _drive(node, keys, states, seconds: float, torque: float, until=lambda: False) -> float:
+    """Publish ``torque`` on every wheel at 100 Hz, answering the newest state, for
+    ``seconds`` or until ``until()`` holds; when the last command went out (pacing, not
+    synchronisation)."""
     end = time.monotonic() + seconds
     last_at = time.time()
-    while time.monotonic() < end:
+    while time.monotonic() < end and not until():
         last = states[-1][1]
         node.publish(keys.cmd(1), lambda s, stamp, last=last: Reply(
             WIRE_VERSION, 1, s, stamp, robot=1, k=last.k, t=last.t, torques=(torque,) * 4,
@@ -209,13 +210,21 @@ def test_a_drive_that_never_enables_is_reported_and_no_wheel_is_driven(tmp_path)
     node, keys, endpoint, states, reports = _commander(sc, fleet)
     sniffer = Sniffer(group, port)
     emulator = start("emulate", "--scenario", "lab", "--robot", "1", "--driver", "cia402",
-                     *can_opts, "--duration", "12", "--refuse-enable", "3")
+                     *can_opts, "--duration", "15", "--refuse-enable", "3")
     bridge = start("bridge", "--scenario", "lab", "--robot", "1", "--driver", "cia402", *can_opts,
                    "--fleet", fleet, "--listen", "tcp/127.0.0.1:0", "--connect", endpoint,
-                   "--self-start", "--duration", "5")
+                   "--self-start", "--duration", "10")
     try:
         assert node.mailbox.wait_until(lambda: len(states) > 20, 40.0), "no state"
-        _drive(node, keys, states, 3.0, FORWARD_NM)
+        # commanded until the robot has been faulted for 20 states, 2 s or more into the
+        # drive (a drive is given up only while asked to drive, ENABLE_TIMEOUT_S after
+        # arming; a brief fault before, such as a status late from a starved emulator,
+        # does not end it): a fixed span let a starved emulator answer its fifth arming
+        # frame in the bridge's last period, and no faulted state followed
+        began = time.monotonic()
+        _drive(node, keys, states, 8.0, FORWARD_NM,
+               until=lambda: time.monotonic() - began > 2.0
+               and all(m.faulted for _, m in states[-20:]))
         rc_b, _, err_b = finish(bridge, timeout=60)
     finally:
         _end(node, sniffer, bridge, emulator)
