@@ -3,7 +3,9 @@
 A protocol is a :class:`bridges.driver.WheelDriver` for the host (the bridge,
 ``omnifleet can-check``) and a drive emulator that plays four such drives and the
 robot's dynamics (``omnifleet emulate``). To add one, implement both and register
-their makers here; nothing else in the product names a protocol. The makers import
+their makers: here, with :func:`register_driver` (this process only), or as an entry
+point of group ``omnifleet.drivers`` in an installed package (every process of a fleet:
+docs/extending.md); nothing else in the product names a protocol. The makers import
 their module when called: every node process builds the whole command line, and
 only the CAN commands need a protocol's libraries.
 """
@@ -60,9 +62,24 @@ DRIVERS: dict[str, DriverEntry] = {
         (1, 2, 3, 4), _cia402, _cia402_emulator),
 }
 DEFAULT_DRIVER = "odrive-cansimple"
+ENTRY_POINT_GROUP = "omnifleet.drivers"
+
+
+def register_driver(name: str, driver: DriverEntry) -> None:
+    """Add a protocol under ``name`` (``--driver`` takes it from then on, in this
+    process); a name already taken is refused."""
+    if name in DRIVERS:
+        raise ValueError(f"a driver named {name!r} is registered already")
+    DRIVERS[name] = driver
 
 
 def entry(name: str) -> DriverEntry:
+    """The protocol registered as ``name`` (the installed entry points read the first
+    time a name is not found); ValueError listing them if none is."""
+    if name not in DRIVERS:
+        from bridges.plugins import load_entry_points
+
+        load_entry_points(ENTRY_POINT_GROUP, DRIVERS, DriverEntry, "driver")
     try:
         return DRIVERS[name]
     except KeyError:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from deploy.contract.plant_registry import find_plant
 from deploy.run.node_forks import close_early, start_early
 
 # What the parser needs is imported when it is built, not with this module: a run that
@@ -38,13 +39,13 @@ class _Version(argparse.Action):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from bridges.drivers import DEFAULT_DRIVER, DRIVERS
     from deploy.contract.options import add_option
+    from deploy.contract.plant_registry import CAN_EMULATED, add_plant_option
     from deploy.contract.scenario import bundled_names
+    from deploy.nodes.can_options import add_driver_option
     from deploy.nodes.cli import CLOCKS, add_law_option
     from deploy.nodes.entry import add_every_node_command
     from deploy.run.run_cli import cmd_run
-    from deploy.runtime.plants import CAN_EMULATED, PLANTS
     from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY, WORLD_ABOVE_AGENTS
 
     p = argparse.ArgumentParser(
@@ -68,12 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--in-process", action="store_true",
                      help="run leader, plant and all agents in this process (the reference "
                      "loop) instead of one process per node")
-    run.add_argument("--plant", choices=list(PLANTS), default=None,
-                     help="; ".join(f"{name}: {e.about}" for name, e in PLANTS.items())
-                     + " (default: the scenario's plant.kind)")
-    run.add_argument("--driver", choices=sorted(DRIVERS), default=None,
-                     help=f"--plant {CAN_EMULATED}: the drives' CAN protocol, for the bridges and "
-                     f"the emulator (default {DEFAULT_DRIVER}; bridges/drivers.py)")
+    add_plant_option(run, in_process=False)
+    add_driver_option(run, None, f"--plant {CAN_EMULATED}: the drives' CAN protocol, for the "
+                      "bridges and the emulator")
     run.add_argument("--gui", action="store_true",
                      help="pybullet: open the simulator's window (needs a display)")
     run.add_argument("--clock", choices=CLOCKS, default=None,
@@ -162,11 +160,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-# the plants that run on the wall clock only (deploy/runtime/plants.py, ``realtime_only``;
-# named here, not imported: this is read before the command line's imports)
-REALTIME_ONLY_PLANTS = {"can-emulated"}
-
-
 def fleet_clock(argv: list[str]) -> str | None:
     """The clock of the fleet ``omnifleet run ...`` will start (``--clock``, lockstep by
     default, realtime for a ``--plant`` that runs on the wall clock only), or None: not a
@@ -180,7 +173,8 @@ def fleet_clock(argv: list[str]) -> str | None:
                 options[name] = argv[i + 1]
             elif a.startswith(f"{name}="):
                 options[name] = a.removeprefix(f"{name}=")
-    if options.get("--plant") in REALTIME_ONLY_PLANTS:
+    plant = find_plant(options["--plant"]) if "--plant" in options else None
+    if plant is not None and plant.realtime_only:
         return "realtime"
     return options.get("--clock", "lockstep")
 

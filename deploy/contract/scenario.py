@@ -13,7 +13,7 @@ import math
 from dataclasses import MISSING, dataclass, fields, replace
 from functools import cached_property
 from pathlib import Path
-from typing import Literal, get_args, get_type_hints
+from typing import Literal, get_type_hints
 
 import msgspec
 import numpy as np
@@ -28,6 +28,7 @@ from agents.leader import Harmonic, LeaderSpec, leader_generator
 from agents.steered_leader import SteeredSpec
 from agents.waypoint_path import waypoint_path
 from deploy.contract.options import MAX_RATE_HZ
+from deploy.contract.plant_registry import find_plant, in_process_plants
 from deploy.contract.schema_hints import readable
 from plant.bodies import Body
 from plant.interface import DEFAULT_SUBSTEPS
@@ -212,12 +213,8 @@ class Disturbance(_S, kw_only=True):
     constant_nm: list[float] = msgspec.field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
 
 
-PlantKind = Literal["pybullet", "model", "kinematic"]
-PLANT_KINDS: tuple[str, ...] = get_args(PlantKind)
-
-
 class PlantSection(_S, kw_only=True):
-    kind: PlantKind = "pybullet"
+    kind: str = "pybullet"  # a plant one process holds (plant_registry.py), checked on load
     substeps: int = DEFAULT_SUBSTEPS
     # lockstep, a step whose command was lost (fault injection) or late: "hold"
     # the last command (a driver's input persists), or "zero" the torques for
@@ -519,6 +516,13 @@ def _fail(path: str, key: str, msg: str) -> ScenarioError:
     return ScenarioError(f"{path}: `{key}`: {msg}")
 
 
+def _check_plant(path: str, kind: str) -> None:
+    entry = find_plant(kind)
+    if entry is None or entry.build is None:
+        raise _fail(path, "plant.kind", f"{kind!r} is not a plant one process holds; "
+                    f"expected one of: {', '.join(in_process_plants())}")
+
+
 def _check_len(path: str, key: str, values: list, n: int) -> None:
     if len(values) != n:
         raise _fail(path, key, f"expected {n} numbers, got {len(values)}")
@@ -769,6 +773,7 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
         s = msgspec.structs.replace(s, law=msgspec.structs.replace(
             s.law, use=_absolute_law(s.law.use, folder)))
         _load_law(path, s.law)  # a law that cannot be used: said now, before anything runs
+    _check_plant(path, s.plant.kind)
     if not (0 < s.control_rate_hz <= MAX_RATE_HZ):
         raise _fail(path, "control_rate_hz", f"must be in (0, {MAX_RATE_HZ:g}]")
     if s.duration_s * s.control_rate_hz < 1.0:

@@ -90,7 +90,7 @@ def _cmd_certs(args: argparse.Namespace) -> int:
 
 
 def add_deploy_commands(sub: argparse._SubParsersAction) -> None:
-    from deploy.contract.scenario import PLANT_KINDS
+    from deploy.contract.plant_registry import add_plant_option
     from deploy.nodes.cli import CLOCKS
 
     deploy = sub.add_parser(
@@ -112,8 +112,7 @@ def add_deploy_commands(sub: argparse._SubParsersAction) -> None:
     add_option(plan, "--control-rate")
     add_option(plan, "--lost-peer-grace", default=None,
                more_help="given to the agents and the leader (default: theirs)")
-    plan.add_argument("--plant", choices=PLANT_KINDS, default=None,
-                      help="the plant's kind (default: the scenario's plant.kind)")
+    add_plant_option(plan)
     add_option(plan, "--step-deadline", default=None,
                more_help="given to every node (default: theirs, "
                f"{OPTIONS['--step-deadline'].default:g} s)")

@@ -57,6 +57,22 @@ class _Append(argparse.Action):
         setattr(namespace, self.dest, [*(getattr(namespace, self.dest, None) or []), value])
 
 
+def driver_name(value: str) -> str:
+    """``--driver``'s type: a registered protocol, an installed plug-in's included
+    (bridges/drivers.py); another name exits 2 listing them."""
+    try:
+        drivers.entry(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return value
+
+
+def add_driver_option(p: argparse.ArgumentParser, default: str | None, about: str) -> None:
+    p.add_argument("--driver", type=driver_name, default=default, metavar="DRIVER",
+                   help=f"{about} (default {DEFAULT_DRIVER}; or a protocol a package "
+                   "registers, docs/extending.md)")
+
+
 def add_can_options(p: argparse.ArgumentParser, per_robot: bool = False) -> None:
     """The CAN options; ``per_robot``: one bus per ``--robot`` (``--can-channel`` once
     per robot, in order; a ``--can-arg`` key given once applies to every bus, given
@@ -81,10 +97,8 @@ def add_can_options(p: argparse.ArgumentParser, per_robot: bool = False) -> None
                    "(default: the driver's: " + "; ".join(
                        f"{name} {','.join(map(str, e.default_node_ids))}"
                        for name, e in DRIVERS.items()) + ")")
-    p.add_argument("--driver", choices=sorted(DRIVERS), default=DEFAULT_DRIVER,
-                   help="the drives' CAN protocol: " + "; ".join(
-                       f"{name}: {e.about}" for name, e in DRIVERS.items())
-                   + f" (default {DEFAULT_DRIVER}; bridges/drivers.py)")
+    add_driver_option(p, DEFAULT_DRIVER, "the drives' CAN protocol: " + "; ".join(
+        f"{name}: {e.about}" for name, e in DRIVERS.items()))
     p.add_argument("--eds", metavar="FILE",
                    help="cia402: the drives' EDS file (default: the emulated drive's, shipped "
                    "with omnifleet: bridges/cia402_drive.eds)")

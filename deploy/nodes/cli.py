@@ -17,7 +17,8 @@ import threading
 from deploy.contract.fault_plan import FaultPlan
 from deploy.contract.keyring import Keyring, KeysError, read_fd, read_file
 from deploy.contract.options import EXIT_BAD_INPUT, add_option, check_duration
-from deploy.contract.scenario import PLANT_KINDS, Scenario, load_scenario
+from deploy.contract.plant_registry import add_plant_option, find_plant
+from deploy.contract.scenario import Scenario, load_scenario
 from deploy.contract.wire import LEADER_ROLE, PLANT_ROLE, Codec, Keys, agent_role
 from deploy.runtime.datagrams import DatagramError, DatagramPath
 from deploy.runtime.heap import freeze_startup_heap
@@ -97,7 +98,8 @@ def gui_problem(plant_kind: str, gui: bool) -> str | None:
     on a failed X connection), or None."""
     if not gui:
         return None
-    if plant_kind != "pybullet":
+    entry = find_plant(plant_kind)
+    if entry is None or not entry.gui:
         return f"--gui shows the pybullet plant; this run's plant is {plant_kind}"
     if not os.environ.get("DISPLAY"):
         return "--gui needs a display, and DISPLAY is not set"
@@ -324,9 +326,7 @@ def add_node_commands(sub: argparse._SubParsersAction) -> None:
                            description="Simulates every robot and obstacle; the time master "
                            "of a lockstep run.")
     add_node_options(plant)
-    plant.add_argument("--plant", choices=PLANT_KINDS, default=None,
-                       help="pybullet (rigid bodies, real contacts), model (eq. 4, RK4) or "
-                       "kinematic (default: the scenario's plant.kind)")
+    add_plant_option(plant)
     plant.add_argument("--gui", action="store_true",
                        help="pybullet: open the simulator's window (needs a display)")
     add_option(plant, "--command-timeout")

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from deploy.contract.plant_registry import is_dynamic
 from deploy.contract.scenario import Scenario
 from deploy.report.formation_reach import formation_figures
 from deploy.report.timeseries import TimeSeries
@@ -147,10 +148,10 @@ def compute_metrics(
     threshold = s.metrics.settle_threshold
     err = np.linalg.norm(series.e, axis=2)
     notes = list(sc.notes)
-    if plant == "kinematic":
+    if not is_dynamic(plant):
         # q follows v_d directly: no dynamic level, so no behavioral tracking error.
         settling = [None] * n
-        notes.append("kinematic plant: no dynamic level; settling_time_s does not apply")
+        notes.append(f"{plant} plant: no dynamic level; settling_time_s does not apply")
     else:
         settling = [settling_time(t, err[:, i], threshold) for i in range(n)]
     whole, after = formation_rms(t, series.q[:, :, :2], series.target, settling)

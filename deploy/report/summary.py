@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from deploy.contract.plant_registry import is_dynamic
 from deploy.report.verdict import judge, verdict_line
 
 
@@ -29,11 +30,11 @@ def summary(m: dict, out: Path) -> str:
            f"{m['sim_time_s']:.2f} s measured before it; no figures"] if m.get("interrupted")
           else []),
         "  settling time (s)          "
-        + ("n/a (kinematic plant: no dynamic level)" if m["plant"] == "kinematic" else
+        + (f"n/a ({m['plant']} plant: no dynamic level)" if not is_dynamic(m["plant"]) else
            f"{_fmt_list(m['settling_time_s'])}  bound {m['settling_bound_s']:.3f}"),
         f"  formation RMS, whole run   {_fmt_list(m['formation_rms_whole_run_m'])} m",
-        "  ... after settling         " + ("n/a (kinematic plant: no settling)"
-                                             if m["plant"] == "kinematic" else
+        "  ... after settling         " + (f"n/a ({m['plant']} plant: no settling)"
+                                             if not is_dynamic(m["plant"]) else
                                              f"{_fmt_list(m['formation_rms_after_settling_m'])} m"),
         f"  min gap to an obstacle     {f(m['min_obstacle_gap_m'])} m (surface to surface)",
         f"  min gap between robots     {f(m['min_robot_gap_m'])} m (surface to surface)",

@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from deploy.contract.plant_registry import is_dynamic
 from deploy.report.timeseries import TimeSeries
 
 DIVERGED_DISTANCE_M = 1_000.0  # from the robot's formation target (the paper's field is ~100 m)
@@ -78,9 +79,9 @@ def judge(metrics: dict[str, Any], diverged: dict[str, Any] | None = None) -> di
     bound = metrics["settling_bound_s"]
     settling = metrics["settling_time_s"]
     reasons = []
-    if metrics.get("plant") == "kinematic":
+    if not is_dynamic(metrics.get("plant", "")):
         settled = None  # no dynamic level: the criterion does not apply; --check still fails it
-        reasons.append("settling does not apply to the kinematic plant")
+        reasons.append(f"settling does not apply to the {metrics['plant']} plant")
     else:
         late = [(i, s) for i, s in enumerate(settling) if s is None or s >= bound]
         settled = not late

@@ -26,6 +26,7 @@ from pathlib import Path
 
 from deploy.contract.options import add_option, check_duration
 from deploy.contract.output_paths import check_folder
+from deploy.contract.plant_registry import add_plant_option
 
 
 @dataclass(frozen=True)
@@ -215,8 +216,7 @@ def add_compare_command(sub: argparse._SubParsersAction) -> None:
                    help=f"the laws: {', '.join(NAMES)}, module:Class or path/to/file.py:Class")
     add_option(p, "--seeds", default=1, help="runs per law: the scenario, then seeded "
                "perturbations 1..N-1")
-    p.add_argument("--plant", choices=["pybullet", "model", "kinematic"],
-                   help="plant (default: the scenario's)")
+    add_plant_option(p)
     add_option(p, "--duration")
     add_option(p, "--jobs", default=2, help="in-process runs at once")
     p.add_argument("--out", metavar="DIR", help="default: runs/compare")

@@ -30,6 +30,7 @@ import numpy as np
 from deploy.contract.fault_plan import uniform_drop_plan
 from deploy.contract.options import add_option, check_duration
 from deploy.contract.output_paths import check_folder
+from deploy.contract.plant_registry import add_plant_option
 from deploy.contract.scenario import load_scenario
 from deploy.nodes.cli import add_law_option
 from deploy.runtime.own_python import child_env, python_module
@@ -290,8 +291,7 @@ def add_faults_command(sub: argparse._SubParsersAction) -> None:
                    "in-process; same results, slower")
     add_option(p, "--duration", more_help="per run")
     add_law_option(p)
-    p.add_argument("--plant", choices=["pybullet", "model", "kinematic"], default=None,
-                   help="default: the scenario's")
+    add_plant_option(p)
     p.add_argument("--out", metavar="DIR", help="default: runs/<scenario>-fault-sweep")
     p.set_defaults(func=cmd_sweep)
     show = fsub.add_parser(

@@ -225,7 +225,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
 
 def add_record_command(sub: argparse._SubParsersAction) -> None:
-    from deploy.contract.scenario import PLANT_KINDS
+    from deploy.contract.plant_registry import add_plant_option
     from deploy.nodes.cli import CLOCKS
 
     p = sub.add_parser(
@@ -236,8 +236,8 @@ def add_record_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", required=True, help="scenario file or bundled name")
     p.add_argument("--fleet", help="fleet name (default: the scenario's name)")
     p.add_argument("--clock", choices=CLOCKS, default="lockstep", help="default: lockstep")
-    p.add_argument("--plant", choices=PLANT_KINDS, default=None,
-                   help="the plant the fleet runs (for the report; default: the scenario's)")
+    add_plant_option(p, help_tail="the plant the fleet runs, for the report; default: the "
+                     "scenario's")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--zenoh-config", metavar="FILE", help="a zenoh JSON5 config file")
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT")

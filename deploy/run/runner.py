@@ -19,7 +19,7 @@ from agents.leader import leader_generator
 from agents.look_ahead import LookAhead
 from agents.plugged import PluggedCore, make_core
 from deploy.contract.fault_plan import FaultPlan
-from deploy.contract.scenario import PLANT_KINDS, Scenario
+from deploy.contract.scenario import Scenario
 from deploy.contract.wire import PLANT_ROLE, agent_role
 from deploy.report.targets import FormationTargets
 from deploy.report.timeseries import COLUMNS, TimeSeries
@@ -28,7 +28,7 @@ from deploy.runtime.lockstep_inputs import AgentLinks, HeldInput
 from deploy.runtime.plants import contact_log, make_plant, sensor_for
 from plant.command import CommandBounds, exceeds, torques_at
 
-__all__ = ["PLANT_KINDS", "RunResult", "contact_log", "make_plant", "run_in_process"]
+__all__ = ["RunResult", "contact_log", "make_plant", "run_in_process"]
 
 
 @dataclass

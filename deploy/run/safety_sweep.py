@@ -20,6 +20,7 @@ from pathlib import Path
 
 from deploy.contract.options import add_option, check_duration
 from deploy.contract.output_paths import check_folder
+from deploy.contract.plant_registry import add_plant_option
 from deploy.nodes.cli import add_law_option
 
 SWEEP_HELP = ("Run seeds 0..K-1 of a seeded perturbation of SCENARIO (every obstacle and "
@@ -131,8 +132,7 @@ def add_safety_command(sub: argparse._SubParsersAction) -> None:
                       description=SWEEP_HELP)
     sw.add_argument("scenario", help="bundled scenario name or TOML file")
     add_option(sw, "--seeds", default=10, help="seeds 0..K-1")
-    sw.add_argument("--plant", choices=["pybullet", "model", "kinematic"],
-                    help="plant (default: the scenario's)")
+    add_plant_option(sw)
     add_option(sw, "--duration")
     add_law_option(sw)
     add_option(sw, "--obstacle-jitter")

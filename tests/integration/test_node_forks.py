@@ -134,8 +134,8 @@ def test_a_forked_node_is_waited_for_and_signalled_like_a_spawned_one(tmp_path):
 
 
 def test_the_command_line_forks_only_for_a_lockstep_run_that_starts_a_fleet(monkeypatch):
-    from deploy.cli import REALTIME_ONLY_PLANTS, fleet_clock
-    from deploy.runtime.plants import PLANTS
+    from deploy.cli import fleet_clock
+    from deploy.contract.plant_registry import PLANTS, PlantEntry
 
     assert fleet_clock(["run", "paper", "--plant", "model"]) == "lockstep"
     assert fleet_clock(["run", "lab", "--clock", "realtime"]) == "realtime"
@@ -144,7 +144,9 @@ def test_the_command_line_forks_only_for_a_lockstep_run_that_starts_a_fleet(monk
     # ~0.65 s of CPU beside every CAN fleet's start)
     assert fleet_clock(["run", "lab", "--plant", "can-emulated"]) == "realtime"
     assert fleet_clock(["run", "lab", "--plant=can-emulated"]) == "realtime"
-    assert REALTIME_ONLY_PLANTS == {name for name, p in PLANTS.items() if p.realtime_only}
+    # read from the registry: a plant registered as realtime-only is too
+    monkeypatch.setitem(PLANTS, "toy-hardware", PlantEntry("a toy", None, realtime_only=True))
+    assert fleet_clock(["run", "lab", "--plant", "toy-hardware"]) == "realtime"
     assert fleet_clock(["run", "paper", "--in-process"]) is None
     assert fleet_clock(["run", "--help"]) is None
     assert fleet_clock(["bench", "--quick"]) is None
