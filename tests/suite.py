@@ -2,7 +2,8 @@
 
 1. Every test that does not judge a run against the wall clock (``realtime``) and
    starts no fleet whose timing it claims (``e2e`` only when ``load_safe``: lockstep
-   fleets, the bench's smoke run; tests/conftest.py), spread over the machine's cores
+   fleets, the bench's smoke run; the markers are declared by each test module and
+   explained in tests/conftest.py), spread over the machine's cores
    by pytest-xdist: they are CPU-bound and independent of each other, and what they
    assert does not depend on the scheduler (on 2 cores they take about half the time
    they take one after the other, docs/layout.md).
@@ -46,7 +47,7 @@ Exit status: 0 when both phases passed, else the first failing phase's pytest st
 terminal as well (one process group): this waits until pytest has ended its tests'
 processes, runs no further phase, and exits 130; a SIGTERM is passed on to each pytest
 and its workers as a SIGINT (the same ending), then 143.
-``python -m pytest`` alone still runs every test, one at a time.
+``pytest`` alone still runs every test, one at a time; this file is only the fast path.
 """
 
 from __future__ import annotations

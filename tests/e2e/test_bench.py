@@ -15,6 +15,8 @@ from procs import finish, start
 
 from deploy.bench.suite import markdown
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.load_safe]
+
 # the smoke run's scale group: 3 robots only (the whole quick bench, 30 robots included,
 # took 281 s of the suite's 1231 s here; the scale runs are the bench's, not the test's)
 SMOKE_SIZES = (3,)

@@ -29,6 +29,8 @@ from deploy.contract.wire import WIRE_VERSION, Codec, Keys, NodeReport, Reply, S
 from deploy.run.plan import free_tcp_port
 from deploy.runtime.transport import Node, zenoh_config
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
 can = pytest.importorskip("can")
 
 COMMAND_TIMEOUT_S = 0.1
@@ -130,6 +132,7 @@ def _drive_once(sc, tmp_path) -> tuple[types.SimpleNamespace, MachineLoad, str |
                                   truth=truth), load, missed)
 
 
+@pytest.mark.realtime
 def test_bridge_drives_the_emulated_robot_and_zeroes_torque_when_commands_stop(tmp_path):
     sc = load_scenario("lab")
     # a late loop is run once more, then judged by what the clock allowed

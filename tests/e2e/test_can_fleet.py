@@ -27,6 +27,8 @@ from tests.can_fleet_runs import (
     killed_fleet_run,
 )
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.realtime]
+
 
 @pytest.fixture(scope="module")
 def clean_run(tmp_path_factory):

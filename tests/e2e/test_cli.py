@@ -8,6 +8,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
+
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.load_safe]
 
 REPO = Path(__file__).resolve().parents[2]
 REQUIRED_KEYS = {

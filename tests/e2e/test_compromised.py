@@ -28,6 +28,8 @@ from deploy.fleet.deploy_plan import RunOptions, command_for, write_configs
 from deploy.report.timeseries import TimeSeries
 from deploy.runtime.transport import zenoh_config
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
 pytest.importorskip("zenoh")
 
 ROLES = ["recorder", "plant", "leader", "agent-1", "agent-2", "agent-3"]

@@ -23,6 +23,8 @@ from deploy.report.timeseries import TimeSeries
 from deploy.report.verdict import MAX_MISS_SHARE
 from deploy.run.plan import free_tcp_port
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
 zenoh = pytest.importorskip("zenoh")
 
 REPO = Path(__file__).resolve().parents[2]
@@ -40,6 +42,7 @@ def distributed_run(tmp_path_factory):
     return out
 
 
+@pytest.mark.load_safe
 def test_lockstep_run_equals_the_in_process_reference(distributed_run, tmp_path):
     rc, _, err = finish(start("run", "paper", "--plant", "model", "--in-process", "--duration",
                               DURATION, "--out", str(tmp_path), "--no-figures"))
@@ -53,6 +56,7 @@ def test_lockstep_run_equals_the_in_process_reference(distributed_run, tmp_path)
     assert control_figures(ma) == control_figures(mb)
 
 
+@pytest.mark.load_safe
 def test_run_reports_processes_messages_and_a_recording(distributed_run):
     from mcap.reader import make_reader
 
@@ -101,6 +105,7 @@ def _robot_messages(path: Path) -> dict[str, list[tuple[int, int, str]]]:
     return {topic: sorted(msgs) for topic, msgs in out.items()}
 
 
+@pytest.mark.load_safe
 def test_the_plants_record_of_samples_and_replies_is_what_the_launcher_heard(
         distributed_run, tmp_path):
     """The recording's samples and replies come from the plant's record of them
@@ -127,6 +132,7 @@ def test_the_plants_record_of_samples_and_replies_is_what_the_launcher_heard(
     assert spooled == heard
 
 
+@pytest.mark.load_safe
 def test_each_agent_hears_only_its_graph_neighbours(distributed_run):
     """paper.toml: a = [[0,0,0],[1,0,0],[1,1,0]], b = [1,0,0] (self loop dropped)."""
     m = json.loads((distributed_run / "metrics.json").read_text())
@@ -238,6 +244,7 @@ def test_garbage_on_every_key_is_refused_counted_and_changes_no_torque(tmp_path)
     assert np.array_equal(a.torque, b.torque), m["messages"]
 
 
+@pytest.mark.load_safe
 def test_sigint_stops_every_process_of_the_run(tmp_path):
     from mcap.reader import make_reader
 
@@ -257,6 +264,7 @@ def _fork_servers_of(launcher: int) -> set[int]:
             if (f := stat_fields(p)) is not None and int(f[1]) == launcher}
 
 
+@pytest.mark.load_safe
 def test_a_launcher_killed_outright_leaves_no_process_behind(tmp_path):
     """SIGKILL gives the launcher no chance to stop anyone: every node, forked and handed
     to it, still ends (the kernel's SIGTERM as its parent dies), and so does the fork
@@ -280,6 +288,7 @@ def test_a_launcher_killed_outright_leaves_no_process_behind(tmp_path):
         assert not left(), "left behind by a launcher killed outright"
 
 
+@pytest.mark.load_safe
 def test_an_agent_for_an_unknown_robot_fails_fast():
     t0 = time.monotonic()
     rc, _, err = finish(start("agent", "--scenario", "paper", "--robot", "7"), timeout=60)
@@ -288,6 +297,7 @@ def test_an_agent_for_an_unknown_robot_fails_fast():
     assert time.monotonic() - t0 < 30
 
 
+@pytest.mark.load_safe
 def test_a_bad_zenoh_config_is_a_clear_error(tmp_path):
     bad = tmp_path / "bad.json5"
     bad.write_text("{ this is not json5")
@@ -296,6 +306,7 @@ def test_a_bad_zenoh_config_is_a_clear_error(tmp_path):
     assert rc == 2 and "zenoh configuration" in err
 
 
+@pytest.mark.load_safe
 def test_a_node_that_dies_fails_the_run_and_is_named(tmp_path):
     with running_fleet("death", "--out", str(tmp_path), "--no-record") as (proc, fleet, _s):
         victim = [p for p in pids_with(fleet) if "--robot 2" in
@@ -308,6 +319,7 @@ def test_a_node_that_dies_fails_the_run_and_is_named(tmp_path):
     assert "agent-2" in err and "FAILED" in err
 
 
+@pytest.mark.realtime
 def test_realtime_run_reports_latency_jitter_and_misses(tmp_path):
     """lab.toml at 200 Hz on the wall clock: every process on its own clock."""
     def run():
@@ -332,6 +344,7 @@ def test_realtime_run_reports_latency_jitter_and_misses(tmp_path):
     assert m["contacts"] == 0
 
 
+@pytest.mark.load_safe
 def test_a_bad_fleet_name_is_refused_before_anything_starts(tmp_path):
     out = tmp_path / "run"
     rc, _, err = finish(start("run", "paper", "--fleet", "a/b", "--duration", "0.1",
@@ -340,6 +353,7 @@ def test_a_bad_fleet_name_is_refused_before_anything_starts(tmp_path):
     assert not out.exists()  # refused before anything was written (an empty recording was)
 
 
+@pytest.mark.load_safe
 @pytest.mark.parametrize("robots", [3, 7])
 def test_each_node_links_only_to_the_nodes_it_talks_to(tmp_path, robots):
     """Links as the graph (docs/distributed.md), read from every node's own zenoh session: an

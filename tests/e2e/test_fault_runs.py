@@ -16,6 +16,8 @@ from deploy.run.runner import run_in_process
 from tests.procs import assert_same_series, finish, start
 from tests.realtime_clock import judged
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.load_safe]
+
 RICH_PLAN = """
 seed = 11
 [defaults]
@@ -81,6 +83,7 @@ def killed_run(tmp_path_factory):
     return judged(run, lambda r: r[1], "lab realtime, agent 2 killed")
 
 
+@pytest.mark.realtime
 def test_a_killed_agent_is_killed_and_restarted_on_time(killed_run):
     _, m = killed_run
     events = {e["event"]: e for e in m["faults"]["kills"]}
@@ -91,6 +94,7 @@ def test_a_killed_agent_is_killed_and_restarted_on_time(killed_run):
     assert [p["killed"] for p in procs] == [True, False] and procs[1]["exit_code"] == 0
 
 
+@pytest.mark.realtime
 def test_its_robot_gets_zero_torque_within_the_command_timeout(killed_run):
     _, m = killed_run
     # (a loaded machine may also stall a live agent past the timeout: those stops
@@ -104,6 +108,7 @@ def test_its_robot_gets_zero_torque_within_the_command_timeout(killed_run):
     assert stops[0]["t_s"] <= KILL_AT + 0.1 + 2 * dt + 0.05
 
 
+@pytest.mark.realtime
 def test_the_others_see_it_as_an_obstacle_and_keep_clear(killed_run):
     from mcap.reader import make_reader
 
@@ -127,6 +132,7 @@ def test_the_others_see_it_as_an_obstacle_and_keep_clear(killed_run):
     assert m["contacts"] == 0
 
 
+@pytest.mark.realtime
 def test_the_restarted_agent_rejoins_and_settles(killed_run):
     out, m = killed_run
     log = (out / "logs" / "agent-2.restart.log").read_text()

@@ -27,6 +27,8 @@ from realtime_clock import judged, late_with_misses
 from deploy.contract.wire import MAX_REPORT_BYTES, WIRE_VERSION, ContactRecord, Control
 from deploy.report.timeseries import TimeSeries
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
 pytest.importorskip("zenoh")
 
 # 6000 steps at 200 Hz (~4 s here): the fleet is hundreds of steps in before an outside
@@ -215,6 +217,7 @@ def _formation_rms(m: dict) -> list[float]:
     return m["formation_rms_after_settling_m"]
 
 
+@pytest.mark.realtime
 def test_realtime_forgeries_neither_win_a_step_nor_silence_an_agent(tmp_path: Path,
                                                                     tmp_path_factory):
     """Before (realtime lab): forged torques moved robot 2 on at least 705 of 1003 steps

@@ -8,15 +8,19 @@ import json
 import os
 from pathlib import Path
 
+import pytest
 from procs import assert_same_series, finish, pids_with, start
 from realtime_clock import judged
 
 from deploy.report.metrics import control_figures
 from deploy.report.timeseries import TimeSeries
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
 BAD = str(Path(__file__).resolve().parents[1] / "laws" / "misbehaving.py")
 
 
+@pytest.mark.load_safe
 def test_a_python_law_in_lockstep_equals_the_in_process_reference(tmp_path):
     fleet = f"t-law-{os.getpid()}"
     args = ("run", "lab", "--law", "consensus", "--plant", "model", "--duration", "3",
@@ -36,6 +40,7 @@ def test_a_python_law_in_lockstep_equals_the_in_process_reference(tmp_path):
     assert ma["law"] == "consensus" and ma["law_faults"] == mb["law_faults"]
 
 
+@pytest.mark.realtime
 def test_a_law_that_raises_on_the_wall_clock_is_contained_and_named(tmp_path):
     """Every agent's law divides by zero from 1 s on: each robot brakes every step from
     then (its controller given v_d = 0), nothing touches, the run ends, the verdict fails

@@ -27,7 +27,8 @@ from deploy.report.timeseries import TimeSeries
 
 pytest.importorskip("zenoh")
 problem = netns_problem()
-pytestmark = pytest.mark.skipif(problem is not None, reason=problem or "")
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.root,
+              pytest.mark.skipif(problem is not None, reason=problem or "")]
 
 MACHINES = ["base", "robot1", "robot2", "robot3"]
 ROLES = {"base": ["recorder", "plant", "leader"], "robot1": ["agent-1"],
@@ -90,6 +91,7 @@ DURATION = "0.3"
 ROGUE_DURATION = "3"
 
 
+@pytest.mark.load_safe
 @pytest.mark.parametrize("router", [False, True], ids=["peers", "router"])
 def test_lockstep_across_namespaces_equals_the_single_host_run(tmp_path, router):
     """Leader, plant and recorder on one machine, each agent on its own, over mutual

@@ -25,6 +25,8 @@ from deploy.report.timeseries import TimeSeries
 from tests.procs import finish, pids_with, start
 from tests.realtime_clock import judged
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.realtime]
+
 PAUSE_AT, PAUSE_S, DURATION_S = 2.0, 2.0, 6.5
 
 

@@ -16,7 +16,8 @@ import pytest
 
 from tests.procs import finish, pids_with, start
 
-pytestmark = pytest.mark.realtime  # a run on the wall clock (its claims hold however loaded)
+# a run on the wall clock (its claims hold however loaded)
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.realtime]
 
 
 @pytest.mark.parametrize("hold_at, hold_s, duration_s", [(1.5, 1.0, 4.0), (1.0, 3.0, 3.0)],

@@ -28,7 +28,7 @@ from deploy.report.timeseries import TimeSeries
 
 PLUGIN = Path(__file__).resolve().parents[1] / "plugins" / "toy_plugins.py"
 
-pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.load_safe]
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +47,6 @@ def plugin_env(tmp_path_factory) -> dict[str, str]:
     return env
 
 
-@pytest.mark.load_safe
 def test_a_plugin_plant_runs_a_fleet_equal_to_itself_in_process(tmp_path, plugin_env):
     fleet = f"t-plugin-{os.getpid()}"
     args = ("run", "paper", "--plant", "weak-motors", "--duration", "1", "--no-figures",
@@ -71,7 +70,6 @@ def test_a_plugin_plant_runs_a_fleet_equal_to_itself_in_process(tmp_path, plugin
     assert not np.allclose(a.q[-1], model.q[-1], atol=1e-3)
 
 
-@pytest.mark.load_safe
 def test_a_plugin_protocol_brings_up_and_spins_the_drives_at_its_node_ids(plugin_env):
     group = f"239.74.{random.randrange(1, 250)}.{random.randrange(1, 250)}"
     bus = ["--can-interface", "udp_multicast", "--can-channel", group,
@@ -93,7 +91,6 @@ def test_a_plugin_protocol_brings_up_and_spins_the_drives_at_its_node_ids(plugin
     assert len(spins) == 4 and all("positive" in ln for ln in spins), out
 
 
-@pytest.mark.load_safe
 def test_names_nobody_registered_are_refused_listing_the_plugins(plugin_env):
     rc, _, err = finish(start("run", "paper", "--plant", "weak-motor", env=plugin_env))
     assert rc == 2 and "'weak-motor' is not a plant" in err and "weak-motors" in err, err

@@ -21,6 +21,8 @@ from procs import assert_same_series, finish, pids_with, start
 from deploy.report.metrics import control_figures
 from deploy.report.timeseries import TimeSeries
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.load_safe]
+
 REPO = Path(__file__).resolve().parents[2]
 
 

@@ -23,6 +23,8 @@ import numpy as np
 import pytest
 from procs import finish, kill_run, start
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
 pytest.importorskip("zenoh")
 pytest.importorskip("zenoh_ros2_sdk")
 

@@ -14,6 +14,8 @@ import pytest
 from deploy.report.recorder import messages_in
 from tests.procs import finish, kill_run, pids_with, start
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.load_safe]
+
 
 def test_sigint_leaves_a_readable_recording_and_metrics_marked_interrupted(tmp_path):
     """Found by probing: SIGINT left a readable MCAP but no metrics.json."""

@@ -24,6 +24,8 @@ from deploy.fleet.zenoh_configs import node_config, write_config
 from deploy.run.plan import free_tcp_port
 from deploy.runtime.transport import zenoh_config
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.load_safe]
+
 zenoh = pytest.importorskip("zenoh")
 
 FLEET = "sec"

@@ -16,6 +16,8 @@ from deploy.contract.scenario import load_scenario
 from deploy.report.metrics import control_figures
 from deploy.report.timeseries import TimeSeries
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.load_safe]
+
 zenoh = pytest.importorskip("zenoh")
 
 # robot 3 (the last) is past the polygon's east corner (x = 2.9 + its radius) at 3.75 s,

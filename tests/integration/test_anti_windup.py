@@ -28,6 +28,8 @@ from plant.disturbance import make_disturbance
 from plant.model_plant import ModelPlant
 from plant.perception import sense
 
+pytestmark = [pytest.mark.slow]
+
 HOLD = (3.0, 4.0)
 AFTER_S = 8.0
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from agents.controller import ControllerGains, allocate, control_term
 from deploy.contract.scenario import load_scenario
@@ -14,6 +15,8 @@ from deploy.report.timeseries import BEHAVIOR_BITS
 from deploy.run.runner import run_in_process
 from plant.mecanum import MecanumModel, RobotParams
 from tests.conftest import cached_run
+
+pytestmark = [pytest.mark.slow]
 
 PAPER_SECONDS = 7.0  # past sqrt(2) T_p = 5.657 s, short enough for CI
 

@@ -32,6 +32,8 @@ from deploy.run.runner import run_in_process
 from deploy.runtime.fault_model import DELIVERED, PARTITIONED, EdgeFaults, FaultModel, merge_reports
 from deploy.runtime.lockstep_inputs import HeldInput
 
+pytestmark = [pytest.mark.slow]
+
 
 @pytest.fixture(scope="module")
 def paper():

@@ -14,6 +14,8 @@ from deploy.run.runner import make_agents, run_in_process
 from deploy.runtime.plants import make_plant, sensor_for
 from plant.command import command_for_step
 
+pytestmark = [pytest.mark.slow]
+
 PAPER = resolve_path("paper").read_text()
 
 

@@ -10,12 +10,15 @@ import math
 
 import msgspec
 import numpy as np
+import pytest
 
 from agents.estimator import EstimatorGains, estimator_step_vec
 from agents.leader import LeaderGenerator
 from deploy.contract.scenario import load_scenario
 from deploy.report.metrics import compute_metrics, leader_estimate_error
 from tests.conftest import cached_run
+
+pytestmark = [pytest.mark.slow]
 
 SECONDS = 7.0  # the paper run of tests/integration/test_closed_loop.py (cached): past the 5 s mark
 PRINTED, CONSISTENT = "paper", "paper-consistent"

@@ -37,6 +37,8 @@ from plant.pybullet_plant import (
     generalised_force,
 )
 
+pytestmark = [pytest.mark.slow]
+
 # Open-loop agreement after 1 s, per scenario, over all 16 cases: (position m, heading
 # rad, world linear velocity m/s, body linear velocity m/s, yaw rate rad/s). Semi-implicit
 # Euler (force held over a sub-step h = dt / substeps) differs from RK4 by ~ a T h / 2: the

@@ -19,6 +19,8 @@ from deploy.contract.scenario_variants import perturbed, with_obstacle_pair
 from deploy.report.metrics import compute_metrics
 from deploy.run.runner import run_in_process
 
+pytestmark = [pytest.mark.slow]
+
 # robots whose formation point can be reached (narrowing sends robots 2 and 3 to one
 # spot; clutter's gap cannot hold the robot with lab's obstacle distance and margin)
 REACHABLE = {"narrowing": [0], "clutter": [], "gap": [0, 1, 2], "head-on": [0, 1],
@@ -130,6 +132,7 @@ def test_a_perturbation_is_reproducible_and_starts_clear():
         assert (np.linalg.norm(q[:, :2] - o.position, axis=1) - r - o.radius_m).min() >= 0.05
 
 
+@pytest.mark.realtime
 def test_no_contact_head_on_on_the_realtime_clock(tmp_path):
     """The same head-on swap, one process per node on the wall clock (what the clock
     allowed is judged first: tests/realtime_clock.py)."""

@@ -1,22 +1,26 @@
 """The two-phase suite (tests/suite.py): every test runs in exactly one phase, and the
-suite's status is a failing phase's; a selection spreads over the cores by default only
-when it holds no test that must run alone (tests/lanes.py)."""
+suite's status is a failing phase's."""
 
 from __future__ import annotations
 
 import itertools
 
 import pytest
-from _pytest.mark.expression import Expression  # how pytest evaluates -m
-from lanes import MARKERS, one_at_a_time, possible, spreads
 from suite import NOTHING_COLLECTED, PARALLEL, SERIAL, combined, phases, split_markers
+
+MARKERS = ("e2e", "slow", "realtime", "root", "load_safe")  # pyproject.toml declares them
+
+
+def selects(expr: str, marked: set[str]) -> bool:
+    """Whether ``-m expr`` selects a test carrying ``marked``: the phases' expressions
+    are marker names joined by and / or / not and brackets, Python's own grammar."""
+    return bool(eval(expr, {"__builtins__": {}}, {m: m in marked for m in MARKERS}))
 
 
 @pytest.mark.parametrize("marked", [set(c) for n in range(len(MARKERS) + 1)
                                     for c in itertools.combinations(MARKERS, n)])
 def test_every_test_runs_in_exactly_one_phase(marked: set[str]) -> None:
-    chosen = [Expression.compile(expr).evaluate(lambda name, **_: name in marked)
-              for expr in (PARALLEL, SERIAL)]
+    chosen = [selects(expr, marked) for expr in (PARALLEL, SERIAL)]
     assert sum(chosen) == 1
     if "realtime" in marked or ("e2e" in marked and "load_safe" not in marked):
         assert chosen == [False, True]  # never beside another test
@@ -58,27 +62,3 @@ def test_a_marker_expression_of_the_caller_narrows_each_phase(args: list[str]) -
 ])
 def test_the_suite_fails_when_a_phase_fails(statuses: list[int], expected: int) -> None:
     assert combined(statuses) == expected
-
-
-@pytest.mark.parametrize(("markexpr", "spread"), [
-    ("not e2e and not slow", True),  # the quick lane
-    ("not slow", True),
-    (PARALLEL, True),
-    ("not e2e", False),  # a realtime integration test is neither e2e ...
-    ("not realtime", False),  # ... and an e2e fleet probe may not be load_safe
-    ("", False),
-    (SERIAL, False),
-    ("slow", False),
-])
-def test_a_selection_spreads_only_when_it_holds_no_test_that_must_run_alone(
-        markexpr: str, spread: bool) -> None:
-    assert spreads(markexpr) is spread
-
-
-@pytest.mark.parametrize("marked", [set(c) for n in range(len(MARKERS) + 1)
-                                    for c in itertools.combinations(MARKERS, n)])
-def test_what_spreads_is_what_the_suite_runs_beside_others(marked: set[str]) -> None:
-    """A test that can exist runs alone in the suite exactly when tests/lanes.py says so."""
-    if possible(marked):
-        alone = Expression.compile(SERIAL).evaluate(lambda name, **_: name in marked)
-        assert one_at_a_time(marked) == alone
