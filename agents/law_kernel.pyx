@@ -11,7 +11,7 @@ equation and of our deviations (errata, docs/errata.md).
 
 Why compiled: the same arithmetic as Python floats cost ~45 µs a step (the call and
 allocation overhead of a few hundred small operations); here a step costs a few µs
-(docs/bench.md, "The compiled kernels"). A diverging law does not raise: non-finite
+(docs/bench-history.md, "The compiled kernels"). A diverging law does not raise: non-finite
 values propagate and the caller (AgentCore) zeroes the torques and restarts the state.
 """
 

@@ -155,7 +155,7 @@ class FleetEmulator:
                 # asleep until the next tick, not woken by each frame: a frame acts at the
                 # next tick however early it came (the physics integrates tick by tick), and
                 # woken by every frame the emulator of the CAN fleet woke ~6,500 times a
-                # second for 1,000 ticks (docs/bench.md, "The realtime budget")
+                # second for 1,000 ticks (docs/bench-history.md, "The realtime budget")
                 time.sleep(delay)
             if can_select:  # an empty read costs a select per bus: read only the ready ones
                 readable = select.select(fds, [], [], 0)[0]

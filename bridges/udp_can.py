@@ -7,7 +7,7 @@ at a time: ``udp_multicast`` sent a frame in 14.9 µs (a dict of its fields pack
 msgpack) and received one in 10.5 µs (a ``select`` first, msgpack, a checked
 ``can.Message``), and every member heard its own frames back (5.7 µs each to skip:
 ``deploy/nodes/can_options.py``). At lab's 200 Hz a bridge moves ~9 frames a period and the
-emulator ~30: their CAN frames alone were ~400 µs of a bridge's 1 ms step (docs/bench.md,
+emulator ~30: their CAN frames alone were ~400 µs of a bridge's 1 ms step (docs/bench-history.md,
 "The realtime budget"). Here:
 
 - a datagram carries one or more frames in a fixed binary layout (:data:`HEADER`, then

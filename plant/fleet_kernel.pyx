@@ -7,7 +7,7 @@ robot.
 
 Why compiled: as numpy over 3-vectors a robot-step of RK4 cost ~100 µs, almost all of it
 the per-call overhead of ~400 numpy calls on arrays of 3-12 elements; the same loops on C
-doubles cost about 1 µs (docs/bench.md, "The compiled kernels").
+doubles cost about 1 µs (docs/bench-history.md, "The compiled kernels").
 """
 
 DEF _SOURCE = PLANT_FLEET_KERNEL_SHA256  # given by setup.py at build time
@@ -323,7 +323,7 @@ cdef class FleetDynamics:
         semi-implicit Euler step v += h M_q^-1 F, q += h v of (P2) with the forces ``forces``
         (the flat list the sub-step applied), in place. Bullet's articulated-body pass
         rounds M_q^-1 F its own way: the velocities agree to ~1e-13 relative, not bit for
-        bit (docs/bench.md). :meth:`bullet_step` takes it for every sub-step without a
+        bit (docs/bench-history.md). :meth:`bullet_step` takes it for every sub-step without a
         contact, with Bullet stepped or not."""
         self._check_state(q, qd)
         self._free(forces, h, q, qd)

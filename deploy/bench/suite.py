@@ -114,7 +114,7 @@ def stolen_s() -> float | None:
     (``steal`` in /proc/stat), s; None where it cannot be read. A virtual machine whose
     processors the host takes away stalls every loop at once, whatever their priority:
     on the 2-core development VM every deadline miss of 30 agents at 100 Hz fell in a
-    burst of it (2-10 ms stalls, docs/bench.md)."""
+    burst of it (2-10 ms stalls, docs/bench-history.md)."""
     try:
         with open("/proc/stat") as f:
             fields = f.readline().split()
@@ -573,7 +573,7 @@ class Bench:
                             "(deploy/runtime/step_costs.py)").add(us)
 
     def budget(self) -> None:
-        """The realtime CPU budget per process (docs/bench.md, "The realtime budget"): each
+        """The realtime CPU budget per process (docs/bench-history.md, "The realtime budget"): each
         process's run-loop CPU per step at the rate its scenario asks, and the part of the
         step each piece of work takes, on this machine as it is (both cores)."""
         n = 3

@@ -330,7 +330,7 @@ class Scenario:
         t_k: the bridges' periods are staggered by dt / n in the robots' order (as
         bridges on separate hosts would be; aligned, every bridge of one host woke at
         once with the same work, and on 2 cores the last waited for the others:
-        docs/bench.md). Its state at step k is measured then."""
+        docs/bench-history.md). Its state at step k is measured then."""
         return self.dt * self.index_of(robot_id) / self.n
 
     def listeners(self, index: int) -> list[int]:

@@ -2,7 +2,7 @@
 bridge, emulate), as ``omnifleet run`` starts its processes. The same commands as
 ``omnifleet COMMAND``, without building the whole command line's parser and importing
 what its other commands need: ~0.1 s of CPU less a node, and five to thirty-odd of
-them start at once (docs/bench.md)."""
+them start at once (docs/bench-history.md)."""
 
 from __future__ import annotations
 

@@ -528,7 +528,7 @@ class AgentNode:
         before it, predicted to its step by its true age (agents/degradation.py). Taking
         whatever came last instead (the leader of k or k - 1, a neighbour's share of k
         when it ran first) switched the finite-time terms of eq. (14) from step to step:
-        the wheel torques' second difference was 10-100x lockstep's (docs/bench.md)."""
+        the wheel torques' second difference was 10-100x lockstep's (docs/bench-history.md)."""
         steps = self.sc.steps if steps is None else steps
         inp, box, dt = self.inputs, self.node.mailbox, self.sc.dt
         # telemetry is for people and the recorder: at most telemetry_hz, so the

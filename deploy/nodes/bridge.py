@@ -309,7 +309,7 @@ class BridgeNode:
         at the time the kernel stamped it (python-can's ``timestamp``, the wall clock, on
         socketcan and udp_multicast), on this clock; ``now`` where it has none. A reader
         thread woken by every frame cost the bridge ~4 wakes a period and the GIL's
-        hand-over to its loop each time (docs/bench.md, "The realtime budget")."""
+        hand-over to its loop each time (docs/bench-history.md, "The realtime budget")."""
         bus, decode, feed = self.bus, self.protocol.decode, self.monitor.feed
         offset = time.monotonic() - time.time()
         costs, t0 = self.node.costs, now_ns()

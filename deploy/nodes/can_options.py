@@ -228,7 +228,7 @@ def _drop_own_frames(bus: Any) -> None:
     copies of our own). Measured on the CAN fleet (``lab --plant can-emulated``, 200 Hz):
     each bridge's receive thread heard its own 4 torque frames a period (about two thirds
     of its frames, by the frame rates), and the emulator its own encoder frames; each
-    cost a wake-up, the unpacking and the GIL (docs/bench.md)."""
+    cost a wake-up, the unpacking and the GIL (docs/bench-history.md)."""
     multicast = getattr(bus, "_multicast", None)
     send, recv = getattr(multicast, "send", None), getattr(multicast, "recv", None)
     if send is None or recv is None:

@@ -5,7 +5,7 @@ each one used to spend ~0.15 s of CPU importing numpy, msgspec, zenoh and the pr
 before doing anything of its own (README command 1: five of them at once on 2 cores;
 every short fleet run of the test suite too). This process imports all of that once and
 then forks a node per request, already imported: the node's own start-up is then its
-arguments, its scenario and its session (docs/bench.md).
+arguments, its scenario and its session (docs/bench-history.md).
 
 The launcher stays the parent of every node (``deploy/run/node_forks.py``): it makes
 itself the *child subreaper* for the moment of a request, this server forks twice and

@@ -12,13 +12,13 @@ Two processes draw: the child forks once it has the series, and the fork draws F
 while the child draws Figs. 4 and 5 (1.34 s of drawing for ``paper`` on one core; the
 launcher's scene takes ~0.9 s beside them). With the child leaving without the
 interpreter's teardown, README command 1 went from ~1.9 s to ~1.6 s after the run
-(docs/bench.md). The fork dies with the child (``die_with_parent``).
+(docs/bench-history.md). The fork dies with the child (``die_with_parent``).
 
 A run that will draw can ``prepare`` the child when it starts: the child imports
 matplotlib and draws a small plot into memory (fonts, the mathtext of log ticks, the PNG
 encoder: ``figures.warm_up``) while the run goes, then waits for the series on a pipe,
 so that at the end only the drawing itself (~2 s for ``paper``) is left after the run
-(spawning and importing took ~1 s more there; docs/bench.md).
+(spawning and importing took ~1 s more there; docs/bench-history.md).
 """
 
 from __future__ import annotations

@@ -154,7 +154,7 @@ class TimeSeries:
 
     def save(self, path: Path) -> None:
         """Every column, uncompressed: deflate saved 30 % of the paper run's 26 MB and cost
-        0.8 s, a third of the whole in-process run (docs/bench.md)."""
+        0.8 s, a third of the whole in-process run (docs/bench-history.md)."""
         np.savez(path, **{name: getattr(self, name) for name in COLUMNS})
 
     @classmethod

@@ -30,7 +30,7 @@ A run must also have gone **whole** and **on time**; the verdict fails, naming w
   is on average answering at under 95 % of its rate, and more than one in twenty of the
   plant's steps is then driven by a prediction (agents/look_ahead.py) or held torques
   instead of feedback. A loop that keeps its period misses almost none (``lab`` at
-  100 Hz: 0-3 in 2,000 steps, docs/bench.md); a starved one misses more than it steps.
+  100 Hz: 0-3 in 2,000 steps, docs/bench-history.md); a starved one misses more than it steps.
 
 Written to ``metrics.json`` as ``verdict`` by every run; ``--check`` turns it
 into the exit code.

@@ -1,5 +1,5 @@
 """Whether this machine keeps a realtime fleet's clock, judged in the run's first second
-(docs/bench.md, "The realtime budget").
+(docs/bench-history.md, "The realtime budget").
 
 The launcher reads every process's CPU time from the kernel (``/proc/PID/stat``) as the
 run starts and a second later: each process's CPU per step, and the fleet's share of the

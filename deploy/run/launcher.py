@@ -122,7 +122,7 @@ class Launcher:
         # Not when the plant keeps its samples and replies for the recording: a tenth
         # of the frames are heard here then, and the short interval's hand-overs cost
         # more than they bought (README command 1: 15.0-16.4 s against 14.5-15.6 s with
-        # the default interval, 6 pairs side by side; docs/bench.md)
+        # the default interval, 6 pairs side by side; docs/bench-history.md)
         switch = sys.getswitchinterval()
         if self.observer.record_all and not self.observer.spooled:
             sys.setswitchinterval(HEAR_SWITCH_INTERVAL_S)

@@ -55,7 +55,7 @@ def wanted(clock: str) -> bool:
     off by ``OMNIFLEET_NODE_FORKS=0``. A realtime run spawns them: forked, `paper` at
     1 kHz left robots unsettled in 3 of 6 alternating pairs (none spawned), and still in
     4 of 6 with every page shared with the server copied before the loop, so not for
-    copy-on-write faults; the cause is open (docs/bench.md)."""
+    copy-on-write faults; the cause is open (docs/bench-history.md)."""
     return clock == "lockstep" and os.environ.get(SWITCH, "1") != "0"
 
 

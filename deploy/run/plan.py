@@ -268,7 +268,7 @@ def _can_plan(sc: Scenario, a: LaunchOptions, cmd: list[str], common: list[str],
     """One driver emulator process for the whole fleet and a bridge per robot; every
     robot on a CAN bus of its own (``omnifleet_udp``, bridges/udp_can.py: a multicast
     group and a port per robot, so robots never hear each other; python-can's
-    udp_multicast does the same at several times the CPU a frame, docs/bench.md). One
+    udp_multicast does the same at several times the CPU a frame, docs/bench-history.md). One
     emulator process, not one per robot: on a
     2-core host three emulators waking at the physics rate each fell seconds behind
     the wall clock (docs/hardware.md)."""

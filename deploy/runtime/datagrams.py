@@ -1,6 +1,6 @@
 """The per-step messages of a run on one host, over unix sockets beside zenoh.
 
-Why (measured on the 2-core machine, docs/bench.md "The local data path"): a zenoh
+Why (measured on the 2-core machine, docs/bench-history.md "The local data path"): a zenoh
 delivery between two Python processes wakes three to four threads (the sender's
 transmit task, the receiver's receive task, then the thread that works), about 20
 system calls; a lockstep step of ``paper`` (3 samples, 3 replies, 3 shares) cost
@@ -44,7 +44,7 @@ How:
   next wake. A connection is told apart by the key of the frames it carries (a sender
   writes one kind of message to a receiver): until its first frame it wakes the
   receiver. Measured: an agent of ``paper`` at 1 kHz woke 1.3-3 times a step, each wake
-  ~15 µs of CPU in this VM before any work (docs/bench.md, "The realtime budget").
+  ~15 µs of CPU in this VM before any work (docs/bench-history.md, "The realtime budget").
 """
 
 from __future__ import annotations

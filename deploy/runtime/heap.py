@@ -5,7 +5,7 @@ every node reaches its first collection of generation 1 at about the same moment
 the first steps of the run. Each pass walks what start-up left in the young
 generations (~1 ms of CPU an agent), and 30 agents at 100 Hz on 2 cores ran those
 passes within the same ~20 ms: a burst of ~30 ms of CPU that made samples late and
-counted as deadline misses in the run's first 0.1 s (docs/bench.md). Collecting once
+counted as deadline misses in the run's first 0.1 s (docs/bench-history.md). Collecting once
 and then freezing what is left (``gc.freeze``: the objects alive now move to a
 permanent generation that no later pass walks) before the loop starts takes that work
 out of the run: collections of generation 1 longer than 0.5 ms in such a run went from
@@ -18,7 +18,7 @@ paper's lockstep run was no faster with it (3 pairs, within their spread). The l
 freezes its own for the distributed run, on either clock (:func:`frozen_heap`): it hears
 and records the whole run on a heap of everything it imported, and the collector's full
 passes over that heap took 0.32 s of CPU in README command 1 (25 passes), 0.07 s frozen
-(docs/bench.md).
+(docs/bench-history.md).
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ Two things every process the launcher (or the bench, or a fault sweep) starts ge
   The child starts with ``-P`` (no working directory on its path) and, when this
   package is not where the interpreter finds it anyway (a clone run as
   ``python -m deploy.cli``), that folder first on ``PYTHONPATH``. README command 1's
-  five nodes: 0.1-0.15 s of CPU each saved (docs/bench.md).
+  five nodes: 0.1-0.15 s of CPU each saved (docs/bench-history.md).
 - **One BLAS thread.** numpy's OpenBLAS starts a thread per core at import, ~0.05 s
   of CPU a process on 2 cores, for arrays that never reach its threading threshold
   (a node's are of 3 to 12 elements). ``OPENBLAS_NUM_THREADS=1`` unless the user

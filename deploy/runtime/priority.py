@@ -11,7 +11,7 @@ Two things, each where the host permits it:
   period to period. 30 agents at 100 Hz on 2 cores (10 s runs, pybullet, 3 pairs, nice
   alone against SCHED_FIFO): commands the plant did not have by its next step 1,254,
   2,438, 388 -> 367, 45, 38; state-to-command latency p99 13.6, 15.4, 9.4 -> 8.4, 6.9,
-  7.1 ms; the agents' deadline misses 111, 155, 57 -> 53, 5, 6 (docs/bench.md). The
+  7.1 ms; the agents' deadline misses 111, 155, 57 -> 53, 5, 6 (docs/bench-history.md). The
   kernel's limit on realtime tasks (``sched_rt_runtime_us``, 95 % of each second by
   default) leaves the host a share should a loop never sleep. A node leaves the policy
   when its loop ends (``leave_realtime_scheduling``): its report and last flushes ran
@@ -53,7 +53,7 @@ def world_priority(n: int) -> int:
     and held it back: the agents' state-to-command latency p50 ~5-6 ms at 100 Hz; with
     the plant above them 2.3-3.2 ms (10 s runs, 4 pairs with the model plant, 3 with
     pybullet), p99 7-14 -> 6-8 ms; ``lab`` at 1 kHz latency p99 0.63-0.67 -> 0.60-0.64 ms
-    (docs/bench.md)."""
+    (docs/bench-history.md)."""
     return 0 if n <= 0 else min(n + WORLD_ABOVE_AGENTS, MAX_PRIORITY)
 
 
@@ -103,7 +103,7 @@ def batch_scheduling() -> bool:
     two cores each woken agent used to preempt the plant mid-send (wakeup
     preemption), so the last agent heard its sample ~190 µs after the first. With
     the agents batch the paper's lockstep run took 6-13 % less wall time
-    (docs/bench.md). Never for the realtime clock, where a late wake is a late
+    (docs/bench-history.md). Never for the realtime clock, where a late wake is a late
     command. Whether it was set."""
     try:
         os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
@@ -122,7 +122,7 @@ def hand_over() -> None:
     the plant after its samples (state log, stamps) held back an agent that had its
     sample and waited to start. The paper's lockstep run, 8 alternating pairs each:
     agents handing over 0.95 of the run's time, the plant too another 0.95; the bench
-    side by side 1.97-2.02x -> 2.14-2.15x real time (docs/bench.md).
+    side by side 1.97-2.02x -> 2.14-2.15x real time (docs/bench-history.md).
 
     Realtime: an agent hands over after its reply too (30 agents at 100 Hz on 2 cores:
     3x fewer deadline misses in the bench's scale runs, lab at 1 kHz and the CAN fleet

@@ -1,4 +1,4 @@
-"""Where a node's run loop spends its time, part by part (docs/bench.md, "The realtime
+"""Where a node's run loop spends its time, part by part (docs/bench-history.md, "The realtime
 budget"): the figures behind each process's CPU per step.
 
 A node adds the wall time of each part of its steps as it goes (``time.perf_counter_ns``,

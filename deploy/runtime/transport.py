@@ -221,7 +221,7 @@ class Mailbox:
         sender that woke it, and on 2 cores often a run process of the chain put off
         the CPU. Looking every 2 ms (3 alternating pairs of ``run paper --no-figures``):
         the launcher's CPU 9.6-9.9 -> 7.6-8.2 s, every process's 25.9-27.2 -> 23.4-24.4
-        s, the run 13.9-14.6 -> 13.2-13.7 s; 5 ms did no better (docs/bench.md)."""
+        s, the run 13.9-14.6 -> 13.2-13.7 s; 5 ms did no better (docs/bench-history.md)."""
         if ready_first and ready():
             return True
         deadline = time.monotonic() + timeout_s
