@@ -36,8 +36,9 @@ from agents.degradation import MAX_COMMAND_HORIZON
 # 2: Sample, Reply, batched LeaderState/Telemetry, StateLog; 3: safety in Telemetry; 4: no MAC
 # fields in Control and NodeReport (every message of a keyed node is authenticated by its
 # envelope, deploy/contract/mac.py); 5: a node's CPU time in NodeReport; 6: Sample.own_torques;
-# 7: where a node's loop spent its time (NodeReport.step_costs_ns)
-WIRE_VERSION = 7
+# 7: where a node's loop spent its time (NodeReport.step_costs_ns); 8: an agent's deadline
+# misses so far in its telemetry (TelemetryRow.deadline_misses)
+WIRE_VERSION = 8
 MAX_BODIES = 256  # bodies per perception message
 MAX_ORDER_CHARS = 32
 MAX_ROLE_CHARS = 32
@@ -207,6 +208,8 @@ class TelemetryRow(msgspec.Struct, array_like=True, frozen=True, gc=False):
     left_out: int = 0  # inputs too old for eq. (14) this step
     safety_dv: Finite = 0.0  # how much the safety filter changed the command (m/s); 0: it did not
     safety_infeasible: bool = False  # no command met every barrier within the limits
+    # the agent's deadline misses since its loop started (realtime; 0 on the lockstep clock)
+    deadline_misses: Annotated[int, msgspec.Meta(ge=0)] = 0
 
 
 class Telemetry(Message, frozen=True):

@@ -391,7 +391,8 @@ class AgentNode:
             k, t, out.q_d, out.tracking_error, out.sliding, out.v_cmd, out.torques,
             out.share.q0_hat, out.q_fd, None if fdb is None else float(fdb), ">".join(out.order),
             out.nonfinite, stale, out.input_age_s, out.speed_factor, out.left_out,
-            f.dv if acted else 0.0, f.infeasible if acted else False))
+            f.dv if acted else 0.0, f.infeasible if acted else False,
+            self.timing.deadline_misses))
         if len(self._rows) >= self.telemetry_batch:
             self.flush_telemetry()
 

@@ -286,9 +286,10 @@ class EncodedFrames(FleetFrames):
         return out
 
 
-def robot_status(ts: Any, k: int, t_s: float, robot_ids: list[int], prefix: str
-                 ) -> list[tuple[str, str, str, dict[str, str]]]:
-    """Each agent's health at row ``k`` (time ``t_s``), as :func:`status` takes it."""
+def robot_status(ts: Any, k: int, t_s: float, robot_ids: list[int], prefix: str,
+                 misses: Any = None) -> list[tuple[str, str, str, dict[str, str]]]:
+    """Each agent's health at row ``k`` (time ``t_s``), as :func:`status` takes it;
+    ``misses``: each agent's deadline misses so far (None: not known, in process)."""
     out = []
     for i, rid in enumerate(robot_ids):
         nonfinite, infeasible = bool(ts.nonfinite[k, i]), bool(ts.safety_infeasible[k, i])
@@ -299,7 +300,8 @@ def robot_status(ts: Any, k: int, t_s: float, robot_ids: list[int], prefix: str
             "t_s": f"{t_s:.3f}", "speed_factor": f"{ts.speed_factor[k, i]:.3f}",
             "input_age_s": f"{ts.input_age[k, i]:.4f}",
             "safety_filter_dv_mps": f"{ts.safety_dv[k, i]:.4f}",
-            "active_behaviours": str(ts.order[k, i])}))
+            "active_behaviours": str(ts.order[k, i]),
+            **({} if misses is None else {"deadline_misses": str(int(misses[i]))})}))
     return out
 
 

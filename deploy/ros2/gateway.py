@@ -81,6 +81,8 @@ class Ros2Gateway:
         self.start_unix_ns, self.refused = start_unix_ns, refused
         # role -> "running", "exited N", "killed by the fault plan" (the launcher's children)
         self.processes: Callable[[], dict[str, str]] = lambda: {}
+        # each agent's deadline misses so far (the listener's telemetry; None in process)
+        self.agent_misses: Callable[[], Any] = lambda: None
         self.counts = GatewayCounts()
         self.session = (session_factory or open_session)(opts)
         self.zid = str(self.session.info.zid())
@@ -259,7 +261,8 @@ class Ros2Gateway:
             self.put(self.topic_name("fleet/status"), fm.status(ns, self._status(ts, k)), ns)
 
     def _status(self, ts: Any, k: int, verdict: dict | None = None) -> list:
-        out = fm.robot_status(ts, k, k * self.sc.dt, list(self.sc.robot_ids), NODE_NAMESPACE)
+        out = fm.robot_status(ts, k, k * self.sc.dt, list(self.sc.robot_ids), NODE_NAMESPACE,
+                              self.agent_misses())
         processes = self.processes()
         merged = []
         for name, level, message, values in out:  # an agent's process beside its health
@@ -297,6 +300,7 @@ class Ros2Gateway:
 
         self.start_unix_ns = start_unix_ns
         self.refused = lambda: observer.invalid
+        self.agent_misses = lambda: observer.collector.agent_misses
 
     def counts_json(self) -> dict[str, Any]:
         c = self.counts

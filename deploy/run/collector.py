@@ -39,6 +39,9 @@ class Collector:
         self.have_telemetry = np.zeros((steps, sc.n), bool)
         self.have_leader = np.zeros(steps, bool)
         self.faulted = np.zeros((steps, sc.n), bool)  # a bridge's state said faulted (CAN)
+        # each agent's deadline misses so far, as its newest telemetry says (for the live
+        # views; the run's figure is its final report's)
+        self.agent_misses = np.zeros(sc.n, np.int64)
         self.reports: dict[str, NodeReport] = {}
         self.newest_k = -1
         self.out_of_range = 0  # messages stamped with a step outside the run
@@ -90,6 +93,7 @@ class Collector:
                         continue
                     record_telemetry(ts, row.k, i, row)
                     self.have_telemetry[row.k, i] = True
+                    self.agent_misses[i] = max(self.agent_misses[i], row.deadline_misses)
             elif isinstance(msg, LeaderState):
                 for n, (q, qd) in enumerate(zip(msg.q, msg.q_dot, strict=True)):
                     k = msg.k + n

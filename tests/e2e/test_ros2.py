@@ -262,7 +262,13 @@ def test_a_ros2_graph_discovers_every_node_and_topic_and_the_latched_obstacles(
     running = next(d for d in during if "omnifleet/plant" in d)
     assert running["omnifleet/plant"].message == "running"
     assert {kv.key for kv in running["omnifleet/agent_1"].values} >= {
-        "process", "speed_factor", "input_age_s", "safety_filter_dv_mps"}
+        "process", "speed_factor", "input_age_s", "safety_filter_dv_mps", "deadline_misses"}
+    # each agent's deadline misses so far, live: never more than its final report says
+    for rid in (1, 2, 3):
+        live = [int(v.value) for d in during if f"omnifleet/agent_{rid}" in d
+                for v in d[f"omnifleet/agent_{rid}"].values if v.key == "deadline_misses"]
+        assert live and live == sorted(live), live
+        assert live[-1] <= sc["deadline_misses_by_node"][f"agent-{rid}"]
     last = during[-1]["omnifleet/launcher"].message
     assert last.startswith("verdict: ") and (last == "verdict: PASS") == sc["verdict"]["pass"]
     assert len(array.markers) == 3 and all(m.header.frame_id == "world" for m in array.markers)

@@ -7,7 +7,14 @@ from __future__ import annotations
 import pytest
 
 from deploy.contract.scenario import load_scenario
-from deploy.contract.wire import WIRE_VERSION, LeaderState, StateLog, StateRow
+from deploy.contract.wire import (
+    WIRE_VERSION,
+    LeaderState,
+    StateLog,
+    StateRow,
+    Telemetry,
+    TelemetryRow,
+)
 from deploy.run.collector import Collector
 
 STEPS = 20
@@ -107,3 +114,25 @@ def test_a_realtime_series_fills_each_gap_forward_from_the_step_before_and_count
     assert ts.leader_q[3].tolist() == [2.0, 0.0, 0.0]
     assert ts.e[6, 1].tolist() == ts.e[5, 1].tolist() != [42.0] * len(ts.e[6, 1])
     assert collector.filled == 3 + 1  # step 5: three robots' states; step 6: one telemetry
+
+
+def _telemetry(robot: int, ks: list[int], misses: list[int]) -> Telemetry:
+    z3, z4 = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0)
+    return Telemetry(WIRE_VERSION, robot, 0, 0, robot=robot, rows=[
+        TelemetryRow(k, k * 0.001, z3, z3, z3, z3, z4, z3, z3, None, "FM", False,
+                     deadline_misses=n) for k, n in zip(ks, misses, strict=True)])
+
+
+def test_each_agents_deadline_misses_are_its_newest_telemetry_count(collector):
+    """What /fleet/status says live (deploy/ros2/fleet_messages.py): per agent, the most its
+    telemetry has counted; a batch that arrives late cannot take the count back."""
+    collector.add(_telemetry(2, [0, 1, 2], [0, 1, 3]))
+    collector.add(_telemetry(3, [5], [7]))
+    collector.add(_telemetry(2, [3], [2]))  # an older count, later: the count stays
+    assert collector.agent_misses.tolist() == [0, 3, 7]
+    from deploy.ros2.fleet_messages import robot_status
+
+    status = robot_status(collector.ts, 2, 0.002, [1, 2, 3], "omnifleet", collector.agent_misses)
+    assert [dict(v)["deadline_misses"] for _, _, _, v in status] == ["0", "3", "7"]
+    assert all("deadline_misses" not in v for _, _, _, v in
+               robot_status(collector.ts, 2, 0.002, [1, 2, 3], "omnifleet"))
