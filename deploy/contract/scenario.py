@@ -766,6 +766,9 @@ def _load_law(path: str, law: LawSection) -> tuple[type | None, object]:
 
 
 def _validate(path: str, s: ScenarioFile) -> Scenario:
+    """The scenario as the runtime takes it, or ScenarioError naming the first key that is
+    wrong (checked in the order of the file: rates, robots, graph, formation, leader,
+    bodies, behaviours, gains)."""
     notes: list[str] = []
     _check_all_finite(path, msgspec.to_builtins(s))
     if s.law.use != "paper":  # a law of a file: its path from the scenario's folder
@@ -779,6 +782,17 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
     if s.duration_s * s.control_rate_hz < 1.0:
         raise _fail(path, "duration_s", f"must be at least one control period "
                     f"({1.0 / s.control_rate_hz:g} s at control_rate_hz = {s.control_rate_hz:g})")
+    ids = _checked_robot_ids(path, s)
+    A, b = _checked_graph(path, s, ids, notes)
+    _check_formation(path, s, A, ids)
+    _check_leader_path(path, s.leader, notes)
+    _check_bodies(path, s, ids)
+    _check_behaviors(path, s)
+    _check_gains(path, s, ids)
+    return Scenario(path, s, A, b, tuple(notes))
+
+
+def _checked_robot_ids(path: str, s: ScenarioFile) -> list[int]:
     n = len(s.robots)
     if n == 0:
         raise _fail(path, "robots", "at least one robot is needed")
@@ -796,6 +810,14 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
             _check_len(path, f"robots[{k}].estimate_position", r.estimate_position, 3)
         if r.estimate_velocity is not None:
             _check_len(path, f"robots[{k}].estimate_velocity", r.estimate_velocity, 3)
+    return ids
+
+
+def _checked_graph(path: str, s: ScenarioFile, ids: list[int], notes: list[str]
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The adjacency matrix A (self loops zeroed, said in ``notes``) and the leader
+    weights b, with a spanning tree rooted at the leader."""
+    n = len(ids)
     rows = s.graph.adjacency
     if len(rows) != n or any(len(row) != n for row in rows):  # ragged rows: numpy would raise
         got = f"{len(rows)} rows of {sorted({len(row) for row in rows})} numbers"
@@ -823,6 +845,11 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
             "and the rows and columns of "
             "graph.adjacency follow the order of [[robots]], not their ids)"
         )
+    return A, b
+
+
+def _check_formation(path: str, s: ScenarioFile, A: np.ndarray, ids: list[int]) -> None:
+    n = len(ids)
     f = s.formation
     if f.kappa1 < 0 or f.kappa2 < 0:
         raise _fail(path, "formation.kappa1/kappa2", "must be non-negative")
@@ -832,7 +859,10 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
     _check_scales(path, "formation", f.initial_scale, f.scale_changes)
     for k, r in enumerate(s.robots):
         _check_scales(path, f"robots[{k}]", r.initial_scale, r.scale_changes)
-    _check_leader_path(path, s.leader, notes)
+
+
+def _check_bodies(path: str, s: ScenarioFile, ids: list[int]) -> None:
+    """Obstacles, walls and polygons, and robots that start clear of every body."""
     for k, o in enumerate(s.obstacles):
         _check_len(path, f"obstacles[{k}].position", o.position, 2)
         if o.radius_m < 0:
@@ -845,6 +875,9 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
         obstacle_shapes(s))
     if overlaps:
         raise _fail(path, "robots.position", "; ".join(overlaps))
+
+
+def _check_behaviors(path: str, s: ScenarioFile) -> None:
     bh = s.behaviors
     for key, names in (("behaviors.enabled", bh.enabled), ("behaviors.priority", bh.priority)):
         bad = [x for x in names if x not in BEHAVIOR_NAMES]
@@ -866,6 +899,11 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
         raise _fail(path, "safety.margin_m", "must be >= 0")
     if s.safety.exit_time_s <= 0:
         raise _fail(path, "safety.exit_time_s", "must be positive")
+
+
+def _check_gains(path: str, s: ScenarioFile, ids: list[int]) -> None:
+    """Estimator, controller, observer, limits, disturbance, degradation, plant, metrics
+    and the robot's parameters."""
     _check_len(path, "estimator.iota", s.estimator.iota, 4)
     _check_len(path, "estimator.eta", s.estimator.eta, 2)
     c = s.controller
@@ -895,7 +933,6 @@ def _validate(path: str, s: ScenarioFile) -> Scenario:
                 "half_wheelbase_m", "half_track_m", "body_radius_m", "coulomb_smoothing_radps"):
         if getattr(p, key) <= 0:
             raise _fail(path, f"robot.{key}", "must be positive")
-    return Scenario(path, s, A, b, tuple(notes))
 
 
 def resolve_path(name_or_path: str | Path) -> Path:

@@ -356,3 +356,87 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
                      steps_asked=opts.steps(sc), drawing=drawing,
                      **run_wall_clock(end_unix_ns, wall, launcher.observer.run_t0, series.steps,
                                       args.clock == "lockstep"))
+
+
+def add_run_command(sub: argparse._SubParsersAction) -> None:
+    """``omnifleet run``: its options, each with its help."""
+    from deploy.contract.options import add_option
+    from deploy.contract.plant_registry import add_plant_option
+    from deploy.contract.scenario import bundled_names
+    from deploy.nodes.can_options import add_driver_option
+    from deploy.nodes.cli import CLOCKS, add_law_option
+    from deploy.ros2.options import add_ros2_options
+    from deploy.runtime.priority import EMULATOR_PRIORITY, REALTIME_PRIORITY, WORLD_ABOVE_AGENTS
+
+    run = sub.add_parser(
+        "run", help="run a scenario and write its report folder",
+        description="Run a scenario (a TOML file, or the name of a bundled one: "
+        f"{', '.join(bundled_names())}; `omnifleet scenario list` says what each is) and "
+        "write metrics.json, timeseries.npz, recording.mcap and the figures to --out, "
+        "ending with the verdict (docs/outputs.md).",
+    )
+    run.add_argument("scenario", help="scenario file or bundled scenario name")
+    run.add_argument("--in-process", action="store_true",
+                     help="run leader, plant and all agents in this process (the reference "
+                     "loop) instead of one process per node")
+    add_plant_option(run, in_process=False)
+    add_driver_option(run, None, f"--plant {CAN_EMULATED}: the drives' CAN protocol, for the "
+                      "bridges and the emulator")
+    run.add_argument("--gui", action="store_true",
+                     help="pybullet: open the simulator's window (needs a display)")
+    run.add_argument("--clock", choices=CLOCKS, default=None,
+                     help="lockstep: deterministic, equals --in-process; realtime: every "
+                     "process on its own clock at the scenario's rates (default: lockstep)")
+    add_option(run, "--step-deadline")
+    add_option(run, "--startup-timeout")
+    run.add_argument("--fleet", help="fleet name: keys are omr/<fleet>/... (default: the "
+                     "scenario's name; two runs on one machine never link: each has its own "
+                     "private endpoints)")
+    run.add_argument("--endpoint", metavar="ENDPOINT",
+                     help="zenoh endpoint the launcher listens on and the nodes connect to "
+                     "(default: a unix socket in the run's private directory)")
+    run.add_argument("--zenoh-transport", choices=("default", "lowlatency"),
+                     default="default",
+                     help="zenoh's unicast transport between the run's nodes: zenoh's default, "
+                     "or lowlatency (a put is written by the publishing thread: a hop ~20 %% "
+                     "faster here, but zenoh 1.10.2 lost 1 in 24 messages over 64 kB on it, "
+                     "e.g. a node's final report; docs/distributed.md) (default: default)")
+    run.add_argument("--data-path", choices=("datagram", "zenoh"), default="datagram",
+                     help="how the per-step data (samples, replies, leader, telemetry, state "
+                     "logs) travels between the run's processes: unix datagrams in the run's "
+                     "private directory, ~5x cheaper than a zenoh hop on one host, with "
+                     "control, liveliness and reports on zenoh; or all of it on zenoh, as "
+                     "across hosts (docs/distributed.md) (default: datagram)")
+    run.add_argument("--no-record", action="store_true",
+                     help="do not write recording.mcap (the scene, plot signals and, for one "
+                     "process per node, every wire message, in Foxglove's schemas; docs/foxglove.md)")
+    run.add_argument("--live", metavar="[HOST:]PORT", nargs="?", const=str(8765),
+                     help="serve the scene and plots over Foxglove's WebSocket protocol while the "
+                     "run goes (default 127.0.0.1:8765; loopback unless HOST is given, e.g. "
+                     "0.0.0.0:8765; port 0: any free one)")
+    add_ros2_options(run)
+    run.add_argument("--out", metavar="DIR", help="output folder (default: runs/<scenario>)")
+    add_option(run, "--duration")
+    add_option(run, "--control-rate")
+    add_law_option(run)
+    run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    run.add_argument("--overwrite", action="store_true",
+                     help="--out already holds a run: remove its outputs first (without it "
+                     "such a folder is refused: a run never mixes its outputs with another's)")
+    add_option(run, "--priority", default=REALTIME_PRIORITY,
+               help="realtime: run every node's loop under SCHED_FIFO at priority N and "
+               "at nice -N (its session's autogroup too; needs CAP_SYS_NICE, else each "
+               "node says so), so other work on the host does not stall the control "
+               "loops, and the "
+               f"simulated plant's by N + {WORLD_ABOVE_AGENTS} (it is the fleet's clock); 0 "
+               "leaves them at normal priority; the driver emulator always asks for "
+               f"{EMULATOR_PRIORITY}")
+    run.add_argument("--faults", metavar="PLAN",
+                     help="inject the faults of a fault plan (TOML; docs/faults.md): lossy, "
+                     "delayed or partitioned links, killed and restarted processes, CAN frame "
+                     "loss; counted per link in metrics.json")
+    run.add_argument("--check", action="store_true",
+                     help="exit 1 unless the verdict is PASS: every robot settles before "
+                     "sqrt(2) T_p and ends at its formation position, no contact, nothing "
+                     "non-finite, the whole run simulated and heard (docs/outputs.md)")
+    run.set_defaults(func=cmd_run)
