@@ -31,15 +31,20 @@ from deploy.runtime.transport import Node
 TICK_EVERY = 32  # lockstep: the plant's ctl/tick every this many steps; the leader's batch
 LOOKAHEAD = 2 * TICK_EVERY  # lockstep: states published this far past the newest tick
 # realtime: the states of this much time a message, a wake (at most TICK_EVERY steps: 32 ms
-# at 1 kHz, 50 ms at 200 Hz). A wake after a long sleep costs ~150-250 µs here (caches
-# cold): at 200 Hz, with 20 ms batches, the leader spent 58-74 µs a step
-REALTIME_BATCH_S = 0.05
+# at 1 kHz, 100 ms at 200 Hz). A wake after a long sleep costs ~150-350 µs here (caches
+# cold, a message to each agent and the recorder): at 200 Hz the leader spent 58-74 µs a
+# step with 20 ms batches, 36-46 with 50 ms. A path known ahead loses nothing by going
+# out further ahead; a leader steered from outside (ROS 2) keeps 50 ms, the delay a
+# command waits for the next batch
+REALTIME_BATCH_S = 0.1
+STEERED_BATCH_S = 0.05
 
 
-def realtime_batch(dt: float) -> int:
+def realtime_batch(dt: float, steered: bool = False) -> int:
     """Realtime: the leader's states a batch (at most ``TICK_EVERY``; the agents accept
     ``LOOKAHEAD`` + ``TICK_EVERY`` steps ahead of their sample)."""
-    return max(1, min(TICK_EVERY, round(REALTIME_BATCH_S / dt)))
+    span = STEERED_BATCH_S if steered else REALTIME_BATCH_S
+    return max(1, min(TICK_EVERY, round(span / dt)))
 
 
 class LeaderNode:
@@ -106,7 +111,7 @@ class LeaderNode:
         """Batch b (of ``realtime_batch`` steps) goes out at the start of batch b - 1:
         a batch ahead of the wall clock. A wake more than a batch late skips what is
         past (published from the step now due)."""
-        n = realtime_batch(self.sc.dt)
+        n = realtime_batch(self.sc.dt, isinstance(self.generator, SteeredLeader))
         self.t0_mono = t0_mono
         self.node.wake_on(())  # its timer only (it hears nothing on the data path)
         ticker = Periodic(t0_mono, n * self.sc.dt, self.timing, self.node.mailbox)
