@@ -109,7 +109,11 @@ def test_a_signal_ends_the_phase_with_its_processes_and_starts_no_other(
         assert suite.returncode == status, out
         if side_by_side:
             assert "beside the next phase" in out, out
-            assert groups_of_suites() == groups_before  # its group removed
+            # its group removed (a group of a suite still running is another test's: the
+            # cases of this test may run at once on two workers)
+            left = {g for g in groups_of_suites() - groups_before
+                    if not running(int(g.rsplit("-", 1)[1]))}
+            assert not left, left
         else:
             assert f"== tests: {SERIAL}" not in out  # the second phase never started
         assert not running(pytest_pid) and not running(child_pid), out
