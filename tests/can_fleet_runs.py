@@ -18,7 +18,7 @@ import os
 from pathlib import Path
 
 from tests.procs import finish, pids_with, start
-from tests.realtime_clock import judged
+from tests.realtime_clock import judged, late_with_misses
 
 DURATION_S = 10.0  # the fault-free run: odometry against the truth over 10 s of driving
 RATE_HZ = "100"
@@ -47,7 +47,13 @@ def clean_fleet_run(tmp_path_factory, driver: str, what: str):
         out = tmp_path_factory.mktemp(f"{driver}-fleet") / "run"
         stdout, m = run_fleet(out, f"t-{driver}-fleet-{os.getpid()}", driver)
         return out, stdout, m
-    return judged(run, lambda r: r[2], what)
+    # its claims are an undisturbed formation's (settling, odometry against the truth): a
+    # robot that settled late while some loop missed deadlines is the clock's doing as
+    # much as a high jitter (one of 8 runs of the e2e fleet modules back to back here left
+    # all three CiA 402 robots' odometry 14-34 cm off and two settled at 6.6-6.8 s, the
+    # others 0.4-0.55 s and < 1 cm; its misses were not kept). Once more then; missed
+    # again on a quiet machine, it fails
+    return judged(run, lambda r: r[2], what, missed_also=late_with_misses)
 
 
 def killed_fleet_run(tmp_path_factory, driver: str, what: str):

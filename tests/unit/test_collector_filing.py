@@ -4,6 +4,7 @@ cell already filled counted and dropped; the leader's overlapping batches kept f
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from deploy.contract.scenario import load_scenario
@@ -136,3 +137,44 @@ def test_each_agents_deadline_misses_are_its_newest_telemetry_count(collector):
     assert [dict(v)["deadline_misses"] for _, _, _, v in status] == ["0", "3", "7"]
     assert all("deadline_misses" not in v for _, _, _, v in
                robot_status(collector.ts, 2, 0.002, [1, 2, 3], "omnifleet"))
+
+
+def _filed_row_by_row(c: Collector, msg: StateLog, horizon: int | None) -> None:
+    """The rule, one row at a time (as the launcher filed them before)."""
+    cols = [c.row[r] for r in msg.robots]
+    for row in msg.rows:
+        k = row.k
+        if not 0 <= k < c.steps:
+            c.out_of_range += 1
+        elif horizon is not None and k > horizon:
+            c.refused["state row ahead of the run"] = c.refused.get("state row ahead of the run", 0) + 1
+        elif c.have_state[k, cols].any():
+            c.refused["second state row for a step"] = c.refused.get("second state row for a step", 0) + 1
+        else:
+            c.ts.q[k, cols], c.ts.q_dot[k, cols] = row.q, row.q_dot
+            c.have_state[k, cols] = True
+            c.faulted[k, cols] = row.faulted
+            c.newest_k = max(c.newest_k, k)
+
+
+def test_a_log_filed_at_once_equals_its_rows_filed_one_by_one():
+    rng = np.random.default_rng(7)
+    sc = load_scenario("paper")
+    fast, slow = Collector(sc, STEPS), Collector(sc, STEPS)
+    for n in range(200):
+        robots = [int(r) for r in rng.choice([1, 2, 3], size=rng.integers(1, 4), replace=False)]
+        rows = [StateRow(int(k), 0.001 * int(k), [tuple(rng.normal(size=3)) for _ in robots],
+                         [tuple(rng.normal(size=3)) for _ in robots],
+                         [bool(b) for b in rng.integers(0, 2, len(robots))])
+                for k in rng.integers(-3, STEPS + 3, size=rng.integers(1, 7))]
+        horizon = None if n % 3 else int(rng.integers(0, STEPS))
+        fast.horizon = lambda h=horizon: h
+        fast.add(_log(rows, robots))
+        _filed_row_by_row(slow, _log(rows, robots), horizon)
+    for name in ("q", "q_dot"):
+        assert np.array_equal(getattr(fast.ts, name), getattr(slow.ts, name), equal_nan=True)
+    assert np.array_equal(fast.have_state, slow.have_state)
+    assert np.array_equal(fast.faulted, slow.faulted)
+    assert (fast.refused, fast.out_of_range, fast.newest_k) == (
+        slow.refused, slow.out_of_range, slow.newest_k)
+    assert fast.refused["second state row for a step"] > 0 and fast.out_of_range > 0
