@@ -77,9 +77,12 @@ def entry(name: str) -> DriverEntry:
     """The protocol registered as ``name`` (the installed entry points read the first
     time a name is not found); ValueError listing them if none is."""
     if name not in DRIVERS:
-        from bridges.plugins import load_entry_points
+        from bridges.plugins import broken, load_entry_points
 
         load_entry_points(ENTRY_POINT_GROUP, DRIVERS, DriverEntry, "driver")
+        why = broken(ENTRY_POINT_GROUP, name)
+        if why is not None:
+            raise ValueError(why)
     try:
         return DRIVERS[name]
     except KeyError:

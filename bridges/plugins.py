@@ -8,12 +8,14 @@ from __future__ import annotations
 from typing import Any
 
 _read: set[str] = set()
+_broken: dict[tuple[str, str], str] = {}  # (group, name) -> why it cannot be used
 
 
 def load_entry_points(group: str, registry: dict[str, Any], kind: type, what: str) -> None:
     """Add each entry point of ``group`` to ``registry`` under its name, unless the name
-    is taken (a built-in is never replaced); an entry point that does not load, or is not
-    a ``kind``, is a ValueError naming it."""
+    is taken (a built-in is never replaced). One that does not load, or is not a
+    ``kind``, is left out and remembered: :func:`broken` says why, for its name only (a
+    broken plug-in does not keep the others from being used)."""
     if group in _read:
         return
     _read.add(group)
@@ -24,10 +26,17 @@ def load_entry_points(group: str, registry: dict[str, Any], kind: type, what: st
             continue
         try:
             entry = ep.load()
-        except Exception as exc:  # a broken plug-in is named, not a crash of every command
-            raise ValueError(f"{what} {ep.name!r} (entry point {ep.value}) does not load: "
-                             f"{type(exc).__name__}: {exc}") from exc
+        except Exception as exc:  # a broken plug-in is named when asked for, not a crash
+            _broken[group, ep.name] = (f"{what} {ep.name!r} (entry point {ep.value}) does not "
+                                       f"load: {type(exc).__name__}: {exc}")
+            continue
         if not isinstance(entry, kind):
-            raise ValueError(f"{what} {ep.name!r} (entry point {ep.value}) is not a "
-                             f"{kind.__name__}")
+            _broken[group, ep.name] = (f"{what} {ep.name!r} (entry point {ep.value}) is not a "
+                                       f"{kind.__name__}")
+            continue
         registry[ep.name] = entry
+
+
+def broken(group: str, name: str) -> str | None:
+    """Why the plug-in ``name`` of ``group`` cannot be used (None: it is not broken)."""
+    return _broken.get((group, name))

@@ -94,7 +94,10 @@ def fleet_clock(argv: list[str]) -> str | None:
                 options[name] = argv[i + 1]
             elif a.startswith(f"{name}="):
                 options[name] = a.removeprefix(f"{name}=")
-    plant = find_plant(options["--plant"]) if "--plant" in options else None
+    try:
+        plant = find_plant(options["--plant"]) if "--plant" in options else None
+    except ValueError:  # a plug-in that cannot be used: the command line says so next
+        plant = None
     if plant is not None and plant.realtime_only:
         return "realtime"
     return options.get("--clock", "lockstep")

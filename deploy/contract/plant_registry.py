@@ -59,9 +59,9 @@ PLANTS: dict[str, PlantEntry] = {
 
 
 def register_plant(name: str, entry: PlantEntry) -> None:
-    """Add a plant under ``name`` (a scenario's ``[plant] kind`` and ``--plant`` take it
-    from then on, in this process and in the nodes it starts, when the registering module
-    is imported by them too); a name already taken is refused."""
+    """Add a plant under ``name``: a scenario's ``[plant] kind`` and ``--plant`` take it
+    from then on, in this process (a fleet's other processes: an entry point); a name
+    already taken is refused."""
     if name in PLANTS:
         raise ValueError(f"a plant named {name!r} is registered already")
     if not name or any(c.isspace() for c in name):
@@ -71,11 +71,15 @@ def register_plant(name: str, entry: PlantEntry) -> None:
 
 def find_plant(name: str) -> PlantEntry | None:
     """The plant registered as ``name``, or None; the installed entry points are read
-    the first time a name is not found."""
+    the first time a name is not found. A plug-in of that name that cannot be used:
+    ValueError saying why."""
     if name not in PLANTS:
-        from bridges.plugins import load_entry_points
+        from bridges.plugins import broken, load_entry_points
 
         load_entry_points(ENTRY_POINT_GROUP, PLANTS, PlantEntry, "plant")
+        why = broken(ENTRY_POINT_GROUP, name)
+        if why is not None:
+            raise ValueError(why)
     return PLANTS.get(name)
 
 
@@ -99,7 +103,10 @@ def add_plant_option(p: argparse.ArgumentParser, *, in_process: bool = True,
     names = in_process_plants() if in_process else tuple(PLANTS)
 
     def plant_name(value: str) -> str:
-        entry = find_plant(value)
+        try:
+            entry = find_plant(value)
+        except ValueError as exc:  # a plug-in of that name that cannot be used
+            raise argparse.ArgumentTypeError(str(exc)) from None
         if entry is None or (in_process and entry.build is None):
             allowed = in_process_plants() if in_process else tuple(PLANTS)
             raise argparse.ArgumentTypeError(

@@ -517,7 +517,10 @@ def _fail(path: str, key: str, msg: str) -> ScenarioError:
 
 
 def _check_plant(path: str, kind: str) -> None:
-    entry = find_plant(kind)
+    try:
+        entry = find_plant(kind)
+    except ValueError as exc:  # a plug-in of that name that cannot be used
+        raise _fail(path, "plant.kind", str(exc)) from None
     if entry is None or entry.build is None:
         raise _fail(path, "plant.kind", f"{kind!r} is not a plant one process holds; "
                     f"expected one of: {', '.join(in_process_plants())}")

@@ -8,7 +8,9 @@ package installed with pip.
   in process, and differs from the model plant it wraps (its torques are weaker);
 - the ``toy-odrive`` protocol: ``can-check`` brings up and spins the four drives an
   ``emulate`` process plays at its node ids (8-11);
-- a name nobody registered exits 2 listing the registered ones, plug-ins included.
+- a name nobody registered exits 2 listing the registered ones, plug-ins included; a
+  plug-in that does not load, or is not what its group holds, exits 2 naming it when it
+  is asked for, and keeps none of the others from being used.
 
 Every process is ended by pid (tests/procs.py).
 """
@@ -24,6 +26,7 @@ import numpy as np
 import pytest
 from procs import assert_same_series, finish, pids_with, start
 
+from deploy.contract.scenario import SCENARIO_DIR
 from deploy.report.timeseries import TimeSeries
 
 PLUGIN = Path(__file__).resolve().parents[1] / "plugins" / "toy_plugins.py"
@@ -40,8 +43,10 @@ def plugin_env(tmp_path_factory) -> dict[str, str]:
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: toy-plugins\nVersion: 0.1\n")
     (info / "entry_points.txt").write_text(
-        "[omnifleet.plants]\nweak-motors = toy_plugins:WEAK_MOTORS\n\n"
-        "[omnifleet.drivers]\ntoy-odrive = toy_plugins:TOY_ODRIVE\n")
+        "[omnifleet.plants]\nweak-motors = toy_plugins:WEAK_MOTORS\n"
+        "broken-plant = toy_plugins:NOT_THERE\n\n"  # each broken its own way: the others
+        "[omnifleet.drivers]\ntoy-odrive = toy_plugins:TOY_ODRIVE\n"  # work beside them
+        "not-a-driver = toy_plugins:WEAK_MOTORS\n")
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(site), env.get("PYTHONPATH")) if p)
     return env
@@ -89,6 +94,19 @@ def test_a_plugin_protocol_brings_up_and_spins_the_drives_at_its_node_ids(plugin
     assert [int(r.split()[0]) for r in rows] == [8, 9, 10, 11], out
     spins = [ln for ln in out.splitlines() if ln.startswith("node ") and " rev/s at " in ln]
     assert len(spins) == 4 and all("positive" in ln for ln in spins), out
+
+
+def test_a_broken_plugin_is_named_when_asked_for_and_exits_2(plugin_env, tmp_path):
+    rc, _, err = finish(start("run", "paper", "--plant", "broken-plant", env=plugin_env))
+    assert rc == 2 and "plant 'broken-plant' (entry point toy_plugins:NOT_THERE) does not load" in err, err
+    scenario = tmp_path / "mine.toml"
+    lab = (SCENARIO_DIR / "lab.toml").read_text()
+    assert 'kind = "pybullet"' in lab
+    scenario.write_text(lab.replace('kind = "pybullet"', 'kind = "broken-plant"', 1))
+    rc, _, err = finish(start("scenario", "check", str(scenario), env=plugin_env))
+    assert rc == 2 and "plant.kind" in err and "does not load" in err, err
+    rc, _, err = finish(start("can-check", "--driver", "not-a-driver", env=plugin_env))
+    assert rc == 2 and "driver 'not-a-driver'" in err and "is not a DriverEntry" in err, err
 
 
 def test_names_nobody_registered_are_refused_listing_the_plugins(plugin_env):
