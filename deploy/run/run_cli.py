@@ -25,31 +25,34 @@ RECORDING = "recording.mcap"
 
 
 
-def cmd_run(args: argparse.Namespace) -> int:
-    sc = run_scenario(args)  # the ranges were checked on parse (deploy/contract/options.py)
-    plant = args.plant or sc.spec.plant.kind
+def _options_problem(args: argparse.Namespace, sc, plant: str) -> str | None:
+    """Why these options cannot run this scenario (None: they can); sets ``args.clock``
+    (realtime for a plant on the wall clock only, else lockstep unless said)."""
     if PLANTS[plant].realtime_only:  # hardware through emulated drivers runs on the wall clock
         if args.in_process or args.clock == "lockstep":
-            print(f"omnifleet run: --plant {plant} runs realtime, one process per node",
-                  file=sys.stderr)
-            return EXIT_BAD_INPUT
+            return f"--plant {plant} runs realtime, one process per node"
         args.clock = "realtime"
     args.clock = args.clock or "lockstep"
     if args.driver is not None and plant != CAN_EMULATED:
-        print(f"omnifleet run: --driver {args.driver} drives CAN bridges: it needs --plant "
-              f"{CAN_EMULATED}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return f"--driver {args.driver} drives CAN bridges: it needs --plant {CAN_EMULATED}"
     problem = gui_problem(plant, args.gui)
     if problem:
-        print(f"omnifleet run: {problem}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return problem
     if args.in_process and args.clock == "realtime":
-        print("omnifleet run: --in-process runs lockstep only", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return "--in-process runs lockstep only"
     if sc.leader_spec().steered is not None and (args.clock != "realtime" or args.ros2 is None):
-        print('omnifleet run: this scenario\'s leader follows ROS 2 (leader.path = "ros2"): '
-              "run it with --clock realtime --ros2 [ENDPOINT] (a ROS 2 node then drives it on "
-              "/leader/cmd_vel; docs/ros2.md)", file=sys.stderr)
+        return ('this scenario\'s leader follows ROS 2 (leader.path = "ros2"): run it with '
+                "--clock realtime --ros2 [ENDPOINT] (a ROS 2 node then drives it on "
+                "/leader/cmd_vel; docs/ros2.md)")
+    return None
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    sc = run_scenario(args)  # the ranges were checked on parse (deploy/contract/options.py)
+    plant = args.plant or sc.spec.plant.kind
+    problem = _options_problem(args, sc, plant)
+    if problem:
+        print(f"omnifleet run: {problem}", file=sys.stderr)
         return EXIT_BAD_INPUT
     plan = fault_plan(args, sc)
     if plan is not None and plan.kills and args.clock != "realtime":
@@ -106,18 +109,29 @@ def cmd_run(args: argparse.Namespace) -> int:
             if metrics is None:
                 return 1
     finally:
-        if drawing is not None:  # by pid, also after a failed or interrupted run
-            drawing.stop()
-        if live is not None:
-            live.close()
-            front = live.server.front
-            print(f"live view: {live.published} messages served to {sum(front.served.values())} "
-                  f"client(s), {live.cpu_s:.2f} s CPU"
-                  + (f"; {front.refused} client(s) refused (no Foxglove subprotocol offered)"
-                     if front.refused else "") + "; stopped", file=sys.stderr)
-        if ros2 is not None:
-            ros2.close(None if metrics is None else metrics["verdict"])
-            print(ros2.summary(), file=sys.stderr)
+        _close_outputs(drawing, live, ros2, metrics)
+    return _finish(args, metrics, out, bag)
+
+
+def _close_outputs(drawing, live, ros2, metrics: dict | None) -> None:
+    """The figure process (by pid), the live view and the ROS 2 gateway, each with its
+    last word; also after a failed or interrupted run."""
+    if drawing is not None:
+        drawing.stop()
+    if live is not None:
+        live.close()
+        front = live.server.front
+        print(f"live view: {live.published} messages served to {sum(front.served.values())} "
+              f"client(s), {live.cpu_s:.2f} s CPU"
+              + (f"; {front.refused} client(s) refused (no Foxglove subprotocol offered)"
+                 if front.refused else "") + "; stopped", file=sys.stderr)
+    if ros2 is not None:
+        ros2.close(None if metrics is None else metrics["verdict"])
+        print(ros2.summary(), file=sys.stderr)
+
+
+def _finish(args: argparse.Namespace, metrics: dict, out: Path, bag) -> int:
+    """The bag's metadata, the summary and the exit code of a run that ended."""
     if bag is not None and bag.counts and bag.broken is None:
         _write_bag_metadata(bag, metrics)
     banner = divergence_banner(metrics["verdict"])
