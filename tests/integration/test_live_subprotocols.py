@@ -14,6 +14,7 @@ import threading
 
 import pytest
 import websockets
+import websockets.exceptions  # a submodule: not there until someone imports it
 from conftest import cached_run
 from foxglove_ws import watch
 
