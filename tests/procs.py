@@ -50,6 +50,22 @@ def kill_run(proc: subprocess.Popen, fleet: str | None = None) -> None:
             pass
 
 
+def can_check_beside_emulator(bus: list[str], timeout: float = 120,
+                              env: dict[str, str] | None = None) -> tuple[int, str, str]:
+    """``omnifleet can-check --spin`` against an ``omnifleet emulate`` of lab's robot 2 on
+    ``bus`` (the CAN options, ``--driver`` among them): can-check's (status, stdout,
+    stderr); the emulator ended by pid whatever happened."""
+    emulator = start("emulate", "--scenario", "lab", "--robot", "2", *bus, "--duration", "30",
+                     env=env)
+    try:
+        return finish(start("can-check", *bus, "--listen", "1.5", "--spin", "--spin-torque",
+                            "0.3", "--spin-time", "0.3", env=env), timeout=timeout)
+    finally:
+        if emulator.poll() is None:
+            emulator.kill()
+            emulator.wait()
+
+
 def pids_with(text: str) -> set[int]:
     """Live processes whose command line contains ``text``."""
     found = set()

@@ -20,7 +20,7 @@ import types
 
 import numpy as np
 import pytest
-from procs import finish, interrupt, start
+from procs import can_check_beside_emulator, finish, interrupt, start
 from realtime_clock import MachineLoad, loop_missed, measured, once_more
 
 from bridges.odrive import CMD_SET_INPUT_TORQUE, OdriveCanSimple, SetInputTorque
@@ -211,14 +211,7 @@ def test_can_check_lists_the_drivers_and_spins_each_wheel_its_torque_s_way():
     group = f"239.74.{random.randrange(1, 250)}.{random.randrange(1, 250)}"
     bus = ["--can-interface", "udp_multicast", "--can-channel", group,
            "--can-arg", f"port={random.randrange(40000, 60000)}"]
-    emulator = start("emulate", "--scenario", "lab", "--robot", "2", *bus, "--duration", "20")
-    try:
-        rc, out, err = finish(start("can-check", *bus, "--listen", "1.5", "--spin",
-                                    "--spin-torque", "0.3", "--spin-time", "0.3"), timeout=60)
-    finally:
-        if emulator.poll() is None:
-            emulator.kill()
-            emulator.wait()
+    rc, out, err = can_check_beside_emulator(bus, timeout=60)
     assert rc == 0, err
     rows = [ln for ln in out.splitlines() if ln[:4].strip().isdigit()]
     assert [int(r.split()[0]) for r in rows] == [0, 1, 2, 3]

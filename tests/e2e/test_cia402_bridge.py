@@ -27,7 +27,7 @@ import types
 
 import numpy as np
 import pytest
-from procs import finish, interrupt, start
+from procs import can_check_beside_emulator, finish, interrupt, start
 from realtime_clock import MachineLoad, loop_missed, measured, once_more
 
 from bridges.cia402_driver import DEFAULT_EDS
@@ -241,16 +241,7 @@ def test_a_drive_that_never_enables_is_reported_and_no_wheel_is_driven(tmp_path)
 
 def test_can_check_brings_a_cia402_drive_up_step_by_step_and_spins_each_wheel():
     can_opts, _, _ = _bus()
-    emulator = start("emulate", "--scenario", "lab", "--robot", "2", "--driver", "cia402",
-                     *can_opts, "--duration", "30")
-    try:
-        rc, out, err = finish(start("can-check", "--driver", "cia402", *can_opts, "--listen", "1.5",
-                                    "--spin", "--spin-torque", "0.3", "--spin-time", "0.3"),
-                              timeout=120)
-    finally:
-        if emulator.poll() is None:
-            emulator.kill()
-            emulator.wait()
+    rc, out, err = can_check_beside_emulator(["--driver", "cia402", *can_opts])
     assert rc == 0, err + out
     assert "cia402: node(s) 1, 2, 3, 4 answered" in out  # found without --node-ids
     for n in NODES:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from procs import assert_same_series, finish, pids_with, start
+from procs import assert_same_series, can_check_beside_emulator, finish, pids_with, start
 
 from deploy.contract.scenario import SCENARIO_DIR
 from deploy.report.timeseries import TimeSeries
@@ -79,16 +79,7 @@ def test_a_plugin_protocol_brings_up_and_spins_the_drives_at_its_node_ids(plugin
     group = f"239.74.{random.randrange(1, 250)}.{random.randrange(1, 250)}"
     bus = ["--can-interface", "udp_multicast", "--can-channel", group,
            "--can-arg", f"port={random.randrange(40000, 60000)}", "--driver", "toy-odrive"]
-    emulator = start("emulate", "--scenario", "lab", "--robot", "2", *bus, "--duration", "30",
-                     env=plugin_env)
-    try:
-        rc, out, err = finish(start("can-check", *bus, "--listen", "1.5", "--spin",
-                                    "--spin-torque", "0.3", "--spin-time", "0.3",
-                                    env=plugin_env), timeout=120)
-    finally:
-        if emulator.poll() is None:
-            emulator.kill()
-            emulator.wait()
+    rc, out, err = can_check_beside_emulator(bus, env=plugin_env)
     assert rc == 0, err
     rows = [ln for ln in out.splitlines() if ln[:4].strip().isdigit()]
     assert [int(r.split()[0]) for r in rows] == [8, 9, 10, 11], out
