@@ -253,3 +253,96 @@ def defence_us(sc: Scenario, calls: int, repeats: int) -> dict[str, list[float]]
 
         out["mac_per_agent_step"].append(_median_us(step, calls))
     return out
+
+
+def _captured_core(sc: Scenario, at_s: float) -> tuple[AgentCore, tuple, dict]:
+    """An agent's core and the inputs of its step at ``at_s`` of a closed-loop run in
+    process (the first step the run makes at or after it)."""
+    original = AgentCore.step
+    captured: dict[str, object] = {}
+
+    def hook(self, *args, **kwargs):
+        if "core" not in captured and args[0] >= at_s:
+            captured.update(core=self, args=args, kwargs=kwargs)
+        return original(self, *args, **kwargs)
+
+    AgentCore.step = hook  # type: ignore[method-assign]
+    try:
+        run_in_process(sc, "model", at_s + 0.01)
+    finally:
+        AgentCore.step = original  # type: ignore[method-assign]
+    return captured["core"], captured["args"], captured["kwargs"]  # type: ignore[return-value]
+
+
+def cold_step_pieces_us(sc: Scenario, calls: int) -> dict[str, dict[str, float]]:
+    """The CPU time (µs, medians over ``calls``) of the essential pieces of one realtime
+    agent step, in this process, as the datagram path runs them (its connections are
+    authenticated at their hello: no tag a frame, deploy/runtime/transport.py): the
+    inputs of the most-connected robot received (its sample and its neighbours'
+    shares, unix datagrams), decoded with validation, the paper law's step
+    (AgentCore.step), the reply encoded and sent to as many receivers; and the bare
+    wake of a 1 ms wait.
+
+    ``hot``: the pieces back to back, as a loop that never sleeps runs them; ``cold``:
+    each round after a 1 ms wait, as a realtime process at 1 kHz runs them (the caches
+    and the branch predictors hold whatever ran meanwhile). The difference is what a
+    process pays for sleeping between its steps; the sum of ``cold`` is the floor under
+    any realtime agent step written in this runtime's Python, before its look-ahead,
+    guards, tables and telemetry (docs/bench.md, "The realtime budget")."""
+    import select
+    import socket
+
+    core, args, kwargs = _captured_core(sc, 0.5)
+    msgs, codec = sample_messages(sc), Codec(sc.robot_ids)
+    sample_msg, reply_msg = msgs["Sample"], msgs["Reply"]
+    i = max(range(sc.n), key=lambda i: len(sc.agent_config(i).neighbours))
+    frames = [encode(sample_msg)] + [encode(reply_msg)] * len(sc.agent_config(i).neighbours)
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    tick = time.thread_time_ns
+
+    def arrive() -> None:  # the inputs sent by their senders (not this step's cost)
+        for data in frames:
+            a.send(data)
+
+    def pieces(times: dict[str, list[int]]) -> None:
+        t = tick()
+        heard = [b.recv(65536) for _ in frames]
+        t1 = tick()
+        codec.decode(Sample, heard[0], sample_msg.robot)
+        for body in heard[1:]:
+            codec.decode(Reply, body, reply_msg.robot)
+        t2 = tick()
+        out = core.step(*args, **kwargs)
+        t3 = tick()
+        data = encode(reply_msg)
+        t4 = tick()
+        for _ in frames:  # to the plant and the listening agents (paper: three)
+            b.send(data)
+        t5 = tick()
+        for _ in frames:  # their receiving ends (not this step's cost)
+            a.recv(65536)
+        if out.nonfinite:
+            raise RuntimeError("the law diverged on its repeated step: the figure would time "
+                               "its recovery")
+        for name, ns in (("receive", t1 - t), ("decode", t2 - t1), ("law step", t3 - t2),
+                         ("encode", t4 - t3), ("send", t5 - t4)):
+            times.setdefault(name, []).append(ns)
+
+    out: dict[str, dict[str, float]] = {}
+    try:
+        for mode in ("hot", "cold"):
+            times: dict[str, list[int]] = {}
+            arrive()
+            pieces({})  # imports and first-call costs out of the figures
+            for _ in range(calls):
+                arrive()
+                if mode == "cold":
+                    t = tick()
+                    select.select((), (), (), 0.001)
+                    times.setdefault("wake", []).append(tick() - t)
+                pieces(times)
+            out[mode] = {name: statistics.median(v) / 1e3 for name, v in times.items()}
+    finally:
+        a.close()
+        b.close()
+    return out

@@ -54,6 +54,7 @@ class Settings:
     hops: int
     one_core_paper_runs: int  # paper at 1 kHz pinned to one core: runs, each judged
     can_s: float  # the CAN fleet's runs pinned to one core
+    floor_calls: int  # rounds of an agent step's pieces, hot and cold (the budget's floor)
     quick: bool = False  # the smoke run: fewer fleets in the budget and one-core groups
 
     @classmethod
@@ -61,9 +62,9 @@ class Settings:
         if quick:
             # a second of each realtime run: enough for every figure (the suite runs this)
             return cls(repeats or 1, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0, 0.2, 200, 2000, 500, 1, 1.0,
-                       quick=True)
+                       200, quick=True)
         return cls(repeats or 3, 8.0, None, 20.0, 10.0, 10.0, 20.0, 2.0, 2000, 20000, 5000, 10,
-                   20.0)
+                   20.0, 2000)
 
 
 @dataclass
@@ -600,6 +601,32 @@ class Bench:
                     self._add_budget(run, figs, m)
 
             self.measure(f"CPU budget: {what}", body, *(f.name for f in figs.values()))
+        self._budget_floor()
+
+    def _budget_floor(self) -> None:
+        """What the essential pieces of an agent step cost in this runtime's Python, hot
+        and after a 1 ms sleep (deploy/bench/micro.py, cold_step_pieces_us): the floor
+        under the agent's budget."""
+        from deploy.bench.micro import cold_step_pieces_us
+        from deploy.contract.scenario import load_scenario
+
+        what = ("the essential pieces of one agent step of paper (its 3 inputs received "
+                "and decoded, AgentCore.step, the reply encoded and sent 3 times)")
+        hot = self.figure("budget.floor.agent_pieces_hot_us", "µs", f"{what}, back to back")
+        cold = self.figure("budget.floor.agent_pieces_cold_us", "µs",
+                           f"{what}, each after a 1 ms sleep as at 1 kHz, the wake included")
+        wake = self.figure("budget.floor.wake_us", "µs", "the CPU of the wake from a 1 ms "
+                           "wait alone (select)")
+
+        def body() -> None:
+            for _ in range(self.s.repeats):
+                r = cold_step_pieces_us(load_scenario("paper"), self.s.floor_calls)
+                hot.samples.append(sum(r["hot"].values()))
+                cold.samples.append(sum(r["cold"].values()))
+                wake.samples.append(r["cold"]["wake"])
+
+        self.measure("CPU budget: the floor of an agent step", body, hot.name, cold.name,
+                     wake.name)
 
     def one_core(self) -> None:
         """Every realtime fleet pinned to one of the two cores (what a machine half as fast

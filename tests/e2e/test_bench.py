@@ -56,6 +56,7 @@ EXPECTED = {
     *(f"budget.paper_1khz.{w}_cpu_us" for w in ("agent_max", "plant", "leader", "launcher")),
     "budget.paper_1khz.agent_max.part.law_us",
     "budget.paper_1khz.agent_max.part.wake_and_the_rest_us",
+    "budget.floor.agent_pieces_hot_us", "budget.floor.agent_pieces_cold_us", "budget.floor.wake_us",
     "onecore.paper_1khz_passed", "onecore.paper_1khz_unsettled_robots",
     *(f"onecore.can_odrive_cansimple_200hz_{w}" for w in (
         "pass", "steps_not_simulated", "jitter_p99_ms", "deadline_misses", "settling_max_s")),
@@ -104,6 +105,10 @@ def test_quick_bench_writes_every_figure(tmp_path):
            for w in ("plant", "agent_max", "leader", "launcher", "all")}
     assert all(v > 0 for v in cpu.values()), cpu  # every process reported its CPU
     assert cpu["all"] >= cpu["plant"] + cpu["agent_max"] + cpu["leader"] + cpu["launcher"]
+    # the floor's cold round is the hot one plus a wake: never cheaper
+    floor = {w: figures[f"budget.floor.{w}"]["median"] for w in
+             ("agent_pieces_hot_us", "agent_pieces_cold_us", "wake_us")}
+    assert floor["agent_pieces_cold_us"] > floor["agent_pieces_hot_us"] > 0 < floor["wake_us"]
     table = (tmp_path / "bench.md").read_text()
     assert table == markdown(report)
     assert all(name in table for name in EXPECTED)
