@@ -25,22 +25,10 @@ from agents.formation import ScaleChange
 from agents.fusion import DEFAULT_PRIORITY
 from agents.law_kernel import Law
 from agents.safety_filter import SafetyResult
+from agents.share import Share
 from agents.signals import Vec3, Vec4
 from plant.bodies import Body, body_rows
 from plant.mecanum import MecanumModel
-
-
-@dataclass(frozen=True)
-class Share:
-    """What agent j sends to the agents that listen to it (a_ij != 0)."""
-
-    q0_hat: Vec3
-    v0_hat: Vec3
-    q: Vec3
-    q_dot: Vec3
-    zeta: Vec3
-    zeta_dot: Vec3
-    info_age_s: float = 0.0  # how old the sender's leader information is (degradation.py)
 
 
 @dataclass(frozen=True)

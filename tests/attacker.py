@@ -45,7 +45,7 @@ from deploy.contract.wire import (
     NodeReport,
     Reply,
     Sample,
-    ShareData,
+    Share,
     StateLog,
     StateRow,
     Telemetry,
@@ -173,7 +173,7 @@ class Attacker:
             plan_steps: int = 0, as_: str | None = None, q0_hat=ZERO3) -> Reply:
         """A well-formed command (and share: ``q0_hat``, its leader estimate) of
         ``robot``'s agent for step ``k``."""
-        share = ShareData(q0_hat, ZERO3, ZERO3, ZERO3, ZERO3, ZERO3)
+        share = Share(q0_hat, ZERO3, ZERO3, ZERO3, ZERO3, ZERO3)
         u = (torque,) * 4
         m = Reply(WIRE_VERSION, robot, seq, time.monotonic_ns(), robot=robot, k=k, t=0.0,
                   torques=u, v_cmd=ZERO3, state_seq=0, state_stamp_ns=0, share=share,

@@ -30,7 +30,7 @@ from deploy.contract.wire import (  # noqa: E402
     Control,
     Keys,
     Reply,
-    ShareData,
+    Share,
     agent_role,
     encode,
 )
@@ -45,7 +45,7 @@ def forgeries(ring: Keyring, keys: Keys, victim: int, k: int) -> list[bytes]:
     key = keys.cmd(victim)
     body = encode(Reply(WIRE_VERSION, victim, k, 0, robot=victim, k=k, t=0.0,
                         torques=(-2.0,) * 4, v_cmd=Z, state_seq=k, state_stamp_ns=0,
-                        share=ShareData((50.0, 50.0, 0.0), Z, Z, Z, Z, Z)))
+                        share=Share((50.0, 50.0, 0.0), Z, Z, Z, Z, Z)))
     claimed = agent_role(victim)
     tags = [(mac.hint(receiver), mac.prefixed(ring._pair[held], key, claimed, receiver))
             for receiver in ("plant", f"bridge-{victim}") for held in ring._pair]

@@ -32,6 +32,7 @@ import msgspec
 import numpy as np
 
 from agents.degradation import MAX_COMMAND_HORIZON
+from agents.share import FLOAT_LIMIT, Finite, Share
 
 # 2: Sample, Reply, batched LeaderState/Telemetry, StateLog; 3: safety in Telemetry; 4: no MAC
 # fields in Control and NodeReport (every message of a keyed node is authenticated by its
@@ -52,12 +53,10 @@ MAX_REPORT_KEYS = 1024  # entries of a report's per-key and per-reason tables
 # and the tables (3 x 1024 entries of < 100 B) stay under it
 MAX_REPORT_BYTES = 5 * 1024 * 1024
 
-# Every float on the wire is finite and far from the float limit (no physical quantity here
-# comes near 1e300): msgspec checks the bound as it decodes, in C, and NaN fails it too. A
-# sender checks its own message the same way before it puts it (Node.publish): a NaN never
-# leaves, one schema says what is valid.
-FLOAT_LIMIT = 1e300
-Finite = Annotated[float, msgspec.Meta(ge=-FLOAT_LIMIT, le=FLOAT_LIMIT)]
+# Every float on the wire is finite and far from the float limit (FLOAT_LIMIT, with the
+# share's type in agents/share.py): msgspec checks the bound as it decodes, in C, and NaN
+# fails it too. A sender checks its own message the same way before it puts it
+# (Node.publish): a NaN never leaves, one schema says what is valid.
 Vec2 = tuple[Finite, Finite]
 Vec3 = tuple[Finite, Finite, Finite]
 Vec4 = tuple[Finite, Finite, Finite, Finite]
@@ -154,16 +153,9 @@ class Sample(Message, frozen=True):
     own_torques: bool = True
 
 
-class ShareData(msgspec.Struct, array_like=True, frozen=True, gc=False):
-    """What agent i tells the agents that listen to it (eqs. 14, 16)."""
-
-    q0_hat: Vec3
-    v0_hat: Vec3
-    q: Vec3
-    q_dot: Vec3
-    zeta: Vec3
-    zeta_dot: Vec3
-    info_age_s: Finite = 0.0  # how old the sender's leader information is (s)
+# the share's one type is the law's (agents/share.py); ShareData, its name here before
+# the two were one, still names it
+ShareData = Share
 
 
 class Reply(Message, frozen=True):
@@ -180,7 +172,7 @@ class Reply(Message, frozen=True):
     v_cmd: Vec3  # fused velocity command (a kinematic plant uses this)
     state_seq: int  # seq of the Sample this command answers
     state_stamp_ns: int  # its stamp_ns, echoed: latency measured on the plant's clock
-    share: ShareData
+    share: Share
     # torques predicted for steps k+1, k+2, ...: played if their own command is lost
     # (agents/look_ahead.py); at most MAX_COMMAND_HORIZON entries
     plan: Annotated[list[Vec4], msgspec.Meta(max_length=MAX_COMMAND_HORIZON)] = []

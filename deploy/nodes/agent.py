@@ -41,7 +41,6 @@ from deploy.contract.wire import (
     LeaderState,
     Reply,
     Sample,
-    ShareData,
     Telemetry,
     TelemetryRow,
     Vec3,
@@ -91,12 +90,6 @@ class LeaderPoint(NamedTuple):
 def leader_points(m: LeaderState, dt: float) -> list[LeaderPoint]:
     return [LeaderPoint(m.k + i, m.t + i * dt, q, qd)
             for i, (q, qd) in enumerate(zip(m.q, m.q_dot, strict=True))]
-
-
-def share_from_msg(m: Reply) -> ShareData:
-    """The share as the core takes it: the wire's :class:`ShareData` as it is (it has
-    every field of :class:`agents.core.Share`, as float tuples; the core reads fields)."""
-    return m.share
 
 
 def step_input(by_step: dict[int, Any], k: int) -> tuple[Any, int]:
@@ -195,7 +188,7 @@ class AgentNode:
         self.neighbours = [j for j, _ in self.core.cfg.neighbours]
         self.hears_leader = self.core.cfg.leader_weight != 0.0
         self.inputs = AgentInputs.empty()
-        self.last_shares: dict[int, Share | ShareData] = {}
+        self.last_shares: dict[int, Share | Share] = {}
         self.faults = FaultModel(faults, sc.dt)
         self.links: AgentLinks = AgentLinks(self.faults, robot_id, self.neighbours,
                                             self.hears_leader)
@@ -352,9 +345,10 @@ class AgentNode:
         rid = self.rid
         torques = (0.0, 0.0, 0.0, 0.0) if out is None else out.torques
         v_cmd = (0.0, 0.0, 0.0) if out is None else out.v_cmd
-        # the core's share holds float tuples (the initial one may hold arrays: _t3)
-        share = ShareData(_t3(s.q0_hat), _t3(s.v0_hat), _t3(s.q), _t3(s.q_dot), _t3(s.zeta),
-                          _t3(s.zeta_dot), s.info_age_s)
+        # the compiled law's share holds float tuples; the initial one, and a Python law's,
+        # may hold arrays or numpy floats (_t3): the wire's are float tuples
+        share = Share(_t3(s.q0_hat), _t3(s.v0_hat), _t3(s.q), _t3(s.q_dot), _t3(s.zeta),
+                      _t3(s.zeta_dot), s.info_age_s)
         self.clock.answer(k, time.monotonic())  # lockstep: the plant can be one step past it
         self.node.publish(self.node.keys.cmd(rid), lambda seq, stamp: Reply(
             WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, t=t, torques=torques, v_cmd=v_cmd,
@@ -492,7 +486,7 @@ class AgentNode:
             counters.late += missing
             for j, msg in shares.items():
                 if msg is not None:
-                    self.last_shares[j] = share_from_msg(msg)
+                    self.last_shares[j] = msg.share
             if not heard_all:
                 unheard = [j for j in neighbours if j not in self.last_shares]
                 if unheard:  # never heard from a neighbour: cannot compute eq. (16)
@@ -616,7 +610,7 @@ class AgentNode:
                 self.clock.t0_s = t0_mono
                 rejoining = True
             for j, msg in share_msgs.items():
-                self.last_shares[j] = share_from_msg(msg)
+                self.last_shares[j] = msg.share
             cap = pace.speed_cap()
             if cap < 1.0:  # the loop cannot keep its period: slow the robot, say so
                 self.overloaded_steps += 1

@@ -25,7 +25,7 @@ from realtime_clock import MachineLoad, loop_missed, measured, once_more
 
 from bridges.odrive import CMD_SET_INPUT_TORQUE, OdriveCanSimple, SetInputTorque
 from deploy.contract.scenario import load_scenario
-from deploy.contract.wire import WIRE_VERSION, Codec, Keys, NodeReport, Reply, Sample, ShareData
+from deploy.contract.wire import WIRE_VERSION, Codec, Keys, NodeReport, Reply, Sample, Share
 from deploy.run.plan import free_tcp_port
 from deploy.runtime.transport import Node, zenoh_config
 
@@ -104,7 +104,7 @@ def _drive_once(sc, tmp_path) -> tuple[types.SimpleNamespace, MachineLoad, str |
                 node.publish(keys.cmd(1), lambda s, stamp, last=last: Reply(
                     WIRE_VERSION, 1, s, stamp, robot=1, k=last.k, t=last.t,
                     torques=(FORWARD_NM,) * 4, v_cmd=(0.0, 0.0, 0.0), state_seq=last.seq,
-                    state_stamp_ns=last.stamp_ns, share=ShareData(*[(0.0, 0.0, 0.0)] * 6)))
+                    state_stamp_ns=last.stamp_ns, share=Share(*[(0.0, 0.0, 0.0)] * 6)))
                 last_command_at = time.monotonic()
                 # a 100 Hz commander (pacing, not synchronisation); the states it hears
                 # are handled meanwhile, on this thread

@@ -32,7 +32,7 @@ from realtime_clock import MachineLoad, loop_missed, measured, once_more
 
 from bridges.cia402_driver import DEFAULT_EDS
 from deploy.contract.scenario import load_scenario
-from deploy.contract.wire import WIRE_VERSION, Codec, Keys, NodeReport, Reply, Sample, ShareData
+from deploy.contract.wire import WIRE_VERSION, Codec, Keys, NodeReport, Reply, Sample, Share
 from deploy.run.plan import free_tcp_port
 from deploy.runtime.transport import Node, zenoh_config
 
@@ -117,7 +117,7 @@ def _drive(node, keys, states, seconds: float, torque: float, until=lambda: Fals
         node.publish(keys.cmd(1), lambda s, stamp, last=last: Reply(
             WIRE_VERSION, 1, s, stamp, robot=1, k=last.k, t=last.t, torques=(torque,) * 4,
             v_cmd=(0.0, 0.0, 0.0), state_seq=last.seq, state_stamp_ns=last.stamp_ns,
-            share=ShareData(*[(0.0, 0.0, 0.0)] * 6)))
+            share=Share(*[(0.0, 0.0, 0.0)] * 6)))
         last_at = time.time()  # the wall clock, as the sniffer's kernel timestamps
         node.mailbox.wait_until(lambda: False, 0.01)
     return last_at

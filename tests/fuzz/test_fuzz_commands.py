@@ -29,7 +29,7 @@ from hypothesis import strategies as st
 from bridges.driver import DriverSettings, DriveState, WheelReport
 from bridges.odrive import OdriveCanSimple, OdriveDriver, SetInputTorque
 from deploy.contract.scenario import Scenario, load_scenario
-from deploy.contract.wire import WIRE_VERSION, Reply, ShareData, encode
+from deploy.contract.wire import WIRE_VERSION, Reply, Share, encode
 from deploy.nodes.bridge import BridgeNode
 from deploy.nodes.plant import PlantNode
 from deploy.runtime.node_runtime import StopFlag
@@ -150,7 +150,7 @@ def command(torques: tuple[float, ...], v_cmd: tuple[float, ...] = (0.0, 0.0, 0.
     zero = (0.0, 0.0, 0.0)
     return encode(Reply(WIRE_VERSION, 1, 0, 0, robot=1, k=0, t=0.0, torques=torques,
                         v_cmd=v_cmd, state_seq=0, state_stamp_ns=0,
-                        share=ShareData(zero, zero, zero, zero, zero, zero)))
+                        share=Share(zero, zero, zero, zero, zero, zero)))
 
 
 @pytest.mark.parametrize("name", SCENARIOS)
@@ -231,4 +231,4 @@ def reply(k: int, seq: int, torques: tuple[float, ...]) -> bytes:
     zero = (0.0, 0.0, 0.0)
     return encode(Reply(WIRE_VERSION, 1, seq, 0, robot=1, k=k, t=0.0, torques=torques,
                         v_cmd=zero, state_seq=0, state_stamp_ns=0,
-                        share=ShareData(zero, zero, zero, zero, zero, zero)))
+                        share=Share(zero, zero, zero, zero, zero, zero)))

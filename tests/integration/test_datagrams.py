@@ -18,7 +18,7 @@ from deploy.contract.wire import (
     Control,
     Keys,
     Reply,
-    ShareData,
+    Share,
     encode,
     run_roles,
 )
@@ -176,7 +176,7 @@ def _reply(robot: int) -> bytes:
     z = (0.0, 0.0, 0.0)
     return encode(Reply(WIRE_VERSION, robot, 1, 0, robot=robot, k=0, t=0.0,
                         torques=(1.0,) * 4, v_cmd=z, state_seq=0, state_stamp_ns=0,
-                        share=ShareData(z, z, z, z, z, z)))
+                        share=Share(z, z, z, z, z, z)))
 
 
 def test_a_node_sends_data_on_the_path_and_refuses_a_forgery_there_as_on_zenoh(run_dir):
@@ -206,7 +206,7 @@ def test_a_node_sends_data_on_the_path_and_refuses_a_forgery_there_as_on_zenoh(r
         msg = agent.publish(keys.cmd(1), lambda seq, stamp: Reply(
             WIRE_VERSION, 1, seq, stamp, robot=1, k=0, t=0.0, torques=(1.0,) * 4,
             v_cmd=(0.0,) * 3, state_seq=0, state_stamp_ns=0,
-            share=ShareData(*([(0.0,) * 3] * 6))))
+            share=Share(*([(0.0,) * 3] * 6))))
         assert msg is not None and keys.cmd(1) not in agent._pubs  # not a zenoh publisher
         forger = DatagramPath(run_dir, "forger", True)
         forger.refresh()

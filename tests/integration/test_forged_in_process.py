@@ -53,11 +53,11 @@ def _bridge(keyring=None):
 
 
 def _reply(k: int, seq: int, torque: float) -> bytes:
-    from deploy.contract.wire import Reply, ShareData
+    from deploy.contract.wire import Reply, Share
 
     z = (0.0, 0.0, 0.0)
     return encode(Reply(WIRE_VERSION, 2, seq, 0, robot=2, k=k, t=0.0, torques=(torque,) * 4,
-                        v_cmd=z, state_seq=0, state_stamp_ns=0, share=ShareData(z, z, z, z, z, z)))
+                        v_cmd=z, state_seq=0, state_stamp_ns=0, share=Share(z, z, z, z, z, z)))
 
 
 def test_a_bridge_e_stops_only_on_an_authenticated_estop():

@@ -128,7 +128,7 @@ def test_plant_node_plays_the_newest_plan_for_missing_steps(clock: str) -> None:
 
     from fuzz_fakes import FakeNode
 
-    from deploy.contract.wire import WIRE_VERSION, Reply, ShareData, encode
+    from deploy.contract.wire import WIRE_VERSION, Reply, Share, encode
     from deploy.nodes.plant import PlantNode
     from deploy.runtime.node_runtime import StopFlag
 
@@ -139,7 +139,7 @@ def test_plant_node_plays_the_newest_plan_for_missing_steps(clock: str) -> None:
     zero = (0.0, 0.0, 0.0)
     p.node.deliver(p.node.keys.cmd(1), encode(Reply(
         WIRE_VERSION, 1, 0, 0, robot=1, k=5, t=0.025, torques=own, v_cmd=zero,
-        state_seq=0, state_stamp_ns=0, share=ShareData(zero, zero, zero, zero, zero, zero),
+        state_seq=0, state_stamp_ns=0, share=Share(zero, zero, zero, zero, zero, zero),
         plan=plan)))
     applied, own_flags = [], []
     for k in range(5, 9):
@@ -196,7 +196,7 @@ def test_a_bridge_says_whether_the_robot_moved_on_its_agents_command() -> None:
 
 
 def _bridge_flags(b, sc) -> None:
-    from deploy.contract.wire import WIRE_VERSION, Reply, Sample, ShareData, encode
+    from deploy.contract.wire import WIRE_VERSION, Reply, Sample, Share, encode
 
     z = (0.0, 0.0, 0.0)
 
@@ -209,7 +209,7 @@ def _bridge_flags(b, sc) -> None:
     b.published_k = 4
     b.node.deliver(b.node.keys.cmd(2), encode(Reply(
         WIRE_VERSION, 2, 0, 0, robot=2, k=4, t=4 * sc.dt, torques=(0.1,) * 4, v_cmd=z,
-        state_seq=0, state_stamp_ns=0, share=ShareData(z, z, z, z, z, z))))
+        state_seq=0, state_stamp_ns=0, share=Share(z, z, z, z, z, z))))
     assert sample_after(5).own_torques  # the answer to sample 4 drove period 4 -> 5
     b.fallback_period = True  # no command in period 5 -> 6: its look-ahead played
     assert not sample_after(6).own_torques

@@ -28,7 +28,7 @@ from deploy.contract.wire import (
     LeaderState,
     Reply,
     Sample,
-    ShareData,
+    Share,
     encode,
     run_roles,
 )
@@ -56,7 +56,7 @@ def _rings(sc, master=None) -> dict[str, Keyring]:
 def _reply(robot: int, k: int, torque: float = -2.0, q0=Z) -> bytes:
     return encode(Reply(WIRE_VERSION, robot, k + 1, 0, robot=robot, k=k, t=0.0,
                         torques=(torque,) * 4, v_cmd=Z, state_seq=k, state_stamp_ns=0,
-                        share=ShareData(q0, Z, Z, Z, Z, Z)))
+                        share=Share(q0, Z, Z, Z, Z, Z)))
 
 
 def _sample(robot: int, k: int) -> bytes:
