@@ -155,25 +155,12 @@ def compute_metrics(
     else:
         settling = [settling_time(t, err[:, i], threshold) for i in range(n)]
     whole, after = formation_rms(t, series.q[:, :, :2], series.target, settling)
-    radii = np.full(n, s.robot.body_radius_m)
-    rr, _ = pair_clearances(series.q[:, :, :2], radii, np.zeros((0, 2)), np.zeros(0))
-    # discs, walls and polygons: the true geometry (plant/shapes.py, G2)
-    ro = sc.obstacle_gaps(series.q[:, :, :2]).reshape(len(t), -1)
+    rr, ro = _gaps(sc, series)
     heard = series.state_heard
-    if heard is not None:  # gaps only where the states were heard (not filled, never NaN)
-        iu, ju = np.triu_indices(n, 1)
-        rr = np.where(heard[:, iu] & heard[:, ju], rr, np.nan)
-        ro = np.where(np.repeat(heard, ro.shape[1] // n if n else 0, axis=1), ro, np.nan)
     sim_time = series.steps * sc.dt
-    lim = s.limits
     reach = formation_figures(series, sc.robot_ids, sc.dt, s.metrics.formation_threshold_m,
                               s.metrics.expect_unreached, s.metrics.expect_unreached_why)
-    for u in reach["formation_unreached"]:
-        if u["expected"]:  # a PASS beside a large formation error says why
-            notes.append(f"robot {u['robot']} is not at its formation position (" + (
-                "no state" if u["distance_end_m"] is None else
-                f"{u['distance_end_m']:.2f} m from it at the end") + f"), as the scenario "
-                f"expects: {u['why']}")
+    notes += _expected_unreached(reach["formation_unreached"])
     return {
         "scenario": s.name,
         "law": sc.law_name,  # the agents' control law (docs/laws.md)
@@ -210,17 +197,41 @@ def compute_metrics(
         "rms_torque_nm": _nan_aware(lambda x: np.sqrt(np.nanmean(x)), series.torque**2),
         "nonfinite_commands": int(series.nonfinite.sum()),
         "safety_filter": safety_figures(series, sc.dt),
-        "limits": {
-            "max_speed_mps": _finite_or_none(lim.max_speed_mps),
-            "max_yaw_rate_radps": _finite_or_none(lim.max_yaw_rate_radps),
-            "max_wheel_torque_nm": _finite_or_none(lim.max_wheel_torque_nm),
-            "max_accel_mps2": _finite_or_none(lim.max_accel_mps2),
-            "max_yaw_accel_radps2": _finite_or_none(lim.max_yaw_accel_radps2),
-            "max_tracking_error": _finite_or_none(lim.max_tracking_error),
-        },
+        "limits": {name: _finite_or_none(getattr(s.limits, name)) for name in LIMIT_FIGURES},
         "notes": notes,
         "messages": dict(messages or {"sent": 0, "dropped": 0, "late": 0, "invalid": 0}),
     }
+
+
+# the scenario's limits the metrics repeat (null where a limit is off: inf)
+LIMIT_FIGURES = ("max_speed_mps", "max_yaw_rate_radps", "max_wheel_torque_nm", "max_accel_mps2",
+                 "max_yaw_accel_radps2", "max_tracking_error")
+
+
+def _gaps(sc: Scenario, series: TimeSeries) -> tuple[np.ndarray, np.ndarray]:
+    """Surface-to-surface gaps per step: robot pairs (k, pairs) and robot-obstacle (k,
+    n * bodies), NaN where a robot's state was never heard (realtime: rows filled forward
+    are not gaps)."""
+    n, q_xy = sc.n, series.q[:, :, :2]
+    radii = np.full(n, sc.spec.robot.body_radius_m)
+    rr, _ = pair_clearances(q_xy, radii, np.zeros((0, 2)), np.zeros(0))
+    # discs, walls and polygons: the true geometry (plant/shapes.py, G2)
+    ro = sc.obstacle_gaps(q_xy).reshape(len(series.t), -1)
+    heard = series.state_heard
+    if heard is not None:  # gaps only where the states were heard (not filled, never NaN)
+        iu, ju = np.triu_indices(n, 1)
+        rr = np.where(heard[:, iu] & heard[:, ju], rr, np.nan)
+        ro = np.where(np.repeat(heard, ro.shape[1] // n if n else 0, axis=1), ro, np.nan)
+    return rr, ro
+
+
+def _expected_unreached(unreached: list[dict[str, Any]]) -> list[str]:
+    """A note for each robot the scenario expects away from its formation position: a
+    PASS beside a large formation error says why."""
+    return [f"robot {u['robot']} is not at its formation position (" + (
+        "no state" if u["distance_end_m"] is None else
+        f"{u['distance_end_m']:.2f} m from it at the end") + f"), as the scenario "
+        f"expects: {u['why']}" for u in unreached if u["expected"]]
 
 
 def safety_figures(series: TimeSeries, dt: float) -> dict[str, Any]:
