@@ -17,11 +17,16 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from deploy.contract.options import EXIT_BAD_INPUT, add_option
 from deploy.contract.output_paths import check_file
 from deploy.nodes.can_options import CanBusError, add_can_options, open_buses
 from deploy.runtime.priority import add_priority_argument, raise_priority
+
+if TYPE_CHECKING:  # imported when the command runs (the emulator's start stays light)
+    from bridges.fleet_emulator import FleetEmulator
 
 _SIGNAL_EXIT = {"SIGINT": 130, "SIGTERM": 143}
 PROG = "omnifleet emulate"
@@ -78,30 +83,16 @@ def run_emulate(args: argparse.Namespace) -> int:
     from bridges.drivers import entry
     from bridges.fleet_emulator import FleetEmulator
     from deploy.contract.scenario import ScenarioError, load_scenario
-    from deploy.nodes.can_options import DriverOptionError, driver_settings
 
     def bad(msg: str) -> int:
         print(f"{PROG}: {msg}", file=sys.stderr)
         return EXIT_BAD_INPUT
 
     robots: list[int] = list(args.robot)
-    if len(set(robots)) != len(robots):
-        return bad(f"--robot given twice for the same robot: {robots}")
-    if args.silent_after is not None and args.silent_node is None:
-        return bad("--silent-after needs --silent-node")
-    try:
-        node_ids = driver_settings(args).node_ids
-    except DriverOptionError as exc:
-        return bad(str(exc))
-    for flag, node in (("--silent-node", args.silent_node), ("--refuse-enable", args.refuse_enable)):
-        if node is not None and node not in node_ids:
-            return bad(f"{flag} {node} is not one of --node-ids {','.join(map(str, node_ids))}")
-    truths = [check_file(t, "--truth-out") for t in args.truth_out or []]  # exit 2 (cli.main)
-    if truths and len(truths) != len(robots):
-        return bad(f"give --truth-out once per --robot ({len(robots)}), or not at all")
-    for truth in truths:
-        if not truth.parent.is_dir():
-            return bad(f"--truth-out: no such directory {str(truth.parent)!r}")
+    checked = _checked_drives(args, robots)
+    if isinstance(checked, str):
+        return bad(checked)
+    node_ids, truths = checked
     try:
         sc = load_scenario(args.scenario)
         for r in robots:
@@ -143,13 +134,45 @@ def run_emulate(args: argparse.Namespace) -> int:
         if truths:
             fleet.save_truth(truths)
     reason = stop_reason[0] if stop_reason else "end"
+    _print_summary(fleet, reason)
+    return _SIGNAL_EXIT.get(reason, 0)
+
+
+def _checked_drives(args: argparse.Namespace, robots: list[int]
+                    ) -> tuple[tuple[int, ...], list[Path]] | str:
+    """The drives' node ids and the ground-truth files, or what is wrong with the options
+    that name robots and drives (--robot, --node-ids, --silent-*, --refuse-enable,
+    --truth-out)."""
+    from deploy.nodes.can_options import DriverOptionError, driver_settings
+
+    if len(set(robots)) != len(robots):
+        return f"--robot given twice for the same robot: {robots}"
+    if args.silent_after is not None and args.silent_node is None:
+        return "--silent-after needs --silent-node"
+    try:
+        node_ids = driver_settings(args).node_ids
+    except DriverOptionError as exc:
+        return str(exc)
+    for flag, node in (("--silent-node", args.silent_node), ("--refuse-enable", args.refuse_enable)):
+        if node is not None and node not in node_ids:
+            return f"{flag} {node} is not one of --node-ids {','.join(map(str, node_ids))}"
+    truths = [check_file(t, "--truth-out") for t in args.truth_out or []]  # exit 2 (cli.main)
+    if truths and len(truths) != len(robots):
+        return f"give --truth-out once per --robot ({len(robots)}), or not at all"
+    for truth in truths:
+        if not truth.parent.is_dir():
+            return f"--truth-out: no such directory {str(truth.parent)!r}"
+    return node_ids, truths
+
+
+def _print_summary(fleet: FleetEmulator, reason: str) -> None:
+    """Each robot's end (time, frame counters, drive states) and the physics' lag."""
     lag = fleet.lag_stats()
     for emu in fleet.emulators:
         print(f"{PROG}: robot {emu.robot_id}: t = {emu.t:.3f} s ({reason}); "
               f"{emu.counters.summary()}; drives {emu.describe_drives()}", file=sys.stderr)
     print(f"{PROG}: lag behind the wall clock p50 {lag['p50'] * 1e3:.1f} ms, p99 "
           f"{lag['p99'] * 1e3:.1f} ms, max {lag['max'] * 1e3:.1f} ms", file=sys.stderr)
-    return _SIGNAL_EXIT.get(reason, 0)
 
 
 def _install_signal_handlers(reasons: list[str]) -> dict:
