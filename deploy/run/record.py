@@ -134,7 +134,6 @@ def log_progress(every_s: float = 1.0):
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
-    from deploy.report.outputs import run_wall_clock, write_run
     from deploy.run.runner import terminal_progress
 
     sc: Scenario = run_scenario(args)
@@ -195,26 +194,12 @@ def _cmd_record(args: argparse.Namespace) -> int:
             recording.close()  # flushed, also when the run did not end
         if ros2 is not None:
             ros2.close()
-        if isinstance(exc, TimeoutError):
-            print(f"omnifleet record: {exc}", file=sys.stderr)
-            return 4
-        if isinstance(exc, Interrupted):
-            print(f"omnifleet record: interrupted ({exc.signal_name})", file=sys.stderr)
-            return 143 if exc.signal_name == "SIGTERM" else 130
-        raise
-    end_unix_ns = time.time_ns()
-    series = rec.observer.collector.series(realtime=args.clock == "realtime")
-    wall, messages = extra.pop("wall_time_s"), extra.pop("messages")
-    contact_log, total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
-    metrics = write_run(sc, series, Path(args.out), plant, args.clock, wall, messages, extra,
-                        figures=not args.no_figures, contact_log=contact_log,
-                        contacts_total=total, recorder=recording, steps_asked=opts.steps(sc),
-                        **run_wall_clock(end_unix_ns, wall, rec.observer.run_t0, series.steps,
-                                         args.clock == "lockstep"))
+        return _ended_early(exc)
+    metrics = _write_outputs(args, sc, plant, rec, opts, recording, extra)
     if ros2 is not None:
         ros2.close(metrics["verdict"])
         print(ros2.summary(), file=sys.stderr)
-    print(f"omnifleet record: {series.steps} steps written to {args.out} "
+    print(f"omnifleet record: {metrics['steps']} steps written to {args.out} "
           f"({', '.join(metrics['files'])})", file=sys.stderr)
     broken = (metrics.get("recording") or {}).get("error")
     if broken:
@@ -222,6 +207,35 @@ def _cmd_record(args: argparse.Namespace) -> int:
               f"{metrics['recording']['lost']} message(s) not recorded", file=sys.stderr)
         return 1
     return 0
+
+
+def _ended_early(exc: BaseException) -> int:
+    """The exit code of a recording that did not reach its end (its outputs are closed):
+    4 when the fleet never came, 130/143 on Ctrl-C/SIGTERM; anything else is raised."""
+    if isinstance(exc, TimeoutError):
+        print(f"omnifleet record: {exc}", file=sys.stderr)
+        return 4
+    if isinstance(exc, Interrupted):
+        print(f"omnifleet record: interrupted ({exc.signal_name})", file=sys.stderr)
+        return 143 if exc.signal_name == "SIGTERM" else 130
+    raise exc
+
+
+def _write_outputs(args: argparse.Namespace, sc: Scenario, plant: str, rec: Recorder,
+                   opts: LaunchOptions, recording: Any, extra: dict[str, Any]) -> dict[str, Any]:
+    """The run folder of what was heard (metrics, series, figures, the recording closed);
+    its metrics."""
+    from deploy.report.outputs import run_wall_clock, write_run
+
+    end_unix_ns = time.time_ns()
+    series = rec.observer.collector.series(realtime=args.clock == "realtime")
+    wall, messages = extra.pop("wall_time_s"), extra.pop("messages")
+    contact_log, total = extra.pop("contact_log", None), extra.pop("contacts_total", None)
+    return write_run(sc, series, Path(args.out), plant, args.clock, wall, messages, extra,
+                     figures=not args.no_figures, contact_log=contact_log,
+                     contacts_total=total, recorder=recording, steps_asked=opts.steps(sc),
+                     **run_wall_clock(end_unix_ns, wall, rec.observer.run_t0, series.steps,
+                                      args.clock == "lockstep"))
 
 
 def add_record_command(sub: argparse._SubParsersAction) -> None:
