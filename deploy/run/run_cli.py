@@ -403,24 +403,7 @@ def add_run_command(sub: argparse._SubParsersAction) -> None:
                      "process on its own clock at the scenario's rates (default: lockstep)")
     add_option(run, "--step-deadline")
     add_option(run, "--startup-timeout")
-    run.add_argument("--fleet", help="fleet name: keys are omr/<fleet>/... (default: the "
-                     "scenario's name; two runs on one machine never link: each has its own "
-                     "private endpoints)")
-    run.add_argument("--endpoint", metavar="ENDPOINT",
-                     help="zenoh endpoint the launcher listens on and the nodes connect to "
-                     "(default: a unix socket in the run's private directory)")
-    run.add_argument("--zenoh-transport", choices=("default", "lowlatency"),
-                     default="default",
-                     help="zenoh's unicast transport between the run's nodes: zenoh's default, "
-                     "or lowlatency (a put is written by the publishing thread: a hop ~20 %% "
-                     "faster here, but zenoh 1.10.2 lost 1 in 24 messages over 64 kB on it, "
-                     "e.g. a node's final report; docs/distributed.md) (default: default)")
-    run.add_argument("--data-path", choices=("datagram", "zenoh"), default="datagram",
-                     help="how the per-step data (samples, replies, leader, telemetry, state "
-                     "logs) travels between the run's processes: unix datagrams in the run's "
-                     "private directory, ~5x cheaper than a zenoh hop on one host, with "
-                     "control, liveliness and reports on zenoh; or all of it on zenoh, as "
-                     "across hosts (docs/distributed.md) (default: datagram)")
+    _add_transport_options(run)
     run.add_argument("--no-record", action="store_true",
                      help="do not write recording.mcap (the scene, plot signals and, for one "
                      "process per node, every wire message, in Foxglove's schemas; docs/foxglove.md)")
@@ -454,3 +437,26 @@ def add_run_command(sub: argparse._SubParsersAction) -> None:
                      "sqrt(2) T_p and ends at its formation position, no contact, nothing "
                      "non-finite, the whole run simulated and heard (docs/outputs.md)")
     run.set_defaults(func=cmd_run)
+
+
+def _add_transport_options(run: argparse.ArgumentParser) -> None:
+    """How the run's processes find and talk to each other: the fleet's name, the
+    launcher's endpoint, zenoh's transport and the per-step data's path."""
+    run.add_argument("--fleet", help="fleet name: keys are omr/<fleet>/... (default: the "
+                     "scenario's name; two runs on one machine never link: each has its own "
+                     "private endpoints)")
+    run.add_argument("--endpoint", metavar="ENDPOINT",
+                     help="zenoh endpoint the launcher listens on and the nodes connect to "
+                     "(default: a unix socket in the run's private directory)")
+    run.add_argument("--zenoh-transport", choices=("default", "lowlatency"),
+                     default="default",
+                     help="zenoh's unicast transport between the run's nodes: zenoh's default, "
+                     "or lowlatency (a put is written by the publishing thread: a hop ~20 %% "
+                     "faster here, but zenoh 1.10.2 lost 1 in 24 messages over 64 kB on it, "
+                     "e.g. a node's final report; docs/distributed.md) (default: default)")
+    run.add_argument("--data-path", choices=("datagram", "zenoh"), default="datagram",
+                     help="how the per-step data (samples, replies, leader, telemetry, state "
+                     "logs) travels between the run's processes: unix datagrams in the run's "
+                     "private directory, ~5x cheaper than a zenoh hop on one host, with "
+                     "control, liveliness and reports on zenoh; or all of it on zenoh, as "
+                     "across hosts (docs/distributed.md) (default: datagram)")
