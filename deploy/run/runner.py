@@ -172,16 +172,9 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
             if fault_free:  # each robot's own command of step k, in one assignment each
                 torques[:] = [commands_k[rid][0] for rid in ids]
                 v_cmd[:] = [commands_k[rid][1] for rid in ids]
-            for i, rid in enumerate(() if fault_free else ids):
-                cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get(idx, {}).get(rid))
-                own_torques[i] = cmd is not None and age == 0
-                if cmd is None:
-                    continue
-                planned = torques_at(k - age, cmd[0], cmd[2], k, "zero" if zero_missed else "hold")
-                if planned is None:  # "zero": past the newest command's plan
-                    torques[i], v_cmd[i] = 0.0, 0.0
-                else:  # its own command, its look-ahead for step k, or held past it
-                    torques[i], v_cmd[i] = planned, cmd[1]
+            else:
+                _commands_through_links(k, ids, command_links, commands, zero_missed,
+                                        own_torques, torques, v_cmd)
             plant.step(t, dt, torques, v_cmd)
             leader.advance()
             for by_step in (worlds, leaders, shares, commands):
@@ -199,6 +192,26 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     return RunResult(sc, plant_kind, series, wall, contact_log(plant), model.report()
                      if model.plan is not None else None, step_unix_ns, law_resets, interrupted,
                      clipped, faults)
+
+
+def _commands_through_links(k: int, ids: list[int], command_links: list[HeldInput],
+                            commands: dict[int, dict[int, tuple]], zero_missed: bool,
+                            own_torques: list[bool], torques: np.ndarray,
+                            v_cmd: np.ndarray) -> None:
+    """With a fault plan: the torques and velocity each robot acts on at step k, from
+    the command its link delivers (its own of step k, an older one with its look-ahead,
+    or none: held, or zero past the plan with ``missed_command = "zero"``); and whether
+    they are the agent's own command of step k (``own_torques``, the next sample's)."""
+    for i, rid in enumerate(ids):
+        cmd, age = command_links[i].take(k, lambda idx, rid=rid: commands.get(idx, {}).get(rid))
+        own_torques[i] = cmd is not None and age == 0
+        if cmd is None:
+            continue
+        planned = torques_at(k - age, cmd[0], cmd[2], k, "zero" if zero_missed else "hold")
+        if planned is None:  # "zero": past the newest command's plan
+            torques[i], v_cmd[i] = 0.0, 0.0
+        else:  # its own command, its look-ahead for step k, or held past it
+            torques[i], v_cmd[i] = planned, cmd[1]
 
 
 def terminal_progress(total_label: str) -> Callable[[int, int], None] | None:
