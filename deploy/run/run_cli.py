@@ -305,16 +305,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         live.follow(heard.ts, collector_rows(heard, args.clock == "realtime"))
     progress = run_progress(label)
     if ros2 is not None:
-        from deploy.report.live_view import collector_rows
-
-        heard = launcher.observer.collector
-        ros2.bind_observer(launcher.observer)
-        ros2.processes = lambda: {c.role: process_state(c) for c in launcher.supervisor.children
-                                  if c.proc is not None}
-        ros2.follow(heard.ts, collector_rows(heard, args.clock == "realtime"), driven=True)
-        from deploy.ros2.gateway import polling
-
-        progress = polling(progress, ros2)
+        progress = _driven_gateway(ros2, launcher, args.clock == "realtime", progress)
     started = time.perf_counter()
     try:
         extra = launcher.run(progress)
@@ -343,19 +334,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     if args.clock == "realtime":
         extra["series_cells_filled"] = launcher.observer.collector.filled
     if launcher.truth_files and launcher.observer.t0_mono is not None:
-        from deploy.report.odometry_drift import odometry_drift
-
-        extra["odometry_drift"] = odometry_drift(
-            series, sc.robot_ids, launcher.truth_files, launcher.observer.t0_mono,
-            launcher.observer.collector.have_state, [sc.bridge_phase_s(r) for r in sc.robot_ids])
-        extra["emulator_lag_ms"] = emulator_lag_ms(launcher.truth_files)
-        extra["driver"] = opts.driver  # the drives' protocol on every robot's bus
-        c = launcher.observer.collector
-        got = c.have_state.sum(axis=0)
-        extra["bridge_faulted_fraction"] = [
-            float(f) / g if g else None for f, g in zip(c.faulted.sum(axis=0), got, strict=True)]
-        if "faults" in extra:
-            extra["faults"]["can"] = can_fault_counts(launcher.truth_files)
+        extra.update(_emulated_can_figures(sc, series, launcher, extra.get("faults")))
     # an agent counts every non-finite command it computed; the series only the rows its
     # telemetry carried (realtime decimates them): the larger of the two
     reported = [x for x in extra.get("nonfinite_commands_reported", []) if x is not None]
@@ -370,6 +349,42 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
                      steps_asked=opts.steps(sc), drawing=drawing,
                      **run_wall_clock(end_unix_ns, wall, launcher.observer.run_t0, series.steps,
                                       args.clock == "lockstep"))
+
+
+def _driven_gateway(ros2, launcher, realtime: bool, progress):
+    """The ROS 2 gateway fed by the launcher's observer and driven by its loop (no wake
+    of its own: docs/ros2.md); the progress callback that also drives it."""
+    from deploy.report.live_view import collector_rows
+    from deploy.ros2.gateway import polling
+
+    heard = launcher.observer.collector
+    ros2.bind_observer(launcher.observer)
+    ros2.processes = lambda: {c.role: process_state(c) for c in launcher.supervisor.children
+                              if c.proc is not None}
+    ros2.follow(heard.ts, collector_rows(heard, realtime), driven=True)
+    return polling(progress, ros2)
+
+
+def _emulated_can_figures(sc, series, launcher, faults: dict | None) -> dict:
+    """A run on emulated CAN: the bridges' odometry against the emulators' ground truth,
+    the emulators' lag, the drives' protocol, the share of states a bridge reported
+    faulted, and (with a fault plan) the CAN frames the emulators dropped or corrupted
+    (into ``faults``)."""
+    from deploy.report.odometry_drift import odometry_drift
+
+    c, truth = launcher.observer.collector, launcher.truth_files
+    got = c.have_state.sum(axis=0)
+    if faults is not None:
+        faults["can"] = can_fault_counts(truth)
+    return {
+        "odometry_drift": odometry_drift(
+            series, sc.robot_ids, truth, launcher.observer.t0_mono, c.have_state,
+            [sc.bridge_phase_s(r) for r in sc.robot_ids]),
+        "emulator_lag_ms": emulator_lag_ms(truth),
+        "driver": launcher.opts.driver,  # the drives' protocol on every robot's bus
+        "bridge_faulted_fraction": [float(f) / g if g else None
+                                    for f, g in zip(c.faulted.sum(axis=0), got, strict=True)],
+    }
 
 
 def add_run_command(sub: argparse._SubParsersAction) -> None:
