@@ -270,17 +270,10 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
     import time
 
     from deploy.report.outputs import run_wall_clock, write_run
-    from deploy.report.recorder import McapRecorder
     from deploy.run.launcher import Interrupted, Launcher, LaunchOptions, RunFailed
     from deploy.run.runner import run_progress
 
-    recorder = None
-    if not args.no_record:  # ours, so that the scene joins it at the end (LaunchOptions.recorder)
-        out.mkdir(parents=True, exist_ok=True)
-        recorder = McapRecorder(out / RECORDING,
-                                sim_dt=sc.dt if args.clock == "lockstep" else None)
-        if bag is not None:
-            recorder.with_scene.append(bag)
+    recorder = None if args.no_record else _recorder(sc, args.clock, out, bag)
     opts = LaunchOptions(
         scenario_arg=args.scenario, plant=plant, clock=args.clock, out=out,
         duration_s=args.duration, control_rate_hz=args.control_rate,
@@ -349,6 +342,18 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
                      steps_asked=opts.steps(sc), drawing=drawing,
                      **run_wall_clock(end_unix_ns, wall, launcher.observer.run_t0, series.steps,
                                       args.clock == "lockstep"))
+
+
+def _recorder(sc, clock: str, out: Path, bag=None):
+    """recording.mcap, ours, so that the scene joins it at the end (LaunchOptions.recorder),
+    and a ROS 2 bag's channels with the scene when ``bag`` is given."""
+    from deploy.report.recorder import McapRecorder
+
+    out.mkdir(parents=True, exist_ok=True)
+    recorder = McapRecorder(out / RECORDING, sim_dt=sc.dt if clock == "lockstep" else None)
+    if bag is not None:
+        recorder.with_scene.append(bag)
+    return recorder
 
 
 def _driven_gateway(ros2, launcher, realtime: bool, progress):
