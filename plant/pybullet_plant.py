@@ -316,6 +316,30 @@ class PybulletPlant:
         self._h: float | None = None
         self._wheel_torques = np.empty((n, 4))  # u + h_d of another disturbance than the scenario's
 
+        self._connect(gui)
+        radii = self.robot_radii + [o.radius for o in self.obstacles]
+        self._height = HEIGHT_PER_RADIUS * max([MIN_COLLISION_RADIUS_M, *radii])
+        self._cylinders: dict[float, int] = {}  # radius -> its collision shape
+        self._build_robots(robots_per_body)
+        self._build_obstacles()
+        self._shape_ids = [self._prism(poly, gui) for poly in self.shapes]
+        # the world as discs, for the kernel to skip the contact query of a sub-step that
+        # starts with every robot clear of every body; a world with prisms: none (it asks)
+        self._discs: tuple = () if self.shapes else (
+            np.array(self.robot_radii, dtype=float),
+            np.array([[*(float(v) for v in o.position), r]
+                      for o, r in zip(self.obstacles, self._collision_radius, strict=True)],
+                     dtype=float).reshape(-1, 3))
+
+        # Bullet's (body id, link index) -> scenario ident (robot id, or obstacle ident)
+        self._ident = dict(zip(self._chassis, self.robot_ids, strict=True))
+        for bodies, named in ((self._obstacle_ids, self.obstacles), (self._shape_ids, self.shapes)):
+            self._ident.update({(b, -1): o.ident for b, o in zip(bodies, named, strict=True)})
+        self._ongoing: dict[tuple[int, int], int] = {}  # pair -> index in self.contacts
+
+    def _connect(self, gui: bool) -> None:
+        """A physics server of this plant's own (a window with ``gui``), without gravity
+        (the model is planar), and the pybullet calls the kernel's step loop makes."""
         if gui and not os.environ.get("DISPLAY"):
             # pybullet's GUI would end the whole process on a failed X connection
             raise GuiUnavailable("--gui needs a display, and DISPLAY is not set")
@@ -336,23 +360,24 @@ class PybulletPlant:
         pb.setPhysicsEngineParameter(numSubSteps=1, deterministicOverlappingPairs=1,
                                      physicsClientId=cid)
 
-        radii = self.robot_radii + [o.radius for o in self.obstacles]
-        self._height = HEIGHT_PER_RADIUS * max([MIN_COLLISION_RADIUS_M, *radii])
-        shapes: dict[float, int] = {}
+    def _cylinder(self, radius: float) -> int:
+        """The collision shape of a cylinder of ``radius`` (one per radius)."""
+        if radius not in self._cylinders:
+            self._cylinders[radius] = pb.createCollisionShape(
+                pb.GEOM_CYLINDER, radius=radius, height=self._height, physicsClientId=self._cid)
+        return self._cylinders[radius]
 
-        def shape(radius: float) -> int:
-            if radius not in shapes:
-                shapes[radius] = pb.createCollisionShape(
-                    pb.GEOM_CYLINDER, radius=radius, height=self._height, physicsClientId=cid)
-            return shapes[radius]
+    def _visual(self, radius: float, rgba: list[float]) -> int:
+        """Its look in the window (-1: none without one)."""
+        if not self._gui:
+            return -1
+        return pb.createVisualShape(pb.GEOM_CYLINDER, radius=radius, length=self._height,
+                                    rgbaColor=rgba, physicsClientId=self._cid)
 
-        def visual(radius: float, rgba: list[float]) -> int:
-            if not gui:
-                return -1
-            return pb.createVisualShape(pb.GEOM_CYLINDER, radius=radius, length=self._height,
-                                        rgbaColor=rgba, physicsClientId=cid)
-
-        # robots in bodies of near-equal size, in order: robot k is (body, its chassis link)
+    def _build_robots(self, robots_per_body: int) -> None:
+        """The robots in bodies of near-equal size, in order: robot k is (body, its chassis
+        link) in ``_chassis``; per body, its joints and its slice of the flat force list."""
+        n = len(self.models)
         count = -(-n // robots_per_body)
         sizes = [n // count + (g < n % count) for g in range(count)]
         self._chassis: list[tuple[int, int]] = []
@@ -361,39 +386,28 @@ class PybulletPlant:
         first = 0
         for size in sizes:
             robots = range(first, first + size)
-            body = self._robot_body([shape(self.robot_radii[k]) for k in robots],
-                                    [visual(self.robot_radii[k], [0.2, 0.4, 0.9, 1.0]) for k in robots],
-                                    robots)
+            body = self._robot_body([self._cylinder(self.robot_radii[k]) for k in robots],
+                                    [self._visual(self.robot_radii[k], [0.2, 0.4, 0.9, 1.0])
+                                     for k in robots], robots)
             self._chassis += [(body, LINKS_PER_ROBOT * j + CHASSIS_LINK) for j in range(size)]
             self._bodies.append((body, list(range(LINKS_PER_ROBOT * size)), LINKS_PER_ROBOT * first,
                                  LINKS_PER_ROBOT * (first + size)))
             first += size
 
+    def _build_obstacles(self) -> None:
+        """Each disc obstacle a fixed cylinder (a point obstacle at least
+        MIN_COLLISION_RADIUS_M wide)."""
         self._obstacle_ids: list[int] = []
         self._collision_radius: list[float] = []
         for o in self.obstacles:
             r = max(float(o.radius), MIN_COLLISION_RADIUS_M)
             x, y = (float(v) for v in o.position)
             self._obstacle_ids.append(pb.createMultiBody(
-                baseMass=0.0, baseCollisionShapeIndex=shape(r),
-                baseVisualShapeIndex=visual(r, [0.8, 0.3, 0.2, 1.0]),
-                basePosition=[x, y, 0.0], physicsClientId=cid,
+                baseMass=0.0, baseCollisionShapeIndex=self._cylinder(r),
+                baseVisualShapeIndex=self._visual(r, [0.8, 0.3, 0.2, 1.0]),
+                basePosition=[x, y, 0.0], physicsClientId=self._cid,
             ))
             self._collision_radius.append(r)
-        self._shape_ids = [self._prism(poly, gui) for poly in self.shapes]
-        # the world as discs, for the kernel to skip the contact query of a sub-step that
-        # starts with every robot clear of every body; a world with prisms: none (it asks)
-        self._discs: tuple = () if self.shapes else (
-            np.array(self.robot_radii, dtype=float),
-            np.array([[*(float(v) for v in o.position), r]
-                      for o, r in zip(self.obstacles, self._collision_radius, strict=True)],
-                     dtype=float).reshape(-1, 3))
-
-        # Bullet's (body id, link index) -> scenario ident (robot id, or obstacle ident)
-        self._ident = dict(zip(self._chassis, self.robot_ids, strict=True))
-        for bodies, named in ((self._obstacle_ids, self.obstacles), (self._shape_ids, self.shapes)):
-            self._ident.update({(b, -1): o.ident for b, o in zip(bodies, named, strict=True)})
-        self._ongoing: dict[tuple[int, int], int] = {}  # pair -> index in self.contacts
 
     def _robot_body(self, shapes: list[int], visuals: list[int], robots: range) -> int:
         """One multibody holding ``robots`` (indices into the fleet), each a planar chain
