@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -526,11 +527,7 @@ class AgentNode:
         the wheel torques' second difference was 10-100x lockstep's (docs/bench-history.md)."""
         steps = self.sc.steps if steps is None else steps
         inp, box, dt = self.inputs, self.node.mailbox, self.sc.dt
-        # telemetry is for people and the recorder: at most telemetry_hz, so the
-        # control traffic keeps the CPU (the run's series fill the gaps forward)
-        self.telemetry_every = max(1, round(1.0 / (dt * telemetry_hz)))
-        self.telemetry_batch = max(1, min(TELEMETRY_BATCH_MAX,
-                                          round(TELEMETRY_BATCH_S * telemetry_hz)))
+        self._realtime_telemetry(telemetry_hz)
         # woken by its robot's sample only: the leader's batches and the neighbours'
         # shares wait in their sockets until then (deploy/runtime/datagrams.py)
         self.node.wake_on([self.node.keys.sample(self.rid)])
@@ -549,30 +546,13 @@ class AgentNode:
             return stop() or (inp.newest_state is not None and inp.newest_state.k > last_k)
 
         while not stop():
-            if not box.wait_until(has_new_sample, 1.5 * dt, ready_first=True):
-                if stop():
-                    break
-                # no new state for 1.5 periods: stepping again on the old one would
-                # integrate the observer on stale data; wait (the plant zeroes our
-                # torques after its command timeout) and count the miss
-                if inp.newest_state is not None and last_k < steps - 1:
-                    # (none before the first sample; after the run's last only `end`)
-                    self.timing.deadline_misses += 1
-                continue
-            if stop():
-                break
+            if not self._await_sample(has_new_sample, last_k, steps) or stop():
+                continue  # (a stop ends the loop)
             box.drain()  # what came meanwhile without waking us: shares, the leader
             now = monotonic()
-            with box.lock:
-                state = inp.newest_state
-                if state is None:
-                    continue
-                inp.states.clear()
-                leader, leader_k = step_input(inp.leaders, state.k)
-                for j in self.neighbours:  # the share of step k - 1, else the newest before
-                    m, _ = step_input(inp.shares_of[j], state.k - 1)
-                    if m is not None:
-                        share_msgs[j] = m
+            state, leader, leader_k = self._step_inputs(share_msgs)
+            if state is None:
+                continue
             if synced and (now - t0_mono) - state.t > stale_after:
                 # a sample older than the inputs stay fresh, by our clock: the backlog
                 # of a process that was off the CPU (SIGSTOP, a starved host). Answering
@@ -594,15 +574,9 @@ class AgentNode:
             if any(j not in share_msgs for j in self.neighbours):
                 continue
             ages = step_ages(state.k, leader_k, share_msgs, dt)
-            if synced and h > stale_after:
-                # this process was off the CPU (paused, starved) longer than its inputs
-                # stay fresh: the plant has zeroed the robot meanwhile. Integrating the
-                # observer, the estimator and the reference across the gap left a
-                # paused lab agent 5 cm off for good (SIGSTOP 2 s): start them again from
-                # where the robot and the leader are now, as a restarted agent does
-                if self._resync(state, leader, share_msgs, ages):
-                    self.law_resets += 1
-                    h = dt
+            if synced and h > stale_after and self._restart_after_gap(state, leader,
+                                                                      share_msgs, ages):
+                h = dt
             if not synced:
                 if not self._resync(state, leader, share_msgs, ages):
                     continue
@@ -613,12 +587,7 @@ class AgentNode:
                 self.last_shares[j] = msg.share
             cap = pace.speed_cap()
             if cap < 1.0:  # the loop cannot keep its period: slow the robot, say so
-                self.overloaded_steps += 1
-                if self.overloaded_steps == 1:
-                    print(f"{self.node.role}: the loop cannot keep its period ({dt * 1e3:.2f} ms;"
-                          f" {pace.typical_s * 1e3:.2f} ms between steps, the median): the robot is slowed"
-                          f" to {cap:.0%} of its speed while it lasts (counted: overloaded_steps)",
-                          file=sys.stderr, flush=True)
+                self._note_overloaded(pace, cap)
             # the law's time is the sample's (as in lockstep); how late we answer it is
             # the horizon's (agents/pace.py)
             # fresh inputs, as a fault-free lockstep step has them: no ages at all (the
@@ -629,11 +598,75 @@ class AgentNode:
             self.steps_done += 1
             if rejoining:  # the first command of a restarted agent: how long it took
                 rejoining = False
-                age = process_age_s()
-                if age is not None:
-                    self.rejoin_s = age
-                    print(f"{self.node.role}: first command {age:.3f} s after its process "
-                          "started", file=sys.stderr, flush=True)
+                self._note_rejoined()
+
+    def _await_sample(self, has_new_sample: Callable[[], bool], last_k: int,
+                      steps: int) -> bool:
+        """Realtime: wait at most 1.5 periods for a new sample (True: it came, or a stop).
+        None came: stepping again on the old one would integrate the observer on stale
+        data; the agent waits (the plant zeroes its torques after its command timeout)
+        and counts the miss (none before the first sample; after the run's last step,
+        only ``end`` comes)."""
+        if self.node.mailbox.wait_until(has_new_sample, 1.5 * self.sc.dt, ready_first=True):
+            return True
+        if not self.stop() and self.inputs.newest_state is not None and last_k < steps - 1:
+            self.timing.deadline_misses += 1
+        return False
+
+    def _restart_after_gap(self, state: Sample, leader: LeaderPoint | None,
+                           shares: dict[int, Reply], ages: InputAges) -> bool:
+        """This process was off the CPU (paused, starved) longer than its inputs stay
+        fresh: the plant has zeroed the robot meanwhile. Integrating the observer, the
+        estimator and the reference across the gap left a paused lab agent 5 cm off for
+        good (SIGSTOP 2 s): they start again from where the robot and the leader are now,
+        as a restarted agent's do (counted as a law reset). Whether they did."""
+        if not self._resync(state, leader, shares, ages):
+            return False
+        self.law_resets += 1
+        return True
+
+    def _step_inputs(self, share_msgs: dict[int, Reply]
+                     ) -> tuple[Sample | None, LeaderPoint | None, int]:
+        """Realtime: the newest sample (None: none yet), the leader at its step and its
+        step, and into ``share_msgs`` each neighbour's share of the step before (else the
+        newest before it); the tables the handlers fill are cleared as they are taken."""
+        inp = self.inputs
+        with self.node.mailbox.lock:
+            state = inp.newest_state
+            if state is None:
+                return None, None, -1
+            inp.states.clear()
+            leader, leader_k = step_input(inp.leaders, state.k)
+            for j in self.neighbours:  # the share of step k - 1, else the newest before
+                m, _ = step_input(inp.shares_of[j], state.k - 1)
+                if m is not None:
+                    share_msgs[j] = m
+        return state, leader, leader_k
+
+    def _realtime_telemetry(self, telemetry_hz: float) -> None:
+        """Telemetry is for people and the recorder: at most ``telemetry_hz`` rows a
+        second, sent in batches, so the control traffic keeps the CPU (the run's series
+        fill the gaps forward)."""
+        self.telemetry_every = max(1, round(1.0 / (self.sc.dt * telemetry_hz)))
+        self.telemetry_batch = max(1, min(TELEMETRY_BATCH_MAX,
+                                          round(TELEMETRY_BATCH_S * telemetry_hz)))
+
+    def _note_overloaded(self, pace: LoopPace, cap: float) -> None:
+        """A step of a loop that cannot keep its period, counted; said once."""
+        self.overloaded_steps += 1
+        if self.overloaded_steps == 1:
+            print(f"{self.node.role}: the loop cannot keep its period ({self.sc.dt * 1e3:.2f} "
+                  f"ms; {pace.typical_s * 1e3:.2f} ms between steps, the median): the robot is "
+                  f"slowed to {cap:.0%} of its speed while it lasts (counted: overloaded_steps)",
+                  file=sys.stderr, flush=True)
+
+    def _note_rejoined(self) -> None:
+        """A restarted agent's first command is out: how long after its process started."""
+        age = process_age_s()
+        if age is not None:
+            self.rejoin_s = age
+            print(f"{self.node.role}: first command {age:.3f} s after its process started",
+                  file=sys.stderr, flush=True)
 
     def _resync(self, state: Sample, leader: LeaderPoint | None,
                 shares: dict[int, Reply], ages: InputAges) -> bool:
