@@ -226,6 +226,7 @@ class AgentNode:
             self.peers.append(LEADER_ROLE)
         if with_recorder:
             self.peers.append(LAUNCHER_ROLE)
+        self._warned_ahead: set[str] = set()  # the kinds refused as ahead, said once each
         self._subscribe()
         self.control = ControlInbox(node, stop)
         node.declare_alive()
@@ -235,17 +236,7 @@ class AgentNode:
         keys, inp, rid = self.node.keys, self.inputs, self.rid
 
         dt, guards, own = self.sc.dt, self.guards, self.clock
-        refuse = self.node.refuse
-        warned: set[str] = set()
-
-        def refuse_ahead(what: str, why: str) -> None:
-            refuse(f"{what}: {why}")
-            if what not in warned:  # a real sender here means clocks that disagree
-                warned.add(what)
-                print(f"{self.node.role}: refused a {what} ({why}; counted): forged, or "
-                      "on the realtime clock a host whose wall clock is ahead of ours by "
-                      f"more than {CLOCK_SKEW_S * 1e3:.0f} ms (NTP)", file=sys.stderr,
-                      flush=True)
+        refuse, refuse_ahead = self.node.refuse, self._refuse_ahead
         period = self.guards["sample"].period_s
         share_guards = {j: StepGuard(period_s=period) for j in self.neighbours}  # one per neighbour
         clock = time.monotonic if period is not None else _no_clock
@@ -320,6 +311,17 @@ class AgentNode:
             self.node.subscribe(keys.leader_state, LeaderState, gate(LEADER_ROLE, me, on_leader))
         for j in self.neighbours:
             self.node.subscribe(keys.cmd(j), Reply, gate(agent_role(j), me, on_share), robot=j)
+
+    def _refuse_ahead(self, what: str, why: str) -> None:
+        """Refuse (and count) a message whose step cannot be real yet by our clock; say
+        so once per kind: a real sender here means clocks that disagree."""
+        self.node.refuse(f"{what}: {why}")
+        if what not in self._warned_ahead:
+            self._warned_ahead.add(what)
+            print(f"{self.node.role}: refused a {what} ({why}; counted): forged, or "
+                  "on the realtime clock a host whose wall clock is ahead of ours by "
+                  f"more than {CLOCK_SKEW_S * 1e3:.0f} ms (NTP)", file=sys.stderr,
+                  flush=True)
 
     def _gated(self, src: str, dst: str, on_message):
         """Realtime with a fault plan: the edge's faults act as messages arrive
@@ -553,14 +555,8 @@ class AgentNode:
             state, leader, leader_k = self._step_inputs(share_msgs)
             if state is None:
                 continue
-            if synced and (now - t0_mono) - state.t > stale_after:
-                # a sample older than the inputs stay fresh, by our clock: the backlog
-                # of a process that was off the CPU (SIGSTOP, a starved host). Answering
-                # it computed commands from where the robot was seconds ago (a paused
-                # lab agent stepped 3 backlog samples 0.3-0.8 s old, restarting its law
-                # on each); skip to a fresh one, which restarts the law once (below)
-                self.stale_samples += 1
-                last_k = state.k
+            if synced and self._stale_sample(state, now - t0_mono, stale_after):
+                last_k = state.k  # skip to a fresh one, which restarts the law once (below)
                 continue
             if last_step is not None:
                 self.timing.add_jitter(int(abs((now - last_step) - dt) * 1e9))
@@ -580,18 +576,16 @@ class AgentNode:
             if not synced:
                 if not self._resync(state, leader, share_msgs, ages):
                     continue
-                t0_mono, synced = now - state.t, True
+                t0_mono, synced, rejoining = now - state.t, True, True
                 self.clock.t0_s = t0_mono
-                rejoining = True
             for j, msg in share_msgs.items():
                 self.last_shares[j] = msg.share
             cap = pace.speed_cap()
             if cap < 1.0:  # the loop cannot keep its period: slow the robot, say so
                 self._note_overloaded(pace, cap)
-            # the law's time is the sample's (as in lockstep); how late we answer it is
-            # the horizon's (agents/pace.py)
-            # fresh inputs, as a fault-free lockstep step has them: no ages at all (the
-            # kernel then skips the degradation's bookkeeping, as lockstep does)
+            # the law's time is the sample's (as in lockstep), how late we answer it the
+            # horizon's (agents/pace.py); fresh inputs, as a fault-free lockstep step has
+            # them: no ages at all (the kernel skips the degradation's bookkeeping)
             out, plan = self._compute(state.t, state, leader, h, None if ages.fresh else ages,
                                       pace.horizon(now - t0_mono - state.t), cap)
             self._publish_step(state.k, state.t, state, out, plan, _stale(ages))
@@ -612,6 +606,16 @@ class AgentNode:
         if not self.stop() and self.inputs.newest_state is not None and last_k < steps - 1:
             self.timing.deadline_misses += 1
         return False
+
+    def _stale_sample(self, state: Sample, run_time_s: float, stale_after_s: float) -> bool:
+        """A sample older than the inputs stay fresh, by our clock (counted): the backlog
+        of a process that was off the CPU (SIGSTOP, a starved host). Answering it computed
+        commands from where the robot was seconds ago (a paused lab agent stepped 3
+        backlog samples 0.3-0.8 s old, restarting its law on each)."""
+        if run_time_s - state.t <= stale_after_s:
+            return False
+        self.stale_samples += 1
+        return True
 
     def _restart_after_gap(self, state: Sample, leader: LeaderPoint | None,
                            shares: dict[int, Reply], ages: InputAges) -> bool:
