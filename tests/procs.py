@@ -54,7 +54,23 @@ def can_check_beside_emulator(bus: list[str], timeout: float = 120,
                               env: dict[str, str] | None = None) -> tuple[int, str, str]:
     """``omnifleet can-check --spin`` against an ``omnifleet emulate`` of lab's robot 2 on
     ``bus`` (the CAN options, ``--driver`` among them): can-check's (status, stdout,
-    stderr); the emulator ended by pid whatever happened."""
+    stderr); the emulator ended by pid whatever happened.
+
+    Once more, with a new emulator, when a drive's watchdog expired: can-check feeds each
+    drive's watchdog every period, so an expiry says the scheduler held can-check (or the
+    emulator) past the watchdog's timeout on a loaded machine (a CI run beside other work:
+    one drive of four refused to enable, its watchdog expired); the second try must
+    pass on its own."""
+    rc, out, err = _can_check_once(bus, timeout, env)
+    if "watchdog expired" in out:
+        print(f"can-check beside the emulator: a drive's watchdog expired (starved), once "
+              f"more:\n{out}", file=sys.stderr)
+        rc, out, err = _can_check_once(bus, timeout, env)
+    return rc, out, err
+
+
+def _can_check_once(bus: list[str], timeout: float,
+                    env: dict[str, str] | None) -> tuple[int, str, str]:
     emulator = start("emulate", "--scenario", "lab", "--robot", "2", *bus, "--duration", "30",
                      env=env)
     try:
