@@ -38,8 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.law_kernel import control_term_of
-from agents.signals import Vec3, smooth_norm
+from agents.signals import smooth_norm
 
 
 @dataclass(frozen=True)
@@ -136,9 +135,3 @@ class ControlConstants:
             reach_low=0.5 ** ((2.0 - a) / 2.0), reach_high=0.5 ** ((2.0 + a) / 2.0) * g.mu**2,
             s_div=2.0 * g.upsilon**2,
         )
-
-
-def control_term_vec(e: Vec3, e_dot: Vec3, z2_hat: Vec3, k: ControlConstants) -> tuple[Vec3, Vec3]:
-    """:func:`control_term` on float triples: (Gamma, s) of eq. (42), the compiled law's."""
-    return control_term_of(e, e_dot, z2_hat, k.gamma_p, k.alpha, k.mu2, k.eps2, k.reach_low,
-                           k.reach_high, k.s_div)

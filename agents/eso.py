@@ -20,8 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.law_kernel import eso_advance_of
-from agents.signals import Vec3, sig
+from agents.signals import sig
 
 
 @dataclass(frozen=True)
@@ -48,39 +47,3 @@ def eso_step(
     z1_rate = gamma + z2_hat + gains.mu1 * sig(eps1, gains.r1)
     z2_rate = gains.mu2 * sig(eps1, gains.r2)
     return z1_hat + dt * z1_rate, z2_hat + dt * z2_rate
-
-
-# --- the compiled law's forms (agents/law_kernel.pyx; tests/unit/test_hot_path.py checks
-# them against eso_step above) -----------------------------------------------------------
-
-
-def eso_step_vec(
-    z1_hat: Vec3,
-    z2_hat: Vec3,
-    z1_measured: Vec3,
-    gamma: Vec3,
-    gains: EsoGains,
-    dt: float,
-) -> tuple[Vec3, Vec3]:
-    """:func:`eso_step` on float triples: one explicit-Euler step of eq. (39)."""
-    return eso_advance_vec(z1_hat, z2_hat, z1_measured, gamma, gains, dt, dt)
-
-
-def eso_advance_vec(
-    z1_hat: Vec3,
-    z2_hat: Vec3,
-    z1_measured: Vec3,
-    gamma: Vec3,
-    gains: EsoGains,
-    dt: float,
-    max_step: float,
-) -> tuple[Vec3, Vec3]:
-    """Eq. (39) over ``dt`` in explicit-Euler sub-steps of at most ``max_step`` (the
-    control period), the measurement and Gamma held: one step when dt is the period.
-
-    A realtime agent whose state arrives late integrates the whole gap. One Euler
-    step across it multiplies the fractional powers' discrete chatter by the long dt:
-    with mu = (6, 20) a 100 ms step kicked a converged disturbance estimate by 78 %
-    (tests/unit/test_eso.py), sub-steps by 22 %."""
-    return eso_advance_of(z1_hat, z2_hat, z1_measured, gamma, gains.mu1, gains.mu2, gains.r1,
-                          gains.r2, dt, max_step)

@@ -29,8 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.law_kernel import estimator_step_of, implicit_sign_of
-from agents.signals import Vec3, sig
+from agents.signals import sig
 
 
 @dataclass(frozen=True)
@@ -101,29 +100,3 @@ def estimator_step(
     reach = (deg * gains.iota[1] * dt, deg * gains.iota[3] * dt)
     q_rate, v_rate = estimator_rates(q_hat, v_hat, e_q, e_v, gains, reach)
     return q_hat + dt * q_rate, v_hat + dt * v_rate
-
-
-# --- the compiled law's forms (agents/law_kernel.pyx; tests/unit/test_hot_path.py checks
-# them against estimator_step above) ------------------------------------------------------
-
-
-def implicit_sign_scalar(e: float, reach: float) -> float:
-    """:func:`implicit_sign` of one float."""
-    return implicit_sign_of(e, reach)
-
-
-def estimator_step_vec(
-    q_hat: Vec3,
-    v_hat: Vec3,
-    neighbour_q: Sequence[Vec3],
-    neighbour_v: Sequence[Vec3],
-    weights: Sequence[float],
-    leader_weight: float,
-    leader_q: Vec3 | None,
-    leader_v: Vec3 | None,
-    gains: EstimatorGains,
-    dt: float,
-) -> tuple[Vec3, Vec3]:
-    """:func:`estimator_step` on float triples: one explicit-Euler step of eq. (14)."""
-    return estimator_step_of(q_hat, v_hat, neighbour_q, neighbour_v, weights, leader_weight,
-                             leader_q, leader_v, gains.iota, gains.eta, dt)

@@ -19,8 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.law_kernel import desired_formation_of, offsets_of, scale_at_of, smooth_step_of
-from agents.signals import Vec2, Vec3
+from agents.law_kernel import smooth_step_of
 
 
 @dataclass(frozen=True)
@@ -106,45 +105,3 @@ def desired_formation(
             pos = pos + kappa2 * w * (qj - zj + zeta)
             vel = vel + kappa2 * w * (vj - zdj + zeta_dot)
     return pos / denom, vel / denom
-
-
-# --- the compiled law's forms (agents/law_kernel.pyx; tests/unit/test_hot_path.py checks
-# them against scale_at, offsets and desired_formation above) -----------------------------
-
-
-def scale_at_vec(
-    t: float, initial: Vec2, changes: Sequence[ScaleChange]
-) -> tuple[Vec2, Vec2]:
-    """:func:`scale_at` on floats: ((sx, sy), (sx_dot, sy_dot))."""
-    return scale_at_of(t, initial, changes)
-
-
-def offsets_vec(
-    r_i: Vec2,
-    heading_offset: float,
-    psi: float,
-    psi_dot: float,
-    scale: Vec2,
-    scale_dot: Vec2,
-) -> tuple[Vec3, Vec3]:
-    """:func:`offsets` on floats: zeta_i = [W r_i, Xi_i] and zeta_i_dot, eq. (13)/(48)."""
-    return offsets_of(r_i, heading_offset, psi, psi_dot, scale, scale_dot)
-
-
-def desired_formation_vec(
-    kappa1: float,
-    kappa2: float,
-    q0_hat: Vec3,
-    v0_hat: Vec3,
-    zeta: Vec3,
-    zeta_dot: Vec3,
-    weights: Sequence[float],
-    neighbour_q: Sequence[Vec3],
-    neighbour_q_dot: Sequence[Vec3],
-    neighbour_zeta: Sequence[Vec3],
-    neighbour_zeta_dot: Sequence[Vec3],
-) -> tuple[Vec3, Vec3]:
-    """:func:`desired_formation` on float triples: q_fd,i of eq. (16) and its velocity."""
-    return desired_formation_of(kappa1, kappa2, q0_hat, v0_hat, zeta, zeta_dot, weights,
-                                neighbour_q, neighbour_q_dot, neighbour_zeta,
-                                neighbour_zeta_dot)

@@ -11,8 +11,9 @@ import math
 import msgspec
 import numpy as np
 import pytest
+from kernel_forms import estimator_step_vec
 
-from agents.estimator import EstimatorGains, estimator_step_vec
+from agents.estimator import EstimatorGains
 from agents.leader import LeaderGenerator
 from deploy.contract.scenario import load_scenario
 from deploy.report.metrics import compute_metrics, leader_estimate_error

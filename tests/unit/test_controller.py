@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from kernel_forms import control_term_vec
 
 from agents.controller import (
     ControlConstants,
     ControllerGains,
     allocate,
     control_term,
-    control_term_vec,
     psi,
     psi_jacobian,
     reaching_term,

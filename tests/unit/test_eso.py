@@ -77,7 +77,7 @@ def test_a_long_interval_is_integrated_in_sub_steps_without_kicking_the_estimate
     fast gains, converged on a constant D, one explicit step across it throws z2_hat
     78 % off D (the fractional powers' chatter times the long dt); sub-steps of the
     control period keep it within 25 %, and at the period nothing changes."""
-    from agents.eso import eso_advance_vec, eso_step_vec
+    from kernel_forms import eso_advance_vec, eso_step_vec
 
     fast, period, d = EsoGains(6.0, 20.0, 0.7), 0.005, 1.0
 

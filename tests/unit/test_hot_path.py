@@ -21,6 +21,16 @@ import pytest
 from agents.law_kernel import allocate_of, coulomb_term_of, saturate_torques_of
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
+from kernel_forms import (
+    control_term_vec,
+    desired_formation_vec,
+    eso_step_vec,
+    estimator_step_vec,
+    implicit_sign_scalar,
+    offsets_vec,
+    scale_at_vec,
+    sig_scalar,
+)
 from plant.fleet_kernel import acceleration_of
 
 from agents.behaviors import (
@@ -34,26 +44,20 @@ from agents.controller import (
     ControllerGains,
     allocate,
     control_term,
-    control_term_vec,
     saturate_torques,
 )
 from agents.core import AgentConfig, AgentCore, AgentOutput, Share
-from agents.eso import EsoGains, eso_step, eso_step_vec
+from agents.eso import EsoGains, eso_step
 from agents.estimator import (
     EstimatorGains,
     estimator_step,
-    estimator_step_vec,
     implicit_sign,
-    implicit_sign_scalar,
 )
 from agents.formation import (
     ScaleChange,
     desired_formation,
-    desired_formation_vec,
     offsets,
-    offsets_vec,
     scale_at,
-    scale_at_vec,
 )
 from agents.fusion import (
     AVOIDANCE,
@@ -66,7 +70,7 @@ from agents.fusion import (
 )
 from agents.leader import Harmonic, LeaderGenerator, LeaderSpec
 from agents.safety_filter import Guarded, SafetyLimits, safety_filter, stopping_distance
-from agents.signals import sig, sig_scalar
+from agents.signals import sig
 from plant.bodies import Body
 from plant.limits import saturate_velocity_vec
 from plant.mecanum import MecanumModel, RobotParams
