@@ -8,7 +8,6 @@ their sources, so that ``python -m ...`` and ``python -m pytest`` run from a clo
 put the clone ahead of site-packages on sys.path) find them there.
 """
 
-import hashlib
 from pathlib import Path
 
 from Cython.Build import cythonize
@@ -19,10 +18,25 @@ KERNELS = [
     Extension("plant.fleet_kernel", ["plant/fleet_kernel.pyx"]),
     Extension("agents.law_kernel", ["agents/law_kernel.pyx"]),
 ]
+
+
+def _source_digest():
+    """plant/kernels.py's ``source_digest``, loaded by path: importing the plant package
+    would import the kernels this build makes."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("_kernels", Path("plant/kernels.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.source_digest
+
+
 # each kernel knows the source it was built from (BUILT_FROM), so that a module built from
-# an older .pyx is refused at import instead of running stale arithmetic (plant/kernels.py)
-SOURCE_HASHES = {ext.name.replace(".", "_").upper() + "_SHA256":
-                 hashlib.sha256(Path(ext.sources[0]).read_bytes()).hexdigest() for ext in KERNELS}
+# an older .pyx or section is refused at import instead of running stale arithmetic
+# (plant/kernels.py)
+source_digest = _source_digest()
+SOURCE_HASHES = {ext.name.replace(".", "_").upper() + "_SHA256": source_digest(Path(ext.sources[0]))
+                 for ext in KERNELS}
 
 
 class BuildNextToSources(build_ext):
