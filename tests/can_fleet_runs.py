@@ -18,7 +18,7 @@ import os
 from pathlib import Path
 
 from tests.procs import finish, pids_with, start
-from tests.realtime_clock import judged, late_with_misses
+from tests.realtime_clock import judged
 
 DURATION_S = 10.0  # the fault-free run: odometry against the truth over 10 s of driving
 RATE_HZ = "100"
@@ -47,13 +47,30 @@ def clean_fleet_run(tmp_path_factory, driver: str, what: str):
         out = tmp_path_factory.mktemp(f"{driver}-fleet") / "run"
         stdout, m = run_fleet(out, f"t-{driver}-fleet-{os.getpid()}", driver)
         return out, stdout, m
-    # its claims are an undisturbed formation's (settling, odometry against the truth): a
-    # robot that settled late while some loop missed deadlines is the clock's doing as
-    # much as a high jitter (one of 8 runs of the e2e fleet modules back to back here left
-    # all three CiA 402 robots' odometry 14-34 cm off and two settled at 6.6-6.8 s, the
-    # others 0.4-0.55 s and < 1 cm; its misses were not kept). Once more then; missed
-    # again on a quiet machine, it fails
-    return judged(run, lambda r: r[2], what, missed_also=late_with_misses)
+    # its claims are an undisturbed formation's (settling, odometry against the truth) on
+    # the wall clock, and a robot that settled late is run once more; late again on a quiet
+    # machine, it fails. Why not only when a loop missed deadlines: the emulator's process
+    # is the robots' physics, and its stalls are no node's misses. One of 8 runs of the e2e
+    # fleet modules back to back here left all three CiA 402 robots' odometry 14-34 cm off
+    # the truth and two settled at 6.6-6.8 s (the others 0.4-0.55 s and < 1 cm); a CI run
+    # had one robot settle at 6.74 s with no deadline missed (its lag was not kept: the
+    # retry's reason now names it)
+    return judged(run, lambda r: r[2], what, missed_also=late_settling)
+
+
+def late_settling(m: dict) -> str | None:
+    """Why a fault-free fleet run is run once more: a robot settled late (or never), with
+    what the run measured of its clock beside it (the nodes' deadline misses, the
+    emulator's largest lag behind the wall clock, the odometry's largest drift)."""
+    late = [r for r in (m.get("verdict") or {}).get("reasons", [])
+            if " settled at " in r or "never settled" in r]
+    if not late:
+        return None
+    lag = (m.get("emulator_lag_ms") or {}).get("max")
+    drifts = [d for d in (m.get("odometry_drift") or {}).get("max_m") or [] if d is not None]
+    return (f"{'; '.join(late)} (deadline misses {m.get('deadline_misses') or 0}, the "
+            f"emulator's largest lag {'?' if lag is None else f'{lag:.1f}'} ms, odometry drift "
+            f"up to {max(drifts, default=0.0):.3f} m)")
 
 
 def killed_fleet_run(tmp_path_factory, driver: str, what: str):
