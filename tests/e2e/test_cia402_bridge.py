@@ -206,32 +206,53 @@ def test_bridge_drives_cia402_drives_and_zeroes_torque_when_commands_stop(tmp_pa
     assert len(errors) > 100 and statistics.median(errors) < 0.5
 
 
-def test_a_drive_that_never_enables_is_reported_and_no_wheel_is_driven(tmp_path):
-    sc = load_scenario("lab")
+def _never_enabling_once(sc) -> tuple[types.SimpleNamespace, MachineLoad, str | None]:
+    """An emulator whose node 3 refuses to enable and a bridge, the robot commanded until
+    it reads faulted; what was measured, the machine's load over it, and why the run did
+    not reach its claim (None: node 3 was given up). Every process is ended by pid."""
     can_opts, group, port = _bus()
-    fleet = f"t-cia-stuck-{os.getpid()}"
+    fleet = f"t-cia-stuck-{os.getpid()}-{port}"
     node, keys, endpoint, states, reports = _commander(sc, fleet)
     sniffer = Sniffer(group, port)
-    emulator = start("emulate", "--scenario", "lab", "--robot", "1", "--driver", "cia402",
-                     *can_opts, "--duration", "15", "--refuse-enable", "3")
-    bridge = start("bridge", "--scenario", "lab", "--robot", "1", "--driver", "cia402", *can_opts,
-                   "--fleet", fleet, "--listen", "tcp/127.0.0.1:0", "--connect", endpoint,
-                   "--self-start", "--duration", "10")
-    try:
-        assert node.mailbox.wait_until(lambda: len(states) > 20, 40.0), "no state"
-        # commanded until the robot has been faulted for 20 states, 2 s or more into the
-        # drive (a drive is given up only while asked to drive, ENABLE_TIMEOUT_S after
-        # arming; a brief fault before, such as a status late from a starved emulator,
-        # does not end it): a fixed span let a starved emulator answer its fifth arming
-        # frame in the bridge's last period, and no faulted state followed
-        began = time.monotonic()
-        _drive(node, keys, states, 8.0, FORWARD_NM,
-               until=lambda: time.monotonic() - began > 2.0
-               and all(m.faulted for _, m in states[-20:]))
-        rc_b, _, err_b = finish(bridge, timeout=60)
-    finally:
-        _end(node, sniffer, bridge, emulator)
+    with measured() as load:  # who took the CPU meanwhile (tests/realtime_clock.py)
+        emulator = start("emulate", "--scenario", "lab", "--robot", "1", "--driver", "cia402",
+                         *can_opts, "--duration", "15", "--refuse-enable", "3")
+        bridge = start("bridge", "--scenario", "lab", "--robot", "1", "--driver", "cia402",
+                       *can_opts, "--fleet", fleet, "--listen", "tcp/127.0.0.1:0", "--connect",
+                       endpoint, "--self-start", "--duration", "10")
+        try:
+            assert node.mailbox.wait_until(lambda: len(states) > 20, 40.0), "no state"
+            # commanded until the robot has been faulted for 20 states, 2 s or more into the
+            # drive (a drive is given up only while asked to drive, ENABLE_TIMEOUT_S after
+            # arming; a brief fault before, such as a status late from a starved emulator,
+            # does not end it): a fixed span let a starved emulator answer its fifth arming
+            # frame in the bridge's last period, and no faulted state followed
+            began = time.monotonic()
+            _drive(node, keys, states, 8.0, FORWARD_NM,
+                   until=lambda: time.monotonic() - began > 2.0
+                   and all(m.faulted for _, m in states[-20:]))
+            rc_b, _, err_b = finish(bridge, timeout=60)
+            node.mailbox.wait_until(lambda: bool(reports), 10.0)
+        finally:
+            _end(node, sniffer, bridge, emulator)
     assert rc_b == 0, err_b
+    missed = None
+    if "node 3 given up, the robot is not driven" not in err_b:
+        # 5 arming frames answered and 2 s after arming, while asked to drive: a machine
+        # whose other programs starve the emulator and the bridge does not get there within
+        # the bridge's 10 s (a CI run beside 1.5 cores of other work)
+        late = loop_missed(reports, sc.dt, "bridge") if reports else "no bridge report"
+        missed = f"node 3 not given up within the bridge's run ({late or 'its loop on time'})"
+    return (types.SimpleNamespace(states=states, sniffer=sniffer, err_b=err_b), load, missed)
+
+
+@pytest.mark.realtime
+def test_a_drive_that_never_enables_is_reported_and_no_wheel_is_driven():
+    sc = load_scenario("lab")
+    # run once more when node 3 was not given up within the run, then judged by what the
+    # clock allowed (tests/realtime_clock.py: skipped when other programs starved it)
+    run = once_more(lambda: _never_enabling_once(sc), "CiA 402 drive that never enables")
+    states, sniffer, err_b = run.states, run.sniffer, run.err_b
     assert "node 3 given up, the robot is not driven" in err_b
     assert re.search(r"not enabled [\d.]+ s after arming, \d+ arming frames answered \(state "
                      r"starting", err_b)
