@@ -189,7 +189,7 @@ class AgentNode:
         self.neighbours = [j for j, _ in self.core.cfg.neighbours]
         self.hears_leader = self.core.cfg.leader_weight != 0.0
         self.inputs = AgentInputs.empty()
-        self.last_shares: dict[int, Share | Share] = {}
+        self.last_shares: dict[int, Share] = {}
         self.faults = FaultModel(faults, sc.dt)
         self.links: AgentLinks = AgentLinks(self.faults, robot_id, self.neighbours,
                                             self.hears_leader)
