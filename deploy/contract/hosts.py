@@ -135,6 +135,8 @@ def load_hosts(path: str | Path, sc: Scenario) -> Hosts:
         raw = tomllib.loads(path.read_text())
     except OSError as exc:
         raise HostsError(f"{path}: cannot read: {exc.strerror}") from exc
+    except UnicodeDecodeError as exc:
+        raise HostsError(f"{path}: not valid TOML (not UTF-8 text): {exc}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise HostsError(f"{path}: not valid TOML: {exc}") from exc
     machines = raw.pop("machines", None)

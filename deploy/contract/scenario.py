@@ -962,14 +962,19 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
 
 def parse_scenario(raw: bytes | str, path: str = "<scenario>") -> Scenario:
     """Decode and validate a scenario's TOML text; ``path`` names it in errors."""
+    if isinstance(raw, bytes):
+        # TOML is UTF-8 text: said as such here, whatever msgspec's version makes of it
+        # (0.22 let the UnicodeDecodeError out, 0.23 wraps it in a DecodeError)
+        try:
+            raw = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ScenarioError(f"{path}: not valid TOML (not UTF-8 text): {exc}") from exc
     try:
         spec = msgspec.toml.decode(raw, type=ScenarioFile)
     except msgspec.ValidationError as exc:
         raise ScenarioError(f"{path}: {_readable(str(exc))}") from exc
     except msgspec.DecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
-    except UnicodeDecodeError as exc:  # msgspec decodes bytes as UTF-8 before parsing
-        raise ScenarioError(f"{path}: not valid TOML (not UTF-8 text): {exc}") from exc
     return _validate(path, spec)
 
 

@@ -124,6 +124,14 @@ def test_a_bad_hosts_file_names_the_file_and_the_key(paper, tmp_path, edit, key)
     assert str(bad) in str(err.value) and key in str(err.value)
 
 
+def test_a_hosts_file_that_is_not_utf8_is_a_hosts_error(paper, tmp_path):
+    bad = tmp_path / "hosts.toml"
+    bad.write_bytes(b"\x80" + EXAMPLE.read_bytes())
+    with pytest.raises(HostsError, match="not UTF-8") as err:
+        load_hosts(bad, paper)
+    assert str(bad) in str(err.value)
+
+
 def test_deploy_plan_exits_2_on_a_bad_hosts_file(tmp_path):
     bad = tmp_path / "hosts.toml"
     bad.write_text('fleet = "a/b"\n[machines.x]\naddress = "10.0.0.1"\nroles = ["leader"]\n')
