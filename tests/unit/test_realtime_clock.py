@@ -4,12 +4,14 @@ measurably took the CPU, failed when they did not; a missing report always fails
 
 from __future__ import annotations
 
+import warnings
 from contextlib import contextmanager
 
 import pytest
 from realtime_clock import (
     OTHERS_SHARE,
     MachineLoad,
+    RanOnceMore,
     clock_missed,
     judged,
     late_with_misses,
@@ -17,6 +19,9 @@ from realtime_clock import (
     measured,
     once_more,
 )
+
+# the judge warns of each second run (RanOnceMore): here the second runs are the subject
+pytestmark = pytest.mark.filterwarnings("ignore::realtime_clock.RanOnceMore")
 
 LOADED = MachineLoad(cores=2, wall_s=10.0, busy_cores=2.0, ours_cores=0.8)
 QUIET = MachineLoad(cores=2, wall_s=10.0, busy_cores=0.9, ours_cores=0.8)
@@ -53,6 +58,18 @@ def test_a_run_starved_by_others_is_retried_once_and_the_retry_judged():
     run, calls = _runs(9.0, 3.0)
     assert judged(run, lambda m: m, "x", _machine(LOADED))["jitter_ms"]["p99"] == 3.0
     assert len(calls) == 2
+
+
+@pytest.mark.filterwarnings("default::realtime_clock.RanOnceMore")
+def test_a_second_run_is_said_in_the_warnings_with_its_reason_and_the_load():
+    run, _ = _runs(9.0, 3.0)
+    with pytest.warns(RanOnceMore, match=r"x: run once more: .*9\.0 ms.*other programs took "
+                      r"1\.20 of 2 cores"):
+        judged(run, lambda m: m, "x", _machine(LOADED))
+    run, _ = _runs(3.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RanOnceMore)
+        judged(run, lambda m: m, "x", _machine(LOADED))  # kept its clock: no second run
 
 
 def test_starved_by_others_twice_is_skipped_naming_both_measurements():
