@@ -127,10 +127,6 @@ def _stale(ages: InputAges | None) -> int:
     return int(ages.state_s > 0) + int(ages.leader_s > 0) + sum(a > 0 for a in ages.shares_s.values())
 
 
-def _t3(x: np.ndarray | tuple[float, float, float]) -> tuple[float, float, float]:
-    return x if type(x) is tuple else tuple(x.tolist())  # type: ignore[return-value]
-
-
 def _finite_row(r: TelemetryRow) -> TelemetryRow:
     """The row with every non-finite number zeroed and ``nonfinite`` set (the wire
     refuses NaN; the verdict must still see that the law diverged)."""
@@ -348,15 +344,13 @@ class AgentNode:
         rid = self.rid
         torques = (0.0, 0.0, 0.0, 0.0) if out is None else out.torques
         v_cmd = (0.0, 0.0, 0.0) if out is None else out.v_cmd
-        # the compiled law's share holds float tuples; the initial one, and a Python law's,
-        # may hold arrays or numpy floats (_t3): the wire's are float tuples
-        share = Share(_t3(s.q0_hat), _t3(s.v0_hat), _t3(s.q), _t3(s.q_dot), _t3(s.zeta),
-                      _t3(s.zeta_dot), s.info_age_s)
         self.clock.answer(k, time.monotonic())  # lockstep: the plant can be one step past it
         self.node.publish(self.node.keys.cmd(rid), lambda seq, stamp: Reply(
             WIRE_VERSION, rid, seq, stamp, robot=rid, k=k, t=t, torques=torques, v_cmd=v_cmd,
             state_seq=-1 if state is None else state.seq,
-            state_stamp_ns=0 if state is None else state.stamp_ns, share=share, plan=plan))
+            # the share as the core made it: every core builds its shares of float tuples
+            # (AgentCore from the kernel's, PluggedCore through its check of a law's)
+            state_stamp_ns=0 if state is None else state.stamp_ns, share=s, plan=plan))
 
     def _publish_step(self, k: int, t: float, state: Sample, out: AgentOutput,
                       plan: list[Vec4], stale: int) -> None:
