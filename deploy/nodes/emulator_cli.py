@@ -22,7 +22,13 @@ from typing import TYPE_CHECKING
 
 from deploy.contract.options import EXIT_BAD_INPUT, add_option
 from deploy.contract.output_paths import check_file
-from deploy.nodes.can_options import CanBusError, add_can_options, open_buses
+from deploy.nodes.can_options import (
+    CanBusError,
+    DriverOptionError,
+    add_can_options,
+    driver_settings,
+    open_buses,
+)
 from deploy.runtime.priority import add_priority_argument, raise_priority
 
 if TYPE_CHECKING:  # imported when the command runs (the emulator's start stays light)
@@ -143,8 +149,6 @@ def _checked_drives(args: argparse.Namespace, robots: list[int]
     """The drives' node ids and the ground-truth files, or what is wrong with the options
     that name robots and drives (--robot, --node-ids, --silent-*, --refuse-enable,
     --truth-out)."""
-    from deploy.nodes.can_options import DriverOptionError, driver_settings
-
     if len(set(robots)) != len(robots):
         return f"--robot given twice for the same robot: {robots}"
     if args.silent_after is not None and args.silent_node is None:
