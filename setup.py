@@ -20,23 +20,23 @@ KERNELS = [
 ]
 
 
-def _source_digest():
-    """plant/kernels.py's ``source_digest``, loaded by path: importing the plant package
-    would import the kernels this build makes."""
+def _kernels_module():
+    """plant/kernels.py (``source_digest``, ``DIRECTIVES``), loaded by path: importing the
+    plant package would import the kernels this build makes."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("_kernels", Path("plant/kernels.py"))
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return module.source_digest
+    return module
 
 
 # each kernel knows the source it was built from (BUILT_FROM), so that a module built from
 # an older .pyx or section is refused at import instead of running stale arithmetic
 # (plant/kernels.py)
-source_digest = _source_digest()
-SOURCE_HASHES = {ext.name.replace(".", "_").upper() + "_SHA256": source_digest(Path(ext.sources[0]))
-                 for ext in KERNELS}
+kernels = _kernels_module()
+SOURCE_HASHES = {ext.name.replace(".", "_").upper() + "_SHA256":
+                 kernels.source_digest(Path(ext.sources[0])) for ext in KERNELS}
 
 
 class BuildNextToSources(build_ext):
@@ -51,8 +51,7 @@ class BuildNextToSources(build_ext):
 setup(
     ext_modules=cythonize(
         KERNELS,
-        compiler_directives={"language_level": 3, "boundscheck": False, "wraparound": False,
-                             "cdivision": True, "initializedcheck": False},
+        compiler_directives=kernels.DIRECTIVES,
         compile_time_env=SOURCE_HASHES,
     ),
     cmdclass={"build_ext": BuildNextToSources},

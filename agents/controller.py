@@ -30,15 +30,15 @@ scenario, ``controller.psi_epsilon``) replaces |e| in psi and its Jacobian.
 
 The 4th (internal-torque) component of the augmented error, ESO state and
 Gamma is identically zero (n^T u = 0), so those are kept as 3-vectors.
+
+The arithmetic is the compiled law's (agents/law_kernel_sections/controller.pxi);
+tests/paper_oracle.py writes it again in numpy, the independent form the tests hold it to.
+This module keeps the gains, and the constants the kernel takes.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-
-import numpy as np
-
-from agents.signals import smooth_norm
 
 
 @dataclass(frozen=True)
@@ -52,67 +52,6 @@ class ControllerGains:
     @property
     def gamma_p(self) -> float:
         return 2.0 / (self.alpha * self.mu * self.T_p)
-
-
-def psi(e: np.ndarray, g: ControllerGains) -> np.ndarray:
-    """psi(e) of eq. (41), regularised at 0 (erratum 5)."""
-    n = smooth_norm(e, g.psi_epsilon)
-    return g.gamma_p * (n ** (-g.alpha) + g.mu**2 * n**g.alpha) * e
-
-
-def psi_jacobian(e: np.ndarray, g: ControllerGains) -> np.ndarray:
-    """d psi / d e, so that psi_dot = psi_jacobian(e) @ e_dot (erratum 5)."""
-    a, mu2 = g.alpha, g.mu**2
-    n = smooth_norm(e, g.psi_epsilon)
-    scalar = n ** (-a) + mu2 * n**a
-    radial = a * (mu2 * n ** (a - 2.0) - n ** (-a - 2.0))
-    return g.gamma_p * (scalar * np.eye(e.size) + radial * np.outer(e, e))
-
-
-def sliding_surface(e: np.ndarray, e_dot: np.ndarray, g: ControllerGains) -> np.ndarray:
-    """s of eq. (40)."""
-    return e_dot + psi(e, g)
-
-
-def reaching_term(s: np.ndarray, g: ControllerGains) -> np.ndarray:
-    """The first term of eq. (42) (without the minus sign)."""
-    ns = float(np.linalg.norm(s))
-    if ns == 0.0:
-        return np.zeros_like(s)
-    a = g.alpha
-    k = 0.5 ** ((2.0 - a) / 2.0) * ns ** (-a) + 0.5 ** ((2.0 + a) / 2.0) * g.mu**2 * ns**a
-    return g.gamma_p * k * s
-
-
-def control_term(
-    e: np.ndarray, e_dot: np.ndarray, z2_hat: np.ndarray, g: ControllerGains
-) -> tuple[np.ndarray, np.ndarray]:
-    """(Gamma, s) of eq. (42)."""
-    s = sliding_surface(e, e_dot, g)
-    psi_dot = psi_jacobian(e, g) @ e_dot
-    gamma = -reaching_term(s, g) - z2_hat - psi_dot - s / (2.0 * g.upsilon**2)
-    return gamma, s
-
-
-def allocate(B_bar: np.ndarray, generalised: np.ndarray) -> np.ndarray:
-    """u = B_bar^-1 [generalised; 0]: the minimum-norm wheel torques (eq. 36)."""
-    return np.linalg.solve(B_bar, np.append(generalised, 0.0))
-
-
-def saturate_torques(u: np.ndarray, limit: float) -> np.ndarray:
-    """Scale all four torques by one factor so that max |u_k| <= limit.
-
-    One common factor keeps the direction of the generalised force.
-    """
-    peak = float(np.max(np.abs(u)))
-    if peak > limit:
-        return u * (limit / peak)
-    return u
-
-
-# --- the compiled law (agents/law_kernel.pyx) takes these constants; its form of the law
-# is checked against control_term, allocate and saturate_torques above in
-# tests/unit/test_hot_path.py ----------------------------------------------------------
 
 
 @dataclass(frozen=True)

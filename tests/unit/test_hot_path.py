@@ -1,12 +1,12 @@
-"""The compiled law (agents/law_kernel.pyx, plant/fleet_kernel.pyx) against the numpy
-reference forms.
+"""The compiled law (agents/law_kernel.pyx, plant/fleet_kernel.pyx) against the numpy oracle.
 
-The kernels hold each equation once, on C doubles; the ``*_vec`` / reduced-task functions of
-agents/ hand their arithmetic out. The numpy forms in agents/ stay as the oracle: they are
-the paper's matrix form, written independently, and the other test modules check them
-against the paper's equations and physical facts. Here each kernel equation is checked
-against its numpy form, and the whole step against their composition (``ReferenceCore``:
-AgentCore.step written with them), output by output on a closed loop that engages every
+The kernel holds each equation once, on C doubles, one section a file. The tests' build of
+it (tests/law_probe: the same sections, each callable) hands each section's arithmetic out
+through tests/kernel_forms.py; the numpy oracle (tests/paper_oracle.py) is the paper's
+matrix form, written independently, which the other test modules check against the paper's
+equations and physical facts. Here each section is checked at its own boundary against its
+numpy form, and the product's whole step (AgentCore, the product's kernel) against their
+composition (``ReferenceCore``), output by output on a closed loop that engages every
 behavior.
 """
 
@@ -18,59 +18,50 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from agents.law_kernel import allocate_of, coulomb_term_of, saturate_torques_of
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from kernel_forms import (
+    avoidance_task_of,
     control_term_vec,
     desired_formation_vec,
     eso_step_vec,
     estimator_step_vec,
+    formation_task,
+    fuse_tasks,
     implicit_sign_scalar,
     offsets_vec,
     scale_at_vec,
     sig_scalar,
+    supervise_tasks,
+)
+from law_probe import load
+from paper_oracle import (
+    AVOIDANCE,
+    ReferenceCore,
+    allocate,
+    avoidance_behavior,
+    control_term,
+    desired_formation,
+    eso_step,
+    estimator_step,
+    formation_behavior,
+    fuse,
+    implicit_sign,
+    offsets,
+    order_by_priority,
+    saturate_torques,
+    saturate_velocity,
+    sig,
+    supervise,
 )
 from plant.fleet_kernel import acceleration_of
 
-from agents.behaviors import (
-    avoidance_behavior,
-    avoidance_task_of,
-    formation_behavior,
-    formation_task,
-)
-from agents.controller import (
-    ControlConstants,
-    ControllerGains,
-    allocate,
-    control_term,
-    saturate_torques,
-)
-from agents.core import AgentConfig, AgentCore, AgentOutput, Share
-from agents.eso import EsoGains, eso_step
-from agents.estimator import (
-    EstimatorGains,
-    estimator_step,
-    implicit_sign,
-)
-from agents.formation import (
-    ScaleChange,
-    desired_formation,
-    offsets,
-    scale_at,
-)
-from agents.fusion import (
-    AVOIDANCE,
-    fuse,
-    fuse_tasks,
-    order_by_priority,
-    saturate_velocity,
-    supervise,
-    supervise_tasks,
-)
+from agents.controller import ControlConstants, ControllerGains
+from agents.core import AgentConfig, AgentCore, AgentOutput
+from agents.eso import EsoGains
+from agents.estimator import EstimatorGains
+from agents.formation import ScaleChange, scale_at
 from agents.leader import Harmonic, LeaderGenerator, LeaderSpec
-from agents.safety_filter import Guarded, SafetyLimits, safety_filter, stopping_distance
-from agents.signals import sig
 from plant.bodies import Body
 from plant.limits import saturate_velocity_vec
 from plant.mecanum import MecanumModel, RobotParams
@@ -82,6 +73,8 @@ comp = st.floats(-5.0, 5.0, allow_nan=False)
 vec2 = st.tuples(comp, comp)
 vec3 = st.tuples(comp, comp, comp)
 angle = st.floats(-math.pi, math.pi, allow_nan=False)
+
+LAW = load()  # the tests' build of the law kernel, each section callable (tests/law_probe)
 
 
 def close(a, b, rtol=RTOL):
@@ -292,8 +285,8 @@ MODELS = [MecanumModel.from_params(RobotParams()),
 @SETTINGS
 @given(phi=st.floats(-10.0, 10.0), q_dot=vec3, generalised=vec3)
 def test_model_terms_equal_the_model(model, phi, q_dot, generalised):
-    close(coulomb_term_of(model, phi, q_dot), model.A1(phi, np.array(q_dot)))
-    u = allocate_of(model, phi, generalised)
+    close(LAW.coulomb_term_of(model, phi, q_dot), model.A1(phi, np.array(q_dot)))
+    u = LAW.allocate_of(model, phi, generalised)
     close(u, allocate(model.augmented_input(phi), np.array(generalised)), rtol=1e-11)
 
 
@@ -310,133 +303,12 @@ def test_acceleration_equals_the_model(model, phi, q_dot, u):
 @SETTINGS
 @given(u=st.tuples(comp, comp, comp, comp), limit=st.sampled_from([0.5, 3.0, math.inf]))
 def test_saturate_torques_equals_saturate_torques(u, limit):
-    np.testing.assert_array_equal(saturate_torques_of(u, limit), saturate_torques(np.array(u), limit))
+    np.testing.assert_array_equal(LAW.saturate_torques_of(u, limit), saturate_torques(np.array(u), limit))
 
 
 # --- the whole step -----------------------------------------------------------------------------
 
 
-class ReferenceCore:
-    """AgentCore.step composed of the numpy reference functions (as it was written with them)."""
-
-    def __init__(self, cfg: AgentConfig, q_init, q_dot_init, q0_hat_init, v0_hat_init) -> None:
-        self.cfg = cfg
-        self.q0_hat, self.v0_hat = np.array(q0_hat_init, float), np.array(v0_hat_init, float)
-        self.q_d = np.array(q_init, float)
-        self.v_d_prev = self.z1_hat = self.last_h = None
-        self.z2_hat = np.zeros(3)
-        self.r_i = np.array(cfg.offset, float)
-        self.weights = [w for _, w in cfg.neighbours]
-
-    def offsets(self, t):
-        cfg = self.cfg
-        s, sd = scale_at(t, cfg.initial_scale, cfg.scale_changes)
-        return offsets(self.r_i, cfg.heading_offset, float(self.q0_hat[2]), float(self.v0_hat[2]), s, sd)
-
-    def behaviors(self, q, q_dot, q_fd, v_fd, obstacles, robots, h):
-        cfg = self.cfg
-        out = [formation_behavior(q, q_fd, v_fd, cfg.fdb_gains)] if "FDB" in cfg.enabled else []
-        for name, bodies, safe, surface, gains in (
-            ("FOCB", obstacles, cfg.obstacle_safe_m, True, cfg.focb_gains),
-            ("FRCB", robots, cfg.robot_safe_m, False, cfg.frcb_gains),
-        ):
-            if name not in cfg.enabled or not bodies:
-                continue
-            if cfg.guard != "every":
-                bodies = [min(bodies, key=lambda b: float(np.hypot(*(q[:2] - b.position))) - b.radius)]
-            tasks = []
-            for b in bodies:
-                contact = cfg.robot_radius_m + b.radius
-                n = (q[:2] - b.position) / np.linalg.norm(q[:2] - b.position)
-                closing = max(float(-n @ (v[:2] - b.velocity)) for v in
-                              ([q_dot] if self.v_d_prev is None else [q_dot, self.v_d_prev]))
-                engage = contact + cfg.safety_margin_m + stopping_distance(closing, cfg.max_accel_mps2, h)
-                out_b = avoidance_behavior(name, q, b.position, contact,
-                                           max(safe + (b.radius if surface else 0.0), engage),
-                                           float(q_fd[2]), float(v_fd[2]), gains, body=b.ident)
-                if out_b.active:
-                    tasks.append((float(np.linalg.norm(q[:2] - b.position)) - b.radius, out_b))
-            out.extend(b for _, b in sorted(tasks, key=lambda gb: gb[0]))
-        return out
-
-    def limited(self, v, h):
-        cfg = self.cfg
-        v = saturate_velocity(v, cfg.max_speed_mps, cfg.max_yaw_rate_radps)
-        if self.v_d_prev is not None and (math.isfinite(cfg.max_accel_mps2)
-                                          or math.isfinite(cfg.max_yaw_accel_radps2)):
-            v = self.v_d_prev + saturate_velocity(v - self.v_d_prev, cfg.max_accel_mps2 * h,
-                                                  cfg.max_yaw_accel_radps2 * h)
-        return v
-
-    def filtered(self, v_d, q, obstacles, robots, h):
-        cfg = self.cfg
-        bodies = [Guarded(*b.position, *b.velocity, b.radius) for b in obstacles]
-        bodies += [Guarded(*b.position, *b.velocity, b.radius, True) for b in robots]
-        if not cfg.safety_filter or not bodies:
-            return v_d
-        prev = None if self.v_d_prev is None else tuple(self.v_d_prev[:2])
-        lim = SafetyLimits(cfg.safety_margin_m, cfg.max_accel_mps2, cfg.max_speed_mps,
-                           cfg.safety_exit_time_s)
-        r = safety_filter(tuple(v_d[:2]), prev, float(q[0]), float(q[1]), cfg.robot_radius_m,
-                          bodies, lim, h)
-        return np.array([*r.v, v_d[2]])
-
-    def step(self, t, q, q_dot, shares, leader, obstacles=(), robots=(), dt=None,
-             own_torques=True) -> AgentOutput:
-        from agents.controller import control_term as ct
-
-        cfg, model = self.cfg, self.cfg.model
-        h = cfg.dt if dt is None else dt
-        if not own_torques or (self.last_h is not None and h != self.last_h):
-            self.z1_hat = None  # the observer restarts from the measurement (AgentCore.step)
-        self.last_h = h
-        nbr = [shares[j] for j, _ in cfg.neighbours]
-        zeta, zeta_dot = self.offsets(t)
-        q_fd, v_fd = desired_formation(
-            cfg.kappa1, cfg.kappa2, self.q0_hat, self.v0_hat, zeta, zeta_dot, self.weights,
-            *[[np.asarray(getattr(s, f), float) for s in nbr] for f in ("q", "q_dot", "zeta", "zeta_dot")],
-        )
-        chain = supervise(order_by_priority(self.behaviors(q, q_dot, q_fd, v_fd, obstacles, robots, h),
-                                            cfg.priority), cfg.avoidance_engage,
-                          lambda v: self.limited(v, h))
-        v_d = self.filtered(self.limited(fuse(chain), h), q, obstacles, robots, h)
-        phi = float(q[2])
-        v_ref = v_d if self.v_d_prev is None else self.v_d_prev
-        e = q - self.q_d
-        if np.linalg.norm(e) > cfg.max_tracking_error:  # anti-windup: q_d within the bound
-            self.q_d = q - e * (cfg.max_tracking_error / np.linalg.norm(e))
-            e = q - self.q_d
-        e_dot = q_dot - v_ref
-        if self.z1_hat is None:
-            self.z1_hat = e_dot.copy()
-        gamma, s = ct(e, e_dot, self.z2_hat, cfg.controller)
-        generalised = (v_d - v_ref) / h + model.A0 @ q_dot + model.A1(phi, q_dot) + gamma
-        torques = saturate_torques(allocate(model.augmented_input(phi), generalised), cfg.max_wheel_torque_nm)
-        nonfinite = not bool(np.all(np.isfinite(torques)))
-        if nonfinite:
-            torques = np.zeros(4)
-        n = max(1, math.ceil(h / cfg.dt - 1e-9))  # (39) in sub-steps of at most the period
-        for _ in range(n):
-            self.z1_hat, self.z2_hat = eso_step(self.z1_hat, self.z2_hat, e_dot, gamma, cfg.eso,
-                                                h / n)
-        q_d_now = self.q_d
-        self.q_d = self.q_d + 0.5 * h * (v_ref + v_d)
-        self.v_d_prev = v_d
-        lq, lv = leader if leader is not None else (None, None)
-        self.q0_hat, self.v0_hat = estimator_step(
-            self.q0_hat, self.v0_hat, [np.asarray(s.q0_hat, float) for s in nbr],
-            [np.asarray(s.v0_hat, float) for s in nbr],
-            self.weights, cfg.leader_weight, lq, lv, cfg.estimator, h,
-        )
-        share = Share(self.q0_hat.copy(), self.v0_hat.copy(), q.copy(), q_dot.copy(), zeta, zeta_dot)
-        if not bool(np.all(np.isfinite(v_d))):
-            nonfinite, v_d = True, np.zeros(3)
-        errors: dict[str, float] = {}
-        for b in chain:
-            errors.setdefault(b.name, b.task_error)
-        return AgentOutput(torques, v_d, share, e, s, q_d_now, q_fd,
-                           tuple(dict.fromkeys(b.name for b in chain)), errors, self.z2_hat,
-                           nonfinite)
 
 
 DT = 0.01

@@ -52,3 +52,17 @@ def test_the_law_kernel_in_use_was_built_from_its_pyx_and_every_section():
                 if line.startswith("include ")]
     assert sorted(included) == sorted(f"law_kernel_sections/{s.name}" for s in sections)
     assert agents.law_kernel.BUILT_FROM == source_digest(pyx)
+
+
+def test_the_product_kernel_exports_only_what_the_product_calls():
+    """The sections one by one are the tests' (tests/law_probe), not the product's."""
+    exported = {n for n in dir(agents.law_kernel) if n.endswith(("_of", "_of_"))}
+    assert exported == {"smooth_step_of"}  # a lab's law schedules its scale with it
+
+
+def test_the_tests_build_of_the_kernel_is_the_products_sections():
+    from law_probe import load
+
+    probe = load()
+    assert probe.BUILT_FROM == agents.law_kernel.BUILT_FROM
+    assert hasattr(probe, "Law") and hasattr(probe, "safety_filter_of")

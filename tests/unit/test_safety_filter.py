@@ -18,8 +18,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from agents.safety_filter import (
+from kernel_forms import (
     Guarded,
     SafetyLimits,
     closest_feasible,

@@ -1,6 +1,7 @@
-# The sections one by one, callable from Python: the tests check each against the numpy
-# reference form of its module (tests/unit/test_hot_path.py, tests/kernel_forms.py).
-# Included by agents/law_kernel.pyx (one module: see its docstring).
+# The law kernel's sections one by one, callable from Python, for the tests only: each is
+# checked at its own boundary against the numpy oracle (tests/paper_oracle.py) or used
+# alone (tests/kernel_forms.py). Included by tests/law_probe/law_kernel_probe.pyx after the
+# whole kernel; the product's module (agents/law_kernel.pyx) does not carry them.
 
 # --- the equations one by one, for the tests (tests/unit/test_hot_path.py checks each
 # against the numpy reference form of its module) and the modules' float forms ----------
@@ -19,12 +20,6 @@ def sig_of(double x, double power):
 
 def implicit_sign_of(double e, double reach):
     return implicit_sign(e, reach)
-
-
-def smooth_step_of(double t, double start, double end):
-    cdef double value, rate
-    smooth_step(t, start, end, &value, &rate)
-    return value, rate
 
 
 def scale_at_of(double t, initial, changes):
