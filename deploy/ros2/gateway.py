@@ -112,6 +112,9 @@ class Ros2Gateway:
         ns = time.time_ns() if realtime else 0
         self.put(self.topic_name("obstacles"),
                  fm.obstacle_markers(ns, fm.obstacle_shapes_of(sc)), ns)
+        # rosbags writes a type's serializer at its first message (~ms): the status's
+        # now, before the run, rather than in the run's loop a second into it
+        encode(fm.status(ns, []))
 
     # -- the graph ---------------------------------------------------------------------
 

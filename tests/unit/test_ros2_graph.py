@@ -161,3 +161,32 @@ def test_the_packed_bytes_are_rosbags_bytes_for_any_row():
         assert [(t, ty) for t, ty, _ in packed] == [(t, m.__msgtype__) for t, m in built]
         assert [b for _, _, b in packed] == [encode(m) for _, m in built]
         assert fast.clock_bytes(ns) == encode(fm.clock(ns))
+
+
+def test_joint_positions_integrate_the_models_wheel_speeds_however_rows_are_batched():
+    """/robot_N/joint_states: each wheel's angle is the sum of the plant model's own wheel
+    speeds (eq. 1, MecanumModel.wheel_speeds) over every row times dt, its velocity the
+    newest row's, whether the gateway reads the rows one at a time or ten at once."""
+    from deploy.contract.scenario import load_scenario
+    from deploy.report.timeseries import TimeSeries
+
+    sc = load_scenario("lab")
+    model, steps = sc.model(), 40
+    ts = TimeSeries.allocate(steps, sc.n)
+    rng = np.random.default_rng(3)
+    ts.q[:] = rng.normal(0.0, 2.0, ts.q.shape)
+    ts.q_dot[:] = rng.normal(0.0, 1.0, ts.q_dot.shape)
+    expected = np.zeros((sc.n, 4))
+    for k in range(steps):
+        expected += sc.dt * np.array([model.wheel_speeds(ts.q[k, i, 2], ts.q_dot[k, i])
+                                      for i in range(sc.n)])
+    one, ten = fm.frames_for(sc), fm.frames_for(sc)
+    for k in range(steps):
+        one.advance(ts, k)
+    for k in range(9, steps, 10):
+        ten.advance(ts, k)
+    for frames in (one, ten):
+        np.testing.assert_allclose(frames.wheel_angle, expected, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(frames.wheel_speed, [
+            model.wheel_speeds(ts.q[-1, i, 2], ts.q_dot[-1, i]) for i in range(sc.n)],
+            rtol=1e-12, atol=1e-12)
