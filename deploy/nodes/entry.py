@@ -1,4 +1,4 @@
-"""What the whole command line (``deploy/cli.py``) and the nodes' own entry (``python -m
+"""What the whole command line (``deploy/cli/``) and the nodes' own entry (``python -m
 deploy.nodes``, what ``omnifleet run`` starts) share: the node commands, and running a
 parsed command, with the errors any command can end with said in one line with exit 2
 (130/143 when interrupted) instead of a traceback."""
@@ -6,6 +6,8 @@ parsed command, with the errors any command can end with said in one line with e
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 
 from deploy.contract.fault_plan import FaultPlanError
@@ -52,3 +54,9 @@ def dispatch(args: argparse.Namespace) -> int:
     except KeyboardInterrupt as exc:
         print("omnifleet: interrupted; every process of the run was stopped", file=sys.stderr)
         return 143 if getattr(exc, "signal_name", "") == "SIGTERM" else 130
+    except BrokenPipeError:
+        # the reader of our output went away (`omnifleet scenario list | head`): stop
+        # writing, quietly, as a tool killed by SIGPIPE would (Python's own recipe: the
+        # rest of stdout goes to /dev/null so that its flush at exit cannot raise again)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE

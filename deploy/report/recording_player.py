@@ -1,5 +1,5 @@
 """Play a recording (MCAP) to Foxglove over its WebSocket protocol, with
-playback control: ``omnifleet view`` (``deploy/report/view.py``).
+playback control: ``omnifleet view`` (``deploy/cli/view.py``).
 
 Every channel of ``RUN_DIR/recording.mcap`` is advertised with its own schema;
 messages are played in log-time order at the recording's pace (``--speed``),

@@ -17,7 +17,8 @@ from pathlib import Path
 # deploy/report/figures.py, the recorder, the launcher's logs/)
 FIGURE_FILES = ("fig4_trajectories.png", "fig5_errors.png", "fig6_distances_torques.png",
                 "CAPTIONS.md")  # what deploy/report/figures.py writes, in this order
-RUN_OUTPUTS = ("metrics.json", "timeseries.npz", "recording.mcap", "logs", *FIGURE_FILES)
+RECORDING = "recording.mcap"  # the run's MCAP file (deploy/report/recorder.py)
+RUN_OUTPUTS = ("metrics.json", "timeseries.npz", RECORDING, "logs", *FIGURE_FILES)
 
 
 class RunFolderError(ValueError):

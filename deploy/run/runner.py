@@ -132,7 +132,7 @@ def _run(sc: Scenario, plant, plant_kind: str, steps: int,
     bounds, clipped = CommandBounds.of(sc.spec.limits), dict.fromkeys(ids, 0)
     start = time.perf_counter()
     done, interrupted = 0, None
-    try:  # Ctrl-C: what was measured so far is still the run's (deploy/cli.py)
+    try:  # Ctrl-C: what was measured so far is still the run's (deploy/cli/)
         for k in range(steps):
             step_unix_ns[k] = time.time_ns()
             t = k * dt

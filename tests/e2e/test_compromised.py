@@ -19,11 +19,11 @@ import pytest
 from netns import omnifleet, stop
 from procs import REPO, assert_same_series, finish, start
 
+from deploy.cli.fleet import make_hosts_certs
 from deploy.contract.hosts import load_hosts
 from deploy.contract.keyring import Keyring, read_file
 from deploy.contract.scenario import load_scenario
 from deploy.contract.wire import WIRE_VERSION, Control, Keys, encode
-from deploy.fleet.cli import make_hosts_certs
 from deploy.fleet.deploy_plan import RunOptions, command_for, write_configs
 from deploy.report.timeseries import TimeSeries
 from deploy.runtime.transport import zenoh_config

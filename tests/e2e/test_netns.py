@@ -18,9 +18,9 @@ import pytest
 from netns import machines, netns_problem, omnifleet, stop
 from procs import assert_same_series, finish, start
 
+from deploy.cli.fleet import make_hosts_certs
 from deploy.contract.hosts import load_hosts
 from deploy.contract.scenario import load_scenario
-from deploy.fleet.cli import make_hosts_certs
 from deploy.fleet.deploy_plan import RunOptions, command_for, write_configs
 from deploy.report.metrics import control_figures
 from deploy.report.timeseries import TimeSeries

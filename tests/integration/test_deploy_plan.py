@@ -9,13 +9,13 @@ from pathlib import Path
 import pytest
 from procs import finish, start
 
+from deploy.cli.fleet import make_hosts_certs
 from deploy.contract.hosts import HostsError, load_hosts
 from deploy.contract.keyring import Keyring, read_file
 from deploy.contract.scenario import load_scenario
 from deploy.contract.wire import Keys
 from deploy.fleet.acl import access_control, fleet_roles, receives
 from deploy.fleet.certs import common_name
-from deploy.fleet.cli import make_hosts_certs
 from deploy.fleet.deploy_plan import RunOptions, plan_text, write_configs
 
 REPO = Path(__file__).resolve().parents[2]

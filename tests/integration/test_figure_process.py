@@ -126,7 +126,7 @@ def test_a_run_that_never_gets_to_its_figures_ends_the_prepared_child(lab_run):
     drawing = FigureProcess()
     drawing.prepare()
     pid = drawing._proc.pid
-    drawing.stop()  # a failed or interrupted run (deploy/run/run_cli.py)
+    drawing.stop()  # a failed or interrupted run (deploy/cli/run.py)
     assert not running(pid)
 
 

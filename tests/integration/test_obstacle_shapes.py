@@ -253,7 +253,7 @@ def test_perturbed_moves_walls_and_polygons_rigidly_and_reproducibly():
 def test_the_starters_commented_wall_polygon_and_waypoints_load_when_uncommented():
     import re
 
-    from deploy.scenario_cli import STARTER
+    from deploy.cli.scenario import STARTER
 
     # the waypoints replace the harmonic path's lines, as the starter says
     text = re.sub(r'^(path = "harmonic"|[xy] = \{.*|theta_rate = .*)\n', "", STARTER.read_text(),

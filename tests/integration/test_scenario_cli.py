@@ -129,10 +129,10 @@ def test_new_does_not_overwrite_without_force(capsys, tmp_path):
 def test_the_starter_runs_clean(tmp_path):
     """What `scenario new` writes is a fleet that works: on the model plant every robot
     settles before sqrt(2) T_p, nothing touches, nothing is non-finite."""
+    from deploy.cli.scenario import STARTER
     from deploy.report.metrics import compute_metrics
     from deploy.report.verdict import judge
     from deploy.run.runner import run_in_process
-    from deploy.scenario_cli import STARTER
 
     sc = load_scenario(STARTER)
     result = run_in_process(sc, "model", None)
@@ -140,3 +140,26 @@ def test_the_starter_runs_clean(tmp_path):
     v = judge(m)
     assert v["pass"], v["reasons"]
     assert m["contacts"] == 0 and m["min_robot_gap_m"] > 0
+
+
+def test_a_reader_that_went_away_ends_the_listing_quietly():
+    """`omnifleet scenario list | head -1`: the pipe's reader is gone when the listing
+    writes; the command stops as a tool killed by SIGPIPE does (141), with no traceback.
+    The read end is closed before the command starts, so its first write meets it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        done = subprocess.run([sys.executable, "-m", "deploy.cli", "scenario", "list"],
+                              cwd=Path(__file__).resolve().parents[2], stdout=write_end,
+                              stderr=subprocess.PIPE, timeout=120)
+    finally:
+        os.close(write_end)
+    err = done.stderr.decode()
+    assert done.returncode == 128 + signal.SIGPIPE, err
+    assert "Traceback" not in err and "BrokenPipe" not in err

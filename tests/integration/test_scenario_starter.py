@@ -13,10 +13,10 @@ import re
 import msgspec
 import pytest
 
+from deploy.cli.scenario import STARTER
 from deploy.contract.plant_registry import in_process_plants
 from deploy.contract.scenario import ScenarioError, ScenarioFile, parse_scenario
 from deploy.contract.schema_hints import enum_at
-from deploy.scenario_cli import STARTER
 
 TEXT = STARTER.read_text()
 HARMONIC = re.compile(r'^path = "harmonic"\n(?:.*\n)*?theta_rate = .*\n', re.M)

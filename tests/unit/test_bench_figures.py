@@ -9,7 +9,8 @@ import argparse
 import numpy as np
 import pytest
 
-from deploy.bench.suite import SCALE_SIZES, Bench, Figure, Settings, scale_sizes
+from deploy.bench.suite import SCALE_SIZES, Bench, Figure, Settings
+from deploy.cli.bench import scale_sizes
 from deploy.contract.scaled_scenarios import scale_scenario, tree_adjacency
 from deploy.contract.scenario import has_spanning_tree, load_scenario
 

@@ -1,5 +1,5 @@
 """The house imports one way (docs/layout.md): plant at the bottom, agents and bridges on it,
-deploy on top, and inside deploy its sub-packages from the contract up to the CLI.
+deploy on top, and inside deploy its sub-packages from the contract up to the command line.
 
 Every import counts, at module level or inside a function (a lazy import is still a
 dependency), read with ``ast`` from the source: nothing is imported to check it.
@@ -23,9 +23,9 @@ ALLOWED = {
     "deploy": {"plant", "agents", "bridges"},
 }
 
-# deploy's sub-packages, bottom to top; a module imports only its own layer or below.
-# Modules directly in deploy/ (cli.py, scenario_cli.py) are the roof.
-DEPLOY_LAYERS = ("contract", "runtime", "nodes", "fleet", "report", "ros2", "run", "bench", "")
+# deploy's sub-packages, bottom to top; a module imports only its own layer or below. The
+# command line (cli/) is the roof; no module sits directly in deploy/.
+DEPLOY_LAYERS = ("contract", "runtime", "nodes", "fleet", "report", "ros2", "run", "bench", "cli")
 
 
 def modules() -> dict[str, Path]:
@@ -55,9 +55,7 @@ def project_imports() -> dict[str, set[str]]:
 
 
 def layer(module: str) -> int:
-    parts = module.split(".")
-    sub = parts[1] if len(parts) > 2 else ""
-    return DEPLOY_LAYERS.index(sub)
+    return DEPLOY_LAYERS.index(module.split(".")[1])
 
 
 def test_top_level_folders_import_one_way():
@@ -68,9 +66,9 @@ def test_top_level_folders_import_one_way():
 
 def test_deploy_sub_packages_import_downward():
     for m in modules():
-        if m.startswith("deploy.") and len(m.split(".")) > 2:
+        if m.startswith("deploy."):
             assert m.split(".")[1] in DEPLOY_LAYERS, f"{m}: a sub-package of deploy/ not in DEPLOY_LAYERS"
-    wrong = [f"{m} (layer {DEPLOY_LAYERS[layer(m)] or 'roof'}) -> {i}"
+    wrong = [f"{m} (layer {DEPLOY_LAYERS[layer(m)]}) -> {i}"
              for m, deps in project_imports().items() if m.startswith("deploy.")
              for i in sorted(deps) if i.startswith("deploy.") and i != "deploy" and layer(i) > layer(m)]
     assert not wrong, "imports that run back up inside deploy/:\n" + "\n".join(wrong)

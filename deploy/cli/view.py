@@ -1,6 +1,6 @@
-"""``omnifleet view RUN_DIR``: serve a finished run's recording over Foxglove's
-WebSocket protocol, as ``--live`` serves a running one (the player:
-``deploy/report/recording_player.py``, imported only when the command runs)."""
+"""``omnifleet view RUN_DIR``: serve a finished run's recording over Foxglove's WebSocket
+protocol, as ``--live`` serves a running one (the player: deploy/report/recording_player.py,
+imported only when the command runs)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,8 @@ import sys
 from pathlib import Path
 
 from deploy.contract.options import EXIT_BAD_INPUT, add_option
+from deploy.report.run_folder import RECORDING
 from deploy.report.ws_address import DEFAULT_PORT, LiveAddressError, parse_address, url
-
-RECORDING = "recording.mcap"
 
 
 def _cmd_view(args: argparse.Namespace) -> int:

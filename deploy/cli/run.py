@@ -12,17 +12,13 @@ from deploy.contract.output_paths import check_folder, usable_folder
 from deploy.contract.wire import Keys
 from deploy.nodes.cli import fault_plan, gui_problem, run_scenario, steps_of
 from deploy.report.emulator_truth import can_fault_counts, emulator_lag_ms
-from deploy.report.run_folder import RunFolderError
+from deploy.report.run_folder import RECORDING, RunFolderError
 from deploy.report.run_folder import prepare as prepare_run_folder
 from deploy.report.summary import summary
 from deploy.report.verdict import divergence_banner, verdict_line
 from deploy.runtime.fault_model import fault_metrics
 from deploy.runtime.heap import frozen_heap
 from deploy.runtime.plants import CAN_EMULATED, PLANTS
-
-RECORDING = "recording.mcap"
-
-
 
 
 def _options_problem(args: argparse.Namespace, sc, plant: str) -> str | None:

@@ -32,7 +32,7 @@ from deploy.contract.scenario import (
     parse_scenario,
 )
 
-STARTER = Path(__file__).resolve().parent / "scenario_starter.toml"
+STARTER = Path(__file__).resolve().parent.parent / "scenario_starter.toml"
 
 
 def _cmd_list(_args: argparse.Namespace) -> int:

@@ -39,8 +39,8 @@ class _Version(argparse.Action):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from deploy.cli.run import add_run_command
     from deploy.nodes.entry import add_every_node_command
-    from deploy.run.run_cli import add_run_command
 
     p = argparse.ArgumentParser(
         prog="omnifleet",
@@ -54,25 +54,25 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     add_run_command(sub)
     add_every_node_command(sub)
-    from deploy.bench.suite import add_bench_command
-    from deploy.nodes.can_check_cli import add_can_check_command
-    from deploy.run.fault_sweep import add_faults_command
+    from deploy.cli.bench import add_bench_command
+    from deploy.cli.can_check import add_can_check_command
+    from deploy.cli.faults import add_faults_command
 
     add_can_check_command(sub)
     add_bench_command(sub)
     add_faults_command(sub)
-    from deploy.run.compare import add_compare_command
-    from deploy.run.safety_sweep import add_safety_command
+    from deploy.cli.compare import add_compare_command
+    from deploy.cli.safety import add_safety_command
 
     add_safety_command(sub)
     add_compare_command(sub)
-    from deploy.fleet.cli import add_deploy_commands
-    from deploy.scenario_cli import add_scenario_commands
+    from deploy.cli.fleet import add_deploy_commands
+    from deploy.cli.scenario import add_scenario_commands
 
     add_scenario_commands(sub)
-    from deploy.fleet.router import add_router_command
-    from deploy.report.view import add_view_command
-    from deploy.run.record import add_record_command
+    from deploy.cli.record import add_record_command
+    from deploy.cli.router import add_router_command
+    from deploy.cli.view import add_view_command
 
     add_record_command(sub)
     add_view_command(sub)
@@ -114,6 +114,3 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         close_early()  # started, and no run took it (bad input, an early error)
 
-
-if __name__ == "__main__":
-    sys.exit(main())
