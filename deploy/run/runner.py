@@ -93,105 +93,130 @@ PROGRESS_EVERY = 16  # steps between progress calls (a live view reads the rows 
 def _run(sc: Scenario, plant, plant_kind: str, steps: int,
          progress: Callable[[int, int], None] | None, model: FaultModel,
          on_series: Callable[[TimeSeries], None] | None = None) -> RunResult:
-    dt = sc.dt
-    agents = make_agents(sc)
-    leader = leader_generator(sc.leader_spec(), dt)  # a steered one gets no command here: it stays
-    sense = sensor_for(plant, sc)
-    ids = sc.robot_ids
-    series = TimeSeries.allocate(steps, sc.n)
-    step_unix_ns = np.zeros(steps, np.int64)
+    run = _ReferenceLoop(sc, plant, steps, model)
     if on_series is not None:
-        on_series(series)
-    b = sc.leader_weights
-    torques = np.zeros((sc.n, 4))
-    v_cmd = np.zeros((sc.n, 3))
-    targets = FormationTargets(sc)
-    # what was sent, by step: the links pick from these (a delay reaches back)
-    keep = model.max_lag_steps + 2
-    worlds: dict[int, list[tuple]] = {}  # k -> per robot (q, q_dot, robots, obstacles, own)
-    leaders: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    shares: dict[int, dict[int, Share]] = {  # k -> robot id -> its share of step k
-        -1: {rid: a.initial_share for rid, a in zip(ids, agents, strict=True)}}
-    commands: dict[int, dict[int, tuple]] = {}  # k -> robot id -> (torques, v_cmd, plan)
-    links = [AgentLinks(model, rid, [j for j, _ in a.cfg.neighbours], b[i] != 0.0)
-             for i, (rid, a) in enumerate(zip(ids, agents, strict=True))]
-    neighbours = [[j for j, _ in a.cfg.neighbours] for a in agents]
-    zero_missed = sc.spec.plant.missed_command == "zero"
-    command_links = [HeldInput(model, model.edge(agent_role(rid), PLANT_ROLE), exempt_first=False)
-                     for rid in ids]
-    # commands can only be lost with a fault plan: only then is the look-ahead worth its cost
-    horizon = sc.spec.degradation.command_horizon if model.plan is not None else 0
-    look_ahead = [LookAhead(a, horizon) for a in agents] if horizon else None
-    law_resets = [0] * sc.n
-    # per robot: the previous step ran on its agent's own command (Sample.own_torques)
-    own_torques = [True] * sc.n
-    # without a fault plan every link delivers step k's sample (the neighbours' of k-1) at
-    # once: the links' bookkeeping is skipped, with the same inputs (AgentLinks.take)
-    fault_free = model.plan is None
-
-    bounds, clipped = CommandBounds.of(sc.spec.limits), dict.fromkeys(ids, 0)
+        on_series(run.series)
     start = time.perf_counter()
     done, interrupted = 0, None
     try:  # Ctrl-C: what was measured so far is still the run's (deploy/cli/)
         for k in range(steps):
-            step_unix_ns[k] = time.time_ns()
-            t = k * dt
-            q0, v0 = leader.state_floats()
-            leaders[k] = (q0, v0)
-            qs, qds = plant.q.tolist(), plant.q_dot.tolist()
-            # each robot's sample as the plant sends it, with its own_torques flag
-            worlds[k] = world_k = [(tuple(q), tuple(qd), *seen, own)
-                                   for q, qd, seen, own in zip(qs, qds, sense(), own_torques,
-                                                               strict=True)]
-            shares_k, commands_k, shares_before = {}, {}, shares.get(k - 1, {})
-            shares[k], commands[k] = shares_k, commands_k
-            for i, agent in enumerate(agents):
-                rid = ids[i]
-                if fault_free:
-                    world, ages = world_k[i], None
-                    lead = (q0, v0) if b[i] != 0.0 else None
-                    shs = {j: shares_before.get(j) for j in neighbours[i]}
-                else:
-                    world, lead, shs, ages = links[i].take(
-                        k, lambda idx, i=i: worlds[idx][i] if idx in worlds else None,
-                        leaders.get, lambda jk: shares.get(jk[1], {}).get(jk[0]), dt)
-                q, q_dot, robots_seen, obstacles_seen, own = world
-                out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages,
-                                 own_torques=own)
-                plan = [] if look_ahead is None else look_ahead[i].plan(
-                    agent, out, t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
-                tq = out.torques
-                if exceeds(tq, plan, bounds.torque):
-                    clipped[rid] += 1
-                commands_k[rid] = (*bounds.applied(tq, out.v_cmd),
-                                   bounds.plan(plan) if plan else plan)
-                shares_k[rid] = out.share
-                law_resets[i] += bool(out.reset)
-                series.record_agent(k, i, out, agent)
-            series.record_world(k, t, q0, v0, plant.q, plant.q_dot)
-            if fault_free:  # each robot's own command of step k, in one assignment each
-                torques[:] = [commands_k[rid][0] for rid in ids]
-                v_cmd[:] = [commands_k[rid][1] for rid in ids]
-            else:
-                _commands_through_links(k, ids, command_links, commands, zero_missed,
-                                        own_torques, torques, v_cmd)
-            plant.step(t, dt, torques, v_cmd)
-            leader.advance()
-            for by_step in (worlds, leaders, shares, commands):
-                by_step.pop(k - keep, None)
+            run.step(k)
             if progress is not None and (k % PROGRESS_EVERY == 0 or k + 1 == steps):
                 progress(k + 1, steps)
             done = k + 1
     except KeyboardInterrupt:
         interrupted = "SIGINT"
-        series = TimeSeries(**{c: getattr(series, c)[:done].copy() for c in COLUMNS})
-        step_unix_ns = step_unix_ns[:done]
+        run.keep_first(done)
     wall = time.perf_counter() - start
-    series.target[:] = targets.along(series.t, series.leader_q)  # reported only: after the run
+    series, agents = run.series, run.agents
+    series.target[:] = run.targets.along(series.t, series.leader_q)  # reported only: after the run
     faults = [a.faults.as_json() for a in agents] if isinstance(agents[0], PluggedCore) else None
     return RunResult(sc, plant_kind, series, wall, contact_log(plant), model.report()
-                     if model.plan is not None else None, step_unix_ns, law_resets, interrupted,
-                     clipped, faults)
+                     if model.plan is not None else None, run.step_unix_ns, run.law_resets,
+                     interrupted, run.clipped, faults)
+
+
+class _ReferenceLoop:
+    """One in-process run's state from step to step, and its step: the leader's state,
+    every robot's sample, each agent's step on the inputs its links deliver
+    (:meth:`_agents`), the commands the plant acts on, the plant's step. What was sent is
+    kept by step for a few steps, as the links pick from it (a delay reaches back)."""
+
+    def __init__(self, sc: Scenario, plant, steps: int, model: FaultModel) -> None:
+        self.sc, self.plant, self.model, self.dt = sc, plant, model, sc.dt
+        self.agents = agents = make_agents(sc)
+        # a steered leader gets no command here: it stays
+        self.leader = leader_generator(sc.leader_spec(), sc.dt)
+        self.sense = sensor_for(plant, sc)
+        self.ids = ids = sc.robot_ids
+        self.series = TimeSeries.allocate(steps, sc.n)
+        self.step_unix_ns = np.zeros(steps, np.int64)
+        self.b = b = sc.leader_weights
+        self.torques = np.zeros((sc.n, 4))
+        self.v_cmd = np.zeros((sc.n, 3))
+        self.targets = FormationTargets(sc)
+        self.keep = model.max_lag_steps + 2
+        self.worlds: dict[int, list[tuple]] = {}  # k -> per robot (q, q_dot, robots, obstacles, own)
+        self.leaders: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.shares: dict[int, dict[int, Share]] = {  # k -> robot id -> its share of step k
+            -1: {rid: a.initial_share for rid, a in zip(ids, agents, strict=True)}}
+        self.commands: dict[int, dict[int, tuple]] = {}  # k -> robot id -> (torques, v_cmd, plan)
+        self.links = [AgentLinks(model, rid, [j for j, _ in a.cfg.neighbours], b[i] != 0.0)
+                      for i, (rid, a) in enumerate(zip(ids, agents, strict=True))]
+        self.neighbours = [[j for j, _ in a.cfg.neighbours] for a in agents]
+        self.zero_missed = sc.spec.plant.missed_command == "zero"
+        self.command_links = [HeldInput(model, model.edge(agent_role(rid), PLANT_ROLE),
+                                        exempt_first=False) for rid in ids]
+        # commands can only be lost with a fault plan: only then is the look-ahead worth its cost
+        horizon = sc.spec.degradation.command_horizon if model.plan is not None else 0
+        self.look_ahead = [LookAhead(a, horizon) for a in agents] if horizon else None
+        self.law_resets = [0] * sc.n
+        # per robot: the previous step ran on its agent's own command (Sample.own_torques)
+        self.own_torques = [True] * sc.n
+        # without a fault plan every link delivers step k's sample (the neighbours' of k-1)
+        # at once: the links' bookkeeping is skipped, with the same inputs (AgentLinks.take)
+        self.fault_free = model.plan is None
+        self.bounds = CommandBounds.of(sc.spec.limits)
+        self.clipped = dict.fromkeys(ids, 0)
+
+    def step(self, k: int) -> None:
+        plant, ids = self.plant, self.ids
+        self.step_unix_ns[k] = time.time_ns()
+        t = k * self.dt
+        q0, v0 = self.leader.state_floats()
+        self.leaders[k] = (q0, v0)
+        qs, qds = plant.q.tolist(), plant.q_dot.tolist()
+        # each robot's sample as the plant sends it, with its own_torques flag
+        self.worlds[k] = [(tuple(q), tuple(qd), *seen, own)
+                          for q, qd, seen, own in zip(qs, qds, self.sense(), self.own_torques,
+                                                      strict=True)]
+        commands_k = self._agents(k, t, q0, v0)
+        self.series.record_world(k, t, q0, v0, plant.q, plant.q_dot)
+        if self.fault_free:  # each robot's own command of step k, in one assignment each
+            self.torques[:] = [commands_k[rid][0] for rid in ids]
+            self.v_cmd[:] = [commands_k[rid][1] for rid in ids]
+        else:
+            _commands_through_links(k, ids, self.command_links, self.commands, self.zero_missed,
+                                    self.own_torques, self.torques, self.v_cmd)
+        plant.step(t, self.dt, self.torques, self.v_cmd)
+        self.leader.advance()
+        for by_step in (self.worlds, self.leaders, self.shares, self.commands):
+            by_step.pop(k - self.keep, None)
+
+    def _agents(self, k: int, t: float, q0: tuple, v0: tuple) -> dict[int, tuple]:
+        """Every agent's step k on what its links deliver; the commands it gives, by robot."""
+        ids, b, worlds, shares = self.ids, self.b, self.worlds, self.shares
+        world_k, look_ahead, bounds, series = worlds[k], self.look_ahead, self.bounds, self.series
+        shares_k, commands_k, shares_before = {}, {}, shares.get(k - 1, {})
+        shares[k], self.commands[k] = shares_k, commands_k
+        for i, agent in enumerate(self.agents):
+            rid = ids[i]
+            if self.fault_free:
+                world, ages = world_k[i], None
+                lead = (q0, v0) if b[i] != 0.0 else None
+                shs = {j: shares_before.get(j) for j in self.neighbours[i]}
+            else:
+                world, lead, shs, ages = self.links[i].take(
+                    k, lambda idx, i=i: worlds[idx][i] if idx in worlds else None,
+                    self.leaders.get, lambda jk: shares.get(jk[1], {}).get(jk[0]), self.dt)
+            q, q_dot, robots_seen, obstacles_seen, own = world
+            out = agent.step(t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages,
+                             own_torques=own)
+            plan = [] if look_ahead is None else look_ahead[i].plan(
+                agent, out, t, q, q_dot, shs, lead, obstacles_seen, robots_seen, ages=ages)
+            tq = out.torques
+            if exceeds(tq, plan, bounds.torque):
+                self.clipped[rid] += 1
+            commands_k[rid] = (*bounds.applied(tq, out.v_cmd), bounds.plan(plan) if plan else plan)
+            shares_k[rid] = out.share
+            self.law_resets[i] += bool(out.reset)
+            series.record_agent(k, i, out, agent)
+        return commands_k
+
+    def keep_first(self, done: int) -> None:
+        """An interrupted run: the series and the wall clock of the steps done only."""
+        self.series = TimeSeries(**{c: getattr(self.series, c)[:done].copy() for c in COLUMNS})
+        self.step_unix_ns = self.step_unix_ns[:done]
 
 
 def _commands_through_links(k: int, ids: list[int], command_links: list[HeldInput],
