@@ -105,6 +105,7 @@ def spin(c: Check, n: int, torque_nm: float, seconds: float) -> str:
             c.send([d.torque_frame(n, 0.0)])
             c.listen(CYCLE_S, cycle=True)
         print(f"node {n}: {d.describe(n)}")
+        before = c.speeds[n][-1] if c.speeds[n] else 0.0  # its speed as the torque starts
         c.speeds[n] = []
         end = time.monotonic() + seconds
         while time.monotonic() < end:
@@ -116,10 +117,19 @@ def spin(c: Check, n: int, torque_nm: float, seconds: float) -> str:
     speeds = c.speeds.get(n, [])
     if not speeds:
         return f"node {n}: no encoder readings while spinning"
-    peak = max(speeds, key=abs)
+    return spin_verdict(n, torque_nm, before, speeds)
+
+
+def spin_verdict(n: int, torque_nm: float, before: float, speeds: list[float]) -> str:
+    """Which way drive ``n`` turned under ``torque_nm``, judged by how its speed changed from
+    ``before`` (its last reading as the torque started): a wheel that already turned (a
+    robot on the ground, moved by the wheels spun before it; a wheel still coasting) is
+    not taken for one that turns against its torque."""
+    peak = max((v - before for v in speeds), key=abs)
     direction = "positive" if peak > 0 else "negative" if peak < 0 else "did not move"
     agrees = (peak > 0) == (torque_nm > 0)
-    return (f"node {n}: {direction}, peak {abs(peak):.3f} rev/s at {torque_nm:+.3f} N m"
+    return (f"node {n}: {direction}, peak {abs(peak):.3f} rev/s at {torque_nm:+.3f} N m "
+            f"(the change from {before:+.3f} rev/s as the torque started)"
             + ("" if agrees or peak == 0 else "  <- turns against the torque: check wiring/sign"))
 
 
