@@ -11,7 +11,7 @@ scheme of the authors' code while positions arrive one step late.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from math import isfinite
 
@@ -171,6 +171,19 @@ class AgentCore:
             return nbr, None
         return nbr, (ages.state_s, ages.leader_s,
                      [ages.shares_s.get(j, 0.0) for j in self._neighbours])
+
+    def kernel_call(self, t: float, q: np.ndarray | Vec3, q_dot: np.ndarray | Vec3,
+                    shares: Mapping[int, Share],
+                    leader: tuple[np.ndarray, np.ndarray] | tuple[Vec3, Vec3] | None,
+                    obstacles: Bodies = (), robots: Bodies = ()) -> Callable[[], object]:
+        """The compiled law's own step on these inputs, prepared as :meth:`step` prepares
+        them, as a call without arguments: what the kernel alone costs (``omnifleet
+        bench``, the floor under the agent's budget). Each call advances the law's state."""
+        qv, qdv = _vec3(q), _vec3(q_dot)
+        nbr, _ = self.kernel_inputs(shares, None)
+        lead = None if leader is None else (_vec3(leader[0]), _vec3(leader[1]))
+        obs, rob, h, law = _bodies(obstacles), _bodies(robots), self.cfg.dt, self._law
+        return lambda: law.step(t, qv, qdv, nbr, None, lead, obs, rob, h, h, 1.0)
 
     def step(
         self,

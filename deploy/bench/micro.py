@@ -281,7 +281,9 @@ def cold_step_pieces_us(sc: Scenario, calls: int) -> dict[str, dict[str, float]]
     inputs of the most-connected robot received (its sample and its neighbours'
     shares, unix datagrams), decoded with validation, the paper law's step
     (AgentCore.step), the reply encoded and sent to as many receivers; and the bare
-    wake of a 1 ms wait.
+    wake of a 1 ms wait. Apart (``law kernel hot`` / ``cold``): the compiled law's own step
+    (Law.step on prepared inputs, AgentCore.kernel_call) after the same wait: what a step
+    compiled whole could not go below.
 
     ``hot``: the pieces back to back, as a loop that never sleeps runs them; ``cold``:
     each round after a 1 ms wait, as a realtime process at 1 kHz runs them (the caches
@@ -293,6 +295,8 @@ def cold_step_pieces_us(sc: Scenario, calls: int) -> dict[str, dict[str, float]]
     import socket
 
     core, args, kwargs = _captured_core(sc, 0.5)
+    kernel = core.kernel_call(*args[:7], **{k: v for k, v in kwargs.items()
+                                            if k in ("obstacles", "robots")})
     msgs, codec = sample_messages(sc), Codec(sc.robot_ids)
     sample_msg, reply_msg = msgs["Sample"], msgs["Reply"]
     i = max(range(sc.n), key=lambda i: len(sc.agent_config(i).neighbours))
@@ -328,6 +332,11 @@ def cold_step_pieces_us(sc: Scenario, calls: int) -> dict[str, dict[str, float]]
                          ("encode", t4 - t3), ("send", t5 - t4)):
             times.setdefault(name, []).append(ns)
 
+    def kernel_alone(times: dict[str, list[int]]) -> None:  # not one of the pieces
+        t = tick()
+        kernel()
+        times.setdefault("kernel", []).append(tick() - t)
+
     out: dict[str, dict[str, float]] = {}
     try:
         for mode in ("hot", "cold"):
@@ -342,6 +351,13 @@ def cold_step_pieces_us(sc: Scenario, calls: int) -> dict[str, dict[str, float]]
                     times.setdefault("wake", []).append(tick() - t)
                 pieces(times)
             out[mode] = {name: statistics.median(v) / 1e3 for name, v in times.items()}
+            alone: dict[str, list[int]] = {}
+            kernel()
+            for _ in range(calls):  # the same wait, then the compiled law's step alone
+                if mode == "cold":
+                    select.select((), (), (), 0.001)
+                kernel_alone(alone)
+            out["law kernel " + mode] = {"kernel": statistics.median(alone["kernel"]) / 1e3}
     finally:
         a.close()
         b.close()

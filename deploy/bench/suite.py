@@ -613,6 +613,11 @@ class Bench:
                            f"{what}, each after a 1 ms sleep as at 1 kHz, the wake included")
         wake = self.figure("budget.floor.wake_us", "µs", "the CPU of the wake from a 1 ms "
                            "wait alone (select)")
+        kernel = "the compiled law's own step (Law.step on prepared inputs, no Python around it)"
+        k_hot = self.figure("budget.floor.law_kernel_hot_us", "µs", f"{kernel}, back to back")
+        k_cold = self.figure("budget.floor.law_kernel_cold_us", "µs",
+                             f"{kernel}, each after a 1 ms sleep: what a step compiled whole "
+                             "could not go below")
 
         def body() -> None:
             for _ in range(self.s.repeats):
@@ -620,9 +625,11 @@ class Bench:
                 hot.samples.append(sum(r["hot"].values()))
                 cold.samples.append(sum(r["cold"].values()))
                 wake.samples.append(r["cold"]["wake"])
+                k_hot.samples.append(r["law kernel hot"]["kernel"])
+                k_cold.samples.append(r["law kernel cold"]["kernel"])
 
         self.measure("CPU budget: the floor of an agent step", body, hot.name, cold.name,
-                     wake.name)
+                     wake.name, k_hot.name, k_cold.name)
 
     def one_core(self) -> None:
         """Every realtime fleet pinned to one of the two cores (what a machine half as fast

@@ -57,6 +57,7 @@ EXPECTED = {
     "budget.paper_1khz.agent_max.part.law_us",
     "budget.paper_1khz.agent_max.part.wake_and_the_rest_us",
     "budget.floor.agent_pieces_hot_us", "budget.floor.agent_pieces_cold_us", "budget.floor.wake_us",
+    "budget.floor.law_kernel_hot_us", "budget.floor.law_kernel_cold_us",
     "onecore.paper_1khz_passed", "onecore.paper_1khz_unsettled_robots",
     *(f"onecore.can_odrive_cansimple_200hz_{w}" for w in (
         "pass", "steps_not_simulated", "jitter_p99_ms", "deadline_misses", "settling_max_s")),
@@ -109,6 +110,10 @@ def test_quick_bench_writes_every_figure(tmp_path):
     floor = {w: figures[f"budget.floor.{w}"]["median"] for w in
              ("agent_pieces_hot_us", "agent_pieces_cold_us", "wake_us")}
     assert floor["agent_pieces_cold_us"] > floor["agent_pieces_hot_us"] > 0 < floor["wake_us"]
+    # the compiled law alone is a part of AgentCore.step, itself one of the pieces
+    kernel = {w: figures[f"budget.floor.law_kernel_{w}_us"]["median"] for w in ("hot", "cold")}
+    assert 0 < kernel["hot"] < floor["agent_pieces_hot_us"]
+    assert 0 < kernel["cold"] < floor["agent_pieces_cold_us"]
     table = (tmp_path / "bench.md").read_text()
     assert table == markdown(report)
     assert all(name in table for name in EXPECTED)
