@@ -294,7 +294,8 @@ def supervise(ordered: Sequence[BehaviorOutput], engage: str,
               limit: Callable[[np.ndarray], np.ndarray] | None = None) -> list[BehaviorOutput]:
     """The behaviors that take part in (26), highest priority first. ``limit``: what
     the agent does to the fused velocity before commanding it; "approaching" judges
-    J v < 0 on the limited velocity (see :func:`supervise_tasks`)."""
+    J v < 0 on the limited velocity (as the kernel's supervisor does:
+    tests/kernel_forms.py supervise_tasks)."""
     lim = limit or (lambda v: v)
     active = [b for b in ordered if b.active]
     if engage == "inside":
