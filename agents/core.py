@@ -179,11 +179,21 @@ class AgentCore:
         """The compiled law's own step on these inputs, prepared as :meth:`step` prepares
         them, as a call without arguments: what the kernel alone costs (``omnifleet
         bench``, the floor under the agent's budget). Each call advances the law's state."""
-        qv, qdv = _vec3(q), _vec3(q_dot)
-        nbr, _ = self.kernel_inputs(shares, None)
+        h, law = self.cfg.dt, self._law
+        args = self._kernel_args(t, q, q_dot, shares, leader, obstacles, robots, None, h, h,
+                                 1.0)
+        return lambda: law.step(*args)
+
+    def _kernel_args(self, t: float, q: np.ndarray | Vec3, q_dot: np.ndarray | Vec3,
+                     shares: Mapping[int, Share],
+                     leader: tuple[np.ndarray, np.ndarray] | tuple[Vec3, Vec3] | None,
+                     obstacles: Bodies, robots: Bodies, ages: InputAges | None, h: float,
+                     horizon: float, speed_cap: float) -> tuple:
+        """A step's inputs as the compiled law's ``step`` takes them, in its order."""
+        nbr, kernel_ages = self.kernel_inputs(shares, ages)
         lead = None if leader is None else (_vec3(leader[0]), _vec3(leader[1]))
-        obs, rob, h, law = _bodies(obstacles), _bodies(robots), self.cfg.dt, self._law
-        return lambda: law.step(t, qv, qdv, nbr, None, lead, obs, rob, h, h, 1.0)
+        return (t, _vec3(q), _vec3(q_dot), nbr, kernel_ages, lead, _bodies(obstacles),
+                _bodies(robots), h, horizon, speed_cap)
 
     def step(
         self,
@@ -217,10 +227,10 @@ class AgentCore:
 
         A law that diverges gives zero torques and ``nonfinite``, never an exception;
         the state it left non-finite is restarted from the measurement (``reset``)."""
-        qv, qdv = _vec3(q), _vec3(q_dot)
-        nbr, kernel_ages = self.kernel_inputs(shares, ages)
-        lead = None if leader is None else (_vec3(leader[0]), _vec3(leader[1]))
         h = self.cfg.dt if dt is None else dt
+        args = self._kernel_args(t, q, q_dot, shares, leader, obstacles, robots, ages, h,
+                                 h if horizon is None else horizon, speed_cap)
+        qv, qdv = args[1], args[2]
         last_h, self._last_h = self._last_h, h
         if not own_torques or (last_h is not None and abs(h - last_h) > 1e-9 * h):
             # eq. (39) advanced z1_hat over last_h with the Gamma of the previous step:
@@ -232,8 +242,7 @@ class AgentCore:
             # never settling meanwhile). Ours, not the paper's: z1_hat restarts from this
             # measurement, as at the first one; z2_hat is kept (docs/errata.md)
             self._law.restore("z1_hat", None)
-        raw = self._law.step(t, qv, qdv, nbr, kernel_ages, lead, _bodies(obstacles),
-                             _bodies(robots), h, h if horizon is None else horizon, speed_cap)
+        raw = self._law.step(*args)
         (torques, v_cmd, e, s, q_d, q_fd, zeta, zeta_dot, q0h, v0h, z2, order, errors,
          nonfinite, info_age, input_age, speed, left_out, safety) = raw
         out = AgentOutput(

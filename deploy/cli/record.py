@@ -15,6 +15,7 @@ from deploy.contract.output_paths import check_folder
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE
 from deploy.nodes.cli import add_keys_options, keyring_of, run_scenario
+from deploy.report.run_folder import RECORDING
 from deploy.run.launcher import Interrupted, LaunchOptions
 from deploy.run.record import Recorder, log_progress
 
@@ -50,7 +51,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
         from deploy.report.recorder import McapRecorder
 
         Path(args.out).mkdir(parents=True, exist_ok=True)
-        recording = McapRecorder(Path(args.out) / "recording.mcap",
+        recording = McapRecorder(Path(args.out) / RECORDING,
                                  sim_dt=sc.dt if args.clock == "lockstep" else None)
         opts.recorder = recording
     rec = Recorder(sc, opts, args.zenoh_config, args.listen, args.connect, keyring)

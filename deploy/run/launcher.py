@@ -31,6 +31,7 @@ from typing import Any
 from deploy.contract.keyring import Keyring, keyring_text, new_master
 from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, WIRE_VERSION, Keys, LeaderSteer, control
+from deploy.report.run_folder import RECORDING
 from deploy.report.timeseries import TimeSeries
 from deploy.run.early_load import EarlyLoad, EarlyLoadProbe
 from deploy.run.kill_schedule import KillSchedule
@@ -64,7 +65,7 @@ def observing(obs: Observer, opts: LaunchOptions, node: Node, stop: StopFlag) ->
     from deploy.report.recorder import McapRecorder
 
     if opts.record:
-        obs.recorder = opts.recorder or McapRecorder(opts.out / "recording.mcap")
+        obs.recorder = opts.recorder or McapRecorder(opts.out / RECORDING)
     previous = {s: signal.signal(s, lambda n, _f: stop.set(signal.Signals(n).name))
                 for s in (signal.SIGINT, signal.SIGTERM)}
     try:

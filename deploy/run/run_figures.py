@@ -13,6 +13,7 @@ import numpy as np
 from deploy.contract.fault_plan import FaultPlan
 from deploy.contract.options import DEFAULT_COMMAND_TIMEOUT_S
 from deploy.contract.wire import LAUNCHER_ROLE, PLANT_ROLE, NodeReport, agent_role, bridge_role
+from deploy.report.run_folder import RECORDING
 from deploy.run.observer import Observer
 from deploy.run.plan import Child
 from deploy.runtime.fault_model import fault_metrics, merge_reports
@@ -185,7 +186,7 @@ def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: f
         out["contact_log"] = [msgspec.structs.asdict(c) for c in plant.contacts]
         out["contacts_total"] = plant.contacts_total
     if obs.recorder is not None:
-        out["recording"] = {"file": "recording.mcap", "messages": obs.recorder.written}
+        out["recording"] = {"file": RECORDING, "messages": obs.recorder.written}
     if faults is not None:
         out["faults"] = fault_metrics(faults, merge_reports([r.faults for r in reports.values()]),
                                       kill_events or [])

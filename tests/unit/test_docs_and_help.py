@@ -77,7 +77,7 @@ def test_the_readme_names_every_command():
 
 
 def test_no_code_or_doc_cites_an_issue_number_or_an_outside_design_section():
-    pattern = re.compile(r"\b[Ii]ssues? [0-9]+|\bissue-[0-9]+|DESIGN §")
+    pattern = re.compile(r"\b[Ii]ssues? [0-9]+|\bissue-[0-9]+|DESIGN \N{SECTION SIGN}")
     cited = [f"{f.relative_to(REPO)}:{n}" for f in _tracked("*.py", "*.md", "*.toml")
              for n, line in enumerate(f.read_text().splitlines(), 1) if pattern.search(line)
              and f.name != "test_docs_and_help.py"]
