@@ -49,6 +49,7 @@ EXPECTED = {
     "lockstep.paper_real_time_factor", "lockstep.paper_ratio_to_in_process",
     "realtime.lab_1khz_latency_p99_ms", "realtime.lab_1khz_contacts",
     "realtime.can_fleet_jitter_p99_ms", "realtime.can_fleet_settling_max_s",
+    "realtime.can_fleet_1khz_pass", "realtime.can_fleet_1khz_jitter_p99_ms",
     "datapath.local_wall_s", "datapath.zenoh_wall_s", "datapath.zenoh_over_local",
     *(f"lockstep.paper_cpu_us_per_step.{w}" for w in ("plant", "agent_max", "leader",
                                                       "launcher", "all")),
@@ -71,7 +72,8 @@ TARGETS = {"lockstep.overhead_ratio": "<= 1.5", "lockstep.real_time_factor_500hz
            "inprocess.paper_model_us_per_robot_step": "<= 30",
            "lockstep.paper_real_time_factor": ">= 2", "realtime.lab_1khz_latency_p99_ms": "<= 1",
            "realtime.lab_1khz_contacts": "<= 0", "realtime.can_fleet_jitter_p99_ms": "<= 1",
-           "realtime.can_fleet_settling_max_s": "<= 1"}
+           "realtime.can_fleet_settling_max_s": "<= 1", "realtime.can_fleet_1khz_pass": ">= 1",
+           "realtime.can_fleet_1khz_jitter_p99_ms": "<= 1"}
 
 
 
