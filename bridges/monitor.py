@@ -18,8 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from math import pi
 
-import numpy as np
-
 from bridges.driver import DriveState, WheelReport
 
 
@@ -57,10 +55,12 @@ class DriverMonitor:
         # between them mix two instants, which odometry reads as a turn that the next
         # period undoes, leaving a random walk (0.2-0.9 cm over a 60 s lab run).
         self._waiting = {a.node for a in self.axes}  # axes not heard since the last set
-        self._set_rev: np.ndarray | None = None  # the newest complete set's angles (turns)
-        self._set_rev_s = np.zeros(len(self.axes))  # ... and speeds (turns/s)
+        # (float tuples: a bridge reads them once a period, numpy on four numbers costs
+        # more than the arithmetic; bridges/odometry.py)
+        self._set_rev: tuple[float, ...] | None = None  # the newest complete set's angles (turns)
+        self._set_rev_s: tuple[float, ...] = (0.0,) * len(self.axes)  # ... and speeds (turns/s)
         self._set_at: float | None = None  # ... and when, on average, they arrived
-        self._first_set: np.ndarray | None = None  # the first complete set's angles
+        self._first_set: tuple[float, ...] | None = None  # the first complete set's angles
 
     def feed(self, report: WheelReport, now_s: float, sampled_s: float | None = None) -> None:
         """A drive's report, heard at ``now_s`` (the bridge's clock); ``sampled_s``: when
@@ -97,25 +97,25 @@ class DriverMonitor:
         # bus's times: the reader's own clock spread one burst's frames over up to a GIL
         # switch interval (5 ms), which carried them apart instead
         newest = max(a.encoder_sampled_s for a in self.axes)
-        self._set_rev = np.array([a.position_rev + a.velocity_rev_s * _behind(newest, a)
-                                  for a in self.axes])
-        self._set_rev_s = np.array([a.velocity_rev_s for a in self.axes])
+        self._set_rev = tuple([a.position_rev + a.velocity_rev_s * _behind(newest, a)
+                               for a in self.axes])
+        self._set_rev_s = tuple([a.velocity_rev_s for a in self.axes])
         self._set_at = sum(a.encoder_at for a in self.axes) / len(self.axes)  # type: ignore[misc]
         if self._first_set is None:
             self._first_set = self._set_rev
         self._waiting = {a.node for a in self.axes}
 
-    def wheel_speeds_radps(self) -> np.ndarray:
+    def wheel_speeds_radps(self) -> tuple[float, ...]:
         """The newest complete set's wheel speeds (0 before one), in the wheel order of
         eq. (1)."""
-        return self._set_rev_s * (2.0 * pi)
+        return tuple([v * (2.0 * pi) for v in self._set_rev_s])
 
-    def wheel_positions_rev(self) -> np.ndarray | None:
+    def wheel_positions_rev(self) -> tuple[float, ...] | None:
         """The newest complete set's wheel angles (turns), in the wheel order of eq. (1);
         None until every axis has sent an encoder estimate."""
         return self._set_rev
 
-    def first_positions_rev(self) -> np.ndarray | None:
+    def first_positions_rev(self) -> tuple[float, ...] | None:
         """The first complete set's wheel angles (turns): one burst of estimates, to
         measure the first rotation from; None until then."""
         return self._first_set

@@ -400,13 +400,13 @@ class BridgeNode:
 
     def _publish(self, k: int, t: float, faulted: bool, now: float | None = None) -> None:
         node, keys, i = self.node, self.node.keys, self.index
-        q, qd = self.odometry.q, self.odometry.q_dot
+        q, qd = self.odometry.q, self.odometry.q_dot  # float triples (bridges/odometry.py)
         # the pose is as of the newest encoder estimates (100 Hz from an ODrive, half
         # our rate): carried to now at the velocity they gave, so the agent does not
         # see a staircase (at most two encoder periods ahead: past that it is lost)
         age = None if now is None else self.monitor.encoder_age_s(now)
         if age is not None and 0.0 < age <= MAX_POSE_LEAD_S:
-            q = q + age * qd
+            q = (q[0] + age * qd[0], q[1] + age * qd[1], q[2] + age * qd[2])
         t0 = now_ns()
         with node.mailbox.lock:
             pos, vel = self.positions.copy(), self.velocities.copy()
@@ -418,11 +418,11 @@ class BridgeNode:
         own = self.armed and self.command_k == k - 1 and not self.fallback_period
         self.fallback_period = False
         node.publish(keys.sample(self.rid), lambda seq, stamp: Sample(
-            WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, q=tuple(q.tolist()),
-            q_dot=tuple(qd.tolist()), robots=sensed_bodies(robots),
+            WIRE_VERSION, 0, seq, stamp, robot=self.rid, k=k, t=t, q=q, q_dot=qd,
+            robots=sensed_bodies(robots),
             obstacles=sensed_bodies(obstacles), faulted=faulted, own_torques=own))
         t0, mark = now_ns(), node.costs.mark()
-        self.log_rows.append(StateRow(k, t, [tuple(q.tolist())], [tuple(qd.tolist())], [faulted]))
+        self.log_rows.append(StateRow(k, t, [q], [qd], [faulted]))
         if len(self.log_rows) >= LOG_ROWS:
             self.flush_log()
         node.costs.charge(TELEMETRY, t0, mark)
