@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from canopen.objectdictionary import ODVariable
@@ -32,6 +32,21 @@ class PdoLayout:
     trans_type: int  # 0-240: on (every n-th) SYNC; 254/255: on event
     fields: tuple[tuple[int, int, struct.Struct], ...]  # (index, byte offset, packing)
     length: int  # bytes mapped
+    # the fields end to end from byte 0 as one struct (None: a gap, or another order):
+    # one call packs a payload (a bridge packs its RPDO four times a period)
+    whole: struct.Struct | None = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        at, codes = 0, []
+        for _, offset, packing in self.fields:
+            code = packing.format.lstrip("<")
+            if offset != at or not packing.format.startswith("<") or len(code) != 1:
+                object.__setattr__(self, "whole", None)
+                return
+            codes.append(code)
+            at += packing.size
+        object.__setattr__(self, "whole", struct.Struct("<" + "".join(codes))
+                           if at == self.length else None)
 
     @classmethod
     def of(cls, pdo_map: Any) -> PdoLayout:
@@ -68,6 +83,11 @@ class PdoLayout:
     def pack(self, values: Mapping[int, int | float]) -> bytes:
         """The payload of these objects' values (every mapped index given); ValueError
         for a value its type cannot hold."""
+        if self.whole is not None:
+            try:
+                return self.whole.pack(*[values[index] for index, _, _ in self.fields])
+            except struct.error:
+                pass  # the loop below names the object that does not fit
         buf = bytearray(self.length)
         for index, offset, packing in self.fields:
             try:

@@ -368,6 +368,18 @@ class OdriveCanSimple:
                              "ODrive" in m.senders)
             self._by_type[cls] = layout
             self._by_cmd[spec.cmd] = layout
+        self._torque_packing = self._torque_struct()
+
+    def _torque_struct(self) -> struct.Struct | None:
+        """Set_Input_Torque's payload as one ``struct`` (None: the DBC lays it out
+        otherwise than one float32 at byte 0 of its frame, or float32 cannot hold every
+        torque within the bound: :meth:`encode` checks those)."""
+        lay = self._by_type[SetInputTorque]
+        p = lay.packing
+        if p is None or p.ints or len(p.floats) != 1 or p.floats[0][1] != 0 or lay.length < 4 \
+                or not self.max_abs_torque_nm <= FLOAT32_MAX:
+            return None
+        return struct.Struct(f"<f{lay.length - 4}x")
 
     # --- plausibility, shared by encode and decode ---------------------------------
     def problem(self, msg: Frame) -> str | None:
@@ -513,7 +525,16 @@ class OdriveCanSimple:
                 self.encode(SetAxisState(node, AXIS_STATE_IDLE))]
 
     def torque_frame(self, node: int, torque_nm: float) -> can.Message:
-        return self.encode(SetInputTorque(node, float(torque_nm)))
+        """:meth:`encode` of ``SetInputTorque(node, torque_nm)``, the same frame and the same
+        refusals (tests/unit/test_odrive.py), without the message object, the plausibility
+        match and the signals' dict: four of these a period are a bridge's command, and the
+        general path cost 6.7 µs a frame here against 1.3."""
+        fast = self._torque_packing
+        tau = float(torque_nm)
+        if fast is None or node not in self.node_ids or not abs(tau) <= self.max_abs_torque_nm:
+            return self.encode(SetInputTorque(node, tau))  # its refusal says why
+        return can.Message(arbitration_id=(node << 5) | CMD_SET_INPUT_TORQUE,
+                           is_extended_id=False, data=fast.pack(tau), dlc=fast.size)
 
     def estop_frames(self, node: int) -> list[can.Message]:
         """Estop: the drive latches AXIS_ERROR_ESTOP_REQUESTED and disarms."""

@@ -4,6 +4,7 @@ host's plug-in in neutral terms (bridges/driver.py)."""
 from __future__ import annotations
 
 import math
+import re
 import struct
 
 import can
@@ -215,6 +216,33 @@ def test_bounds_are_configurable():
 def test_encode_refuses_what_decode_would_reject(msg):
     with pytest.raises(ValueError):
         codec().encode(msg)
+
+
+@given(node=st.sampled_from([*NODES, 0, 9]),
+       torque=st.one_of(st.floats(-2.5, 2.5), st.floats(allow_nan=True, allow_infinity=True)))
+@settings(max_examples=300, deadline=None)
+def test_the_torque_frame_is_the_general_encoding_of_its_command(node, torque):
+    """The command's short path (four frames a period) gives the frame ``encode`` gives,
+    and refuses what it refuses, with its reason."""
+    c = OdriveCanSimple(NODES, max_abs_torque_nm=2.5)
+    try:
+        general = c.encode(SetInputTorque(node, torque))
+    except ValueError as exc:
+        with pytest.raises(ValueError, match=re.escape(str(exc))):
+            c.torque_frame(node, torque)
+        return
+    fast = c.torque_frame(node, torque)
+    assert (fast.arbitration_id, bytes(fast.data), fast.dlc, fast.is_extended_id,
+            fast.is_remote_frame) == (general.arbitration_id, bytes(general.data), general.dlc,
+                                      general.is_extended_id, general.is_remote_frame)
+
+
+def test_a_torque_bound_beyond_float32_takes_the_checked_path():
+    c = OdriveCanSimple(NODES, max_abs_torque_nm=1e39)
+    with pytest.raises(ValueError, match="cannot encode"):
+        c.torque_frame(1, 5e38)  # beyond float32: refused, as encode refuses it
+    assert c.decode(c.torque_frame(1, 0.5)) is None  # a host's codec: a command is not for it
+    assert codec("drive").decode(c.torque_frame(1, 0.5)) == SetInputTorque(1, 0.5)
 
 
 def test_bad_constructor_arguments():

@@ -134,6 +134,20 @@ def test_pdo_layout_packs_and_unpacks_as_canopen(index, data):
     assert lay.unpack(payload) == {var.index: var.raw for var in m}
 
 
+def test_a_pdo_packs_in_one_struct_and_still_names_what_does_not_fit():
+    for m in _maps():  # every PDO the emulated drive maps: end to end from byte 0
+        lay = PdoLayout.of(m)
+        assert lay.whole is not None and lay.whole.size == lay.length
+        first = lay.fields[0][0]
+        big = {i: 0 for i, _, _ in lay.fields} | {first: 1 << 40}
+        with pytest.raises(ValueError, match=f"0x{first:04X}"):
+            lay.pack(big)
+    gap = PdoLayout("gap", 0x201, 255, ((0x6040, 0, struct.Struct("<H")),
+                                        (0x6071, 4, struct.Struct("<h"))), 6)
+    assert gap.whole is None and gap.pack({0x6040: 15, 0x6071: -2}) == \
+        struct.pack("<H2xh", 15, -2)
+
+
 # --- the host driver --------------------------------------------------------------------------
 def driver(**kw) -> Cia402Driver:
     return Cia402Driver(DriverSettings(NODES, **kw))
