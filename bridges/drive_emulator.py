@@ -36,7 +36,7 @@ import numpy as np
 
 from bridges.driver import FrameCounters
 from bridges.udp_can import send_frames
-from plant.disturbance import make_disturbance
+from plant.disturbance import StartedDisturbance, make_disturbance
 from plant.mecanum import MecanumModel
 from plant.model_plant import ModelPlant
 
@@ -106,7 +106,7 @@ class EmulatorCounters:
         return asdict(self)
 
 
-class ArmedDisturbance:
+class ArmedDisturbance(StartedDisturbance):
     """The scenario's disturbance d(t) as emulated robots feel it: none before a
     robot's drives are first armed, then d evaluated on that robot's run clock
     (t - the emulator time of its first arming), held afterwards whatever the axes do.
@@ -115,22 +115,12 @@ class ArmedDisturbance:
     start it pushed the unpowered robots for the 0.4-2 s the other processes took to
     come up (1.1 cm and 0.008 rad on lab before t = 0), motion no bridge can have
     counted if it was not listening yet and that a robot standing on a floor with its
-    drives idle does not make. Rows: robots (a fleet emulator's plant has several)."""
-
-    def __init__(self, disturbance: Callable[[float], np.ndarray], robots: int) -> None:
-        self._d = disturbance
-        self._since: list[float | None] = [None] * robots
-        self._zero = np.zeros((robots, 4))
+    drives idle does not make. Rows: robots (a fleet emulator's plant has several).
+    The model plant evaluates it in its kernel (plant/disturbance.py)."""
 
     def armed(self, row: int, t: float) -> None:
         """Robot ``row``'s drives entered closed loop at emulator time ``t``."""
-        if self._since[row] is None:
-            self._since[row] = t
-
-    def __call__(self, t: float) -> np.ndarray:
-        if all(s is None for s in self._since):
-            return self._zero
-        return np.array([self._zero[0] if s is None else self._d(t - s) for s in self._since])
+        self.begin(row, t)
 
 
 class RobotEmulator:

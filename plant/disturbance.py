@@ -38,3 +38,23 @@ def make_disturbance(kind: str, scale: float, constant: tuple[float, ...]) -> Di
     """The scenario's disturbance (its [disturbance] table)."""
     padded = tuple(float(c) for c in constant) + (0.0,) * (4 - len(constant))
     return Disturbance(kind, float(scale), padded[:4] if kind == "constant" else (0.0,) * 4)
+
+
+class StartedDisturbance:
+    """The scenario's h_d on each robot's own clock: robot i feels h_d(t - start_i) from
+    its start on, nothing before (start_i NaN). The model plant evaluates it in its
+    kernel (plant/model_plant.py); called, it gives the (n, 4) rows at t, as a plant
+    that takes any function of t does."""
+
+    def __init__(self, disturbance: Disturbance, robots: int) -> None:
+        self.disturbance = disturbance
+        self.start = np.full(robots, np.nan)  # read by the kernel at every step
+
+    def begin(self, row: int, t: float) -> None:
+        """Robot ``row`` starts feeling h_d at time ``t`` (its first start counts)."""
+        if np.isnan(self.start[row]):
+            self.start[row] = t
+
+    def __call__(self, t: float) -> np.ndarray:
+        return np.array([np.zeros(4) if np.isnan(s) else self.disturbance(t - s)
+                         for s in self.start])

@@ -14,7 +14,7 @@ DEF _SOURCE = PLANT_FLEET_KERNEL_SHA256  # given by setup.py at build time
 BUILT_FROM = _SOURCE  # the sha256 of the .pyx this module was built from (plant/kernels.py)
 
 
-from libc.math cimport cos, sin, tanh, hypot, isfinite
+from libc.math cimport cos, sin, tanh, hypot, isfinite, isnan
 
 import numpy as np
 
@@ -425,11 +425,14 @@ cdef class FleetDynamics:
         return seen
 
     def step(self, double t, double dt, double[:, ::1] q, double[:, ::1] qd,
-             const double[:, ::1] torques, const double[:, :, ::1] stage_disturbance=None):
+             const double[:, ::1] torques, const double[:, :, ::1] stage_disturbance=None,
+             const double[::1] start=None):
         """Advance every robot by ``dt`` (in place), torques held over the period, in
         ``substeps`` RK4 steps of h = dt / substeps. The disturbance: the kind given at
         construction, or, when ``stage_disturbance`` is given, h_d of each robot at the
-        stages' times t + j h / 2, j = 0 .. 2 substeps (shape (2 substeps + 1, n, 4))."""
+        stages' times t + j h / 2, j = 0 .. 2 substeps (shape (2 substeps + 1, n, 4)).
+        ``start`` (n,): each robot feels the kind given on its own clock, h_d(t - start_i),
+        none while start_i is NaN (a drive emulator's robots: from their first arming)."""
         cdef int i, k, n = self.n
         cdef double h = dt / self.substeps
         cdef double ts
@@ -441,14 +444,27 @@ cdef class FleetDynamics:
                 stage_disturbance.shape[0] != 2 * self.substeps + 1
                 or stage_disturbance.shape[1] != n or stage_disturbance.shape[2] != 4):
             raise ValueError("stage_disturbance must be (2 substeps + 1, n, 4)")
+        if start is not None and (stage_disturbance is not None or start.shape[0] != n):
+            raise ValueError("start must be (n,), and not given with stage_disturbance")
         with nogil:
             for k in range(self.substeps):
                 ts = t + k * h
-                if stage_disturbance is None:
+                if stage_disturbance is None and start is None:
                     _disturbance(self.kind, self.scale, self.constant, ts, d[0])
                     _disturbance(self.kind, self.scale, self.constant, ts + 0.5 * h, d[1])
                     _disturbance(self.kind, self.scale, self.constant, ts + h, d[2])
                 for i in range(n):
+                    if start is not None:
+                        if isnan(start[i]):  # not started: no disturbance yet
+                            _rk4_disturbed(&self._models[i], &q[i, 0], &qd[i, 0],
+                                           &torques[i, 0], NULL, NULL, NULL, h)
+                            continue
+                        # the stage times as ModelPlant._stage_disturbances takes them
+                        _disturbance(self.kind, self.scale, self.constant, ts - start[i], d[0])
+                        _disturbance(self.kind, self.scale, self.constant,
+                                     (ts + 0.5 * h) - start[i], d[1])
+                        _disturbance(self.kind, self.scale, self.constant,
+                                     (ts + h) - start[i], d[2])
                     if stage_disturbance is None:
                         _rk4_disturbed(&self._models[i], &q[i, 0], &qd[i, 0], &torques[i, 0],
                                        d[0], d[1], d[2], h)
