@@ -21,7 +21,7 @@ DEF _SOURCE = AGENTS_LAW_KERNEL_SHA256  # given by setup.py at build time
 BUILT_FROM = _SOURCE  # the sha256 of the .pyx this module was built from (plant/kernels.py)
 
 
-from libc.math cimport sqrt, hypot, cos, sin, tanh, pow, fabs, ceil, erf, exp, isfinite, INFINITY, M_PI
+from libc.math cimport sqrt, hypot, cos, sin, tanh, pow, fabs, ceil, erf, exp, isfinite, INFINITY, M_PI, atan2, fmod, copysign
 from libc.stdlib cimport malloc, realloc, free
 from libc.string cimport memcpy
 
@@ -81,3 +81,4 @@ include "law_kernel_sections/estimator.pxi"
 include "law_kernel_sections/eso.pxi"
 include "law_kernel_sections/degradation.pxi"
 include "law_kernel_sections/law.pxi"
+include "law_kernel_sections/leader_path.pxi"

@@ -17,7 +17,8 @@ from math import atan2, cos, pi, sin
 
 import numpy as np
 
-from agents.steered_leader import SteeredLeader, SteeredSpec
+from agents.law_kernel import leader_batch_of
+from agents.steered_leader import SteeredLeader, SteeredSpec, states_one_by_one
 from agents.waypoint_path import WaypointPath
 
 
@@ -40,6 +41,18 @@ class Harmonic:
     def d2(self, th: float) -> float:
         a = self.freq * th + self.phase
         return -self.amp * self.freq**2 * (sin(a) if self.fn == "sin" else cos(a))
+
+    def with_derivatives(self, th: float) -> tuple[float, float, float]:
+        """(value, d1, d2) at ``th``, each as its own method gives it (the same operations
+        in the same order), the angle's sine and cosine taken once: the leader steps the
+        path once a step, its batches ahead of need at every wake."""
+        a = self.freq * th + self.phase
+        s, c = sin(a), cos(a)
+        if self.fn == "sin":
+            return (self.amp * s + self.offset, self.amp * self.freq * c,
+                    -self.amp * self.freq**2 * s)
+        return (self.amp * c + self.offset, self.amp * self.freq * -s,
+                -self.amp * self.freq**2 * c)
 
 
 @dataclass(frozen=True)
@@ -87,10 +100,10 @@ class LeaderGenerator:
         d2x/dt2, d2y/dt2), theta = theta0 + rate t."""
         if self._h_t != t:
             th, r = self._theta(t), self.spec.theta_rate
-            x, y = self.spec.x, self.spec.y
+            x, dx, ddx = self.spec.x.with_derivatives(th)
+            y, dy, ddy = self.spec.y.with_derivatives(th)
             self._h_t = t
-            self._h = (x.value(th), y.value(th), r * x.d1(th), r * y.d1(th),
-                       r * r * x.d2(th), r * r * y.d2(th))
+            self._h = (x, y, r * dx, r * dy, r * r * ddx, r * r * ddy)
         return self._h
 
     def _path_position(self, t: float) -> tuple[float, float]:
@@ -146,6 +159,31 @@ class LeaderGenerator:
         return ((self._pos[0], self._pos[1], self._heading),
                 (self._vel[0], self._vel[1], self._heading_rate(self.t)))
 
+    def batch(self, count: int) -> tuple[list[tuple[float, float, float]],
+                                         list[tuple[float, float, float]]]:
+        """The states (q0, v0) of the next ``count`` steps, as ``count`` calls of
+        :meth:`state_floats` then :meth:`advance` give them, bit for bit; the generator
+        is left where those calls leave it. An analytic harmonic path with the tangent
+        heading (the paper's, lab's) runs one loop of the same operations: the leader
+        publishes its states in batches ahead of need, and at every wake the calls of
+        the step-by-step path cost ~10 µs a state after a sleep here, the compiled loop
+        (agents/law_kernel_sections/leader_path.pxi) well under one (bench-history.md,
+        "The bridge on floats")."""
+        spec = self.spec
+        if spec.kind != "analytic" or spec.waypoints is not None or spec.heading == "polar" \
+                or spec.x is None or spec.y is None:
+            return states_one_by_one(self, count)
+        k, (px, py), heading = self.k, self._pos, self._heading
+        _, _, vx, vy, ax, ay = self._harmonic(k * self.dt)
+        qs, vs, after = leader_batch_of(_path_args(spec.x), _path_args(spec.y), spec.theta0,
+                                        spec.theta_rate, self.dt, k,
+                                        (px, py, heading, vx, vy, ax, ay), count)
+        px, py, heading, vx, vy, ax, ay = after
+        self.k = k = k + count
+        self._pos, self._vel, self._heading = (px, py), (vx, vy), heading
+        self._h_t, self._h = k * self.dt, (px, py, vx, vy, ax, ay)
+        return qs, vs
+
     def advance(self) -> None:
         t_next = (self.k + 1) * self.dt
         if self.spec.kind == "path_follower":  # v = v_path + k (x_path - x), explicit Euler
@@ -159,6 +197,11 @@ class LeaderGenerator:
             self._vel = self._path_velocity(t_next)
         self.k += 1
         self._heading += _wrap(self._raw_heading(t_next) - self._heading)
+
+
+def _path_args(h: Harmonic) -> tuple[bool, float, float, float, float]:
+    """A harmonic as the compiled batch takes it."""
+    return (h.fn == "sin", h.amp, h.freq, h.phase, h.offset)
 
 
 def leader_generator(spec: LeaderSpec, dt: float) -> LeaderGenerator | SteeredLeader:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -71,8 +72,26 @@ class SteeredLeader:
         q0, v0 = self.state_floats()
         return np.array(q0), np.array(v0)
 
+    def batch(self, count: int) -> tuple[list[tuple[float, float, float]],
+                                         list[tuple[float, float, float]]]:
+        """The states of the next ``count`` steps (the leader node's batch)."""
+        return states_one_by_one(self, count)
+
     def advance(self) -> None:
         v = self._velocity()
         x, y, psi = self._pose
         self._pose = (x + self.dt * v[0], y + self.dt * v[1], psi + self.dt * v[2])
         self.k += 1
+
+
+def states_one_by_one(generator: Any, count: int
+                      ) -> tuple[list[tuple[float, float, float]], list[tuple[float, float, float]]]:
+    """``count`` rounds of ``state_floats`` then ``advance`` on a leader generator: its
+    states (q0, v0) of the next ``count`` steps."""
+    qs, vs = [], []
+    for _ in range(count):
+        q, v = generator.state_floats()
+        qs.append(q)
+        vs.append(v)
+        generator.advance()
+    return qs, vs

@@ -57,7 +57,8 @@ def test_the_law_kernel_in_use_was_built_from_its_pyx_and_every_section():
 def test_the_product_kernel_exports_only_what_the_product_calls():
     """The sections one by one are the tests' (tests/law_probe), not the product's."""
     exported = {n for n in dir(agents.law_kernel) if n.endswith(("_of", "_of_"))}
-    assert exported == {"smooth_step_of"}  # a lab's law schedules its scale with it
+    # a lab's law schedules its scale with it; the leader node batches its path with it
+    assert exported == {"smooth_step_of", "leader_batch_of"}
 
 
 def test_the_tests_build_of_the_kernel_is_the_products_sections():

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import math
+import random
 
 import numpy as np
+import pytest
 
-from agents.leader import Harmonic, LeaderGenerator, LeaderSpec
-from deploy.contract.scenario import load_scenario
+from agents.leader import Harmonic, LeaderGenerator, LeaderSpec, leader_generator
+from deploy.contract.scenario import bundled_names, load_scenario
 
 
 def _run(spec: LeaderSpec, dt: float, steps: int):
@@ -63,3 +65,43 @@ def test_path_follower_starts_at_rest_on_the_path_and_converges():
     th = th0 + spec.theta_rate * t
     path = np.stack([16 * np.sin(2 * th + 1), -40 * np.cos(th + 0.5)], axis=1)
     assert np.linalg.norm(q[-500:, :2] - path[-500:], axis=1).max() < 1.0
+
+
+@pytest.mark.parametrize("name", [n for n in bundled_names()
+                                  if load_scenario(n).leader_spec().steered is None])
+def test_a_batch_is_the_states_step_by_step_bit_for_bit(name):
+    """The leader node's batches (one loop for a harmonic path) are what state_floats and
+    advance give one step at a time, and leave the generator where those leave it."""
+    sc = load_scenario(name)
+    batched, stepped = (leader_generator(sc.leader_spec(), sc.dt) for _ in range(2))
+    rng = random.Random(5)
+    for _ in range(60):
+        count = rng.randint(1, 40)
+        got = batched.batch(count)
+        want = ([], [])
+        for _ in range(count):
+            q, v = stepped.state_floats()
+            want[0].append(q)
+            want[1].append(v)
+            stepped.advance()
+        assert got == want and batched.k == stepped.k
+        assert batched.state_floats() == stepped.state_floats()  # and from there on, one step
+        batched.advance()
+        stepped.advance()
+
+
+
+@pytest.mark.parametrize("spec", [
+    LeaderSpec(Harmonic("cos", -40.0, 1.0, 0.5), Harmonic("sin", 16.0, 2.0, 1.0),
+               heading="polar"),
+    LeaderSpec(Harmonic("cos", 2.0, 0.5), Harmonic("cos", 1.0, 1.0, 0.3, 0.5),
+               kind="path_follower"),
+])
+def test_a_batch_of_the_other_paths_is_their_steps_too(spec):
+    batched, stepped = LeaderGenerator(spec, 0.01), LeaderGenerator(spec, 0.01)
+    got = batched.batch(300)
+    want = []
+    for _ in range(300):
+        want.append(stepped.state_floats())
+        stepped.advance()
+    assert list(zip(*got, strict=True)) == want and batched.k == stepped.k == 300
