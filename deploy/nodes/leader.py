@@ -24,6 +24,7 @@ from deploy.contract.wire import (
     LeaderState,
     LeaderSteer,
     agent_role,
+    within_wire_bound,
 )
 from deploy.runtime.node_runtime import ControlInbox, Periodic, StopFlag, Timing, publish_report
 from deploy.runtime.transport import Node
@@ -31,12 +32,14 @@ from deploy.runtime.transport import Node
 TICK_EVERY = 32  # lockstep: the plant's ctl/tick every this many steps; the leader's batch
 LOOKAHEAD = 2 * TICK_EVERY  # lockstep: states published this far past the newest tick
 # realtime: the states of this much time a message, a wake (at most TICK_EVERY steps: 32 ms
-# at 1 kHz, 100 ms at 200 Hz). A wake after a long sleep costs ~150-350 µs here (caches
+# at 1 kHz, 160 ms at 200 Hz). A wake after a long sleep costs ~150-350 µs here (caches
 # cold, a message to each agent and the recorder): at 200 Hz the leader spent 58-74 µs a
-# step with 20 ms batches, 36-46 with 50 ms. A path known ahead loses nothing by going
-# out further ahead; a leader steered from outside (ROS 2) keeps 50 ms, the delay a
-# command waits for the next batch
-REALTIME_BATCH_S = 0.1
+# step with 20 ms batches, 36-46 with 50 ms, 27-34 with 100 ms (its wait ~140 µs a wake,
+# its message ~100). A path known ahead loses nothing by going out further ahead (an
+# agent takes up to LOOKAHEAD + TICK_EVERY steps ahead of its sample; a batch goes out
+# at most two batches, 2 TICK_EVERY - 1 steps, ahead); a leader steered from outside
+# (ROS 2) keeps 50 ms, the delay a command waits for the next batch
+REALTIME_BATCH_S = 0.16
 STEERED_BATCH_S = 0.05
 
 
@@ -86,14 +89,11 @@ class LeaderNode:
     def _publish_next(self, count: int = 1) -> None:
         """The states of the next ``count`` steps, in one message."""
         k = self.k_next
-        qs, vs = [], []
-        for _ in range(count):
-            q, v = self.generator.state_floats()
-            qs.append(q)
-            vs.append(v)
-            self.generator.advance()
+        qs, vs = self.generator.batch(count)
+        # every float checked here at once, not by decoding the batch again (Node.publish)
         sent = self.node.publish(self.node.keys.leader_state, lambda seq, stamp: LeaderState(
-            WIRE_VERSION, 0, seq, stamp, k=k, t=k * self.sc.dt, q=qs, q_dot=vs))
+            WIRE_VERSION, 0, seq, stamp, k=k, t=k * self.sc.dt, q=qs, q_dot=vs),
+            checked=within_wire_bound(qs, vs))
         if sent is None and not all(map(math.isfinite, (x for row in qs + vs for x in row))):
             self.node.note_nonfinite(f"leader state at step {k} (not sent)")
         self.k_next += count
