@@ -165,6 +165,7 @@ def collector_rows(collector, realtime: bool = False) -> Callable[[], int]:
 
     def ready() -> int:
         nonlocal newest
+        collector.flush()  # the state logs it holds (Collector.defer_rows)
         if realtime:
             return collector.newest_k
         k = newest

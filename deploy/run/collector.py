@@ -51,6 +51,14 @@ class Collector:
         # launcher from its own clock; rows past it and second rows for a cell: refused
         self.horizon: Callable[[], int | None] = lambda: None
         self.refused: dict[str, int] = {}
+        # state logs held to be filed together (0: each as it comes): with its numpy calls
+        # cold after the launcher's sleep, one log cost ~330 µs to file (a CAN fleet's
+        # bridges send 30 a second) and a thousand rows at once little more. Whoever reads
+        # the cells during the run files them first (:meth:`flush`; the live views'
+        # ``collector_rows``), and so does :meth:`series`
+        self.defer_rows = 0
+        self._pending: list[tuple[StateLog, int | None]] = []  # with the horizon they met
+        self._pending_rows = 0
 
     def _refuse(self, why: str, times: int = 1) -> None:
         if times:
@@ -62,10 +70,15 @@ class Collector:
         second). As filed row by row: a row outside the run is counted, one ahead of
         the horizon or for a cell already filled (before this log, or by an earlier row
         of it) refused and counted, the first row for a step kept."""
-        rows = msg.rows
+        self._file_rows(msg.robots, msg.rows, horizon)
+
+    def _file_rows(self, robots: list[int], rows: list, horizon: int | None | np.ndarray
+                   ) -> None:
+        """Rows of the same robots, in the order they came; ``horizon``: each row's (an
+        array), or one for all (None: no bound known)."""
         if not rows:
             return
-        cols = [self.row[r] for r in msg.robots]
+        cols = [self.row[r] for r in robots]
         ks = np.fromiter((row.k for row in rows), np.int64, len(rows))
         inside = (ks >= 0) & (ks < self.steps)
         self.out_of_range += int(np.count_nonzero(~inside))
@@ -88,6 +101,36 @@ class Collector:
         self.faulted[at] = np.array([rows[i].faulted for i in keep], bool)
         self.newest_k = max(self.newest_k, int(k_kept.max()))
 
+    def flush(self) -> None:
+        """File the state logs held so far (see ``defer_rows``)."""
+        with self.lock:
+            self._file_pending()
+
+    def _file_pending(self) -> None:
+        """The held logs, as filed one by one in the order they came: the logs of one
+        robot set together (a log's cells are its robots'; sets that do not overlap
+        cannot take each other's cells), one by one when sets overlap."""
+        pending, self._pending, self._pending_rows = self._pending, [], 0
+        if not pending:
+            return
+        by_robots: dict[tuple[int, ...], list[tuple[StateLog, int | None]]] = {}
+        for msg, horizon in pending:
+            by_robots.setdefault(tuple(msg.robots), []).append((msg, horizon))
+        robots = [r for key in by_robots for r in key]
+        if len(robots) != len(set(robots)):
+            for msg, horizon in pending:
+                self._file_states(msg, horizon)
+            return
+        no_bound = np.iinfo(np.int64).max
+        for key, logs in by_robots.items():
+            rows = [row for msg, _ in logs for row in msg.rows]
+            if all(h is None for _, h in logs):
+                self._file_rows(list(key), rows, None)
+                continue
+            horizons = np.fromiter((no_bound if h is None else h for msg, h in logs
+                                    for _ in msg.rows), np.int64, len(rows))
+            self._file_rows(list(key), rows, horizons)
+
     def add(self, msg: object) -> None:
         ts = self.ts
         with self.lock:
@@ -96,7 +139,13 @@ class Collector:
                 return
             horizon = self.horizon()
             if isinstance(msg, StateLog):
-                self._file_states(msg, horizon)
+                if not self.defer_rows:
+                    self._file_states(msg, horizon)
+                    return
+                self._pending.append((msg, horizon))
+                self._pending_rows += len(msg.rows)
+                if self._pending_rows >= self.defer_rows:
+                    self._file_pending()
             elif isinstance(msg, Telemetry):
                 i = self.row[msg.robot]
                 for row in msg.rows:
@@ -130,6 +179,7 @@ class Collector:
         newest state, gaps filled forward from the previous step (and counted)."""
         sc = self.sc
         with self.lock:
+            self._file_pending()
             if realtime:
                 steps = self.newest_k + 1
             else:

@@ -157,12 +157,19 @@ def _filed_row_by_row(c: Collector, msg: StateLog, horizon: int | None) -> None:
             c.newest_k = max(c.newest_k, k)
 
 
-def test_a_log_filed_at_once_equals_its_rows_filed_one_by_one():
+@pytest.mark.parametrize(("defer_rows", "one_robot_a_log"), [
+    (0, False), (7, False), (10_000, False), (7, True), (10_000, True)])
+def test_a_log_filed_at_once_equals_its_rows_filed_one_by_one(defer_rows, one_robot_a_log):
+    """At once, and held then filed together (Collector.defer_rows): the logs of each
+    robot set together (a CAN fleet's bridges: one robot each), one by one where the
+    sets overlap."""
     rng = np.random.default_rng(7)
     sc = load_scenario("paper")
     fast, slow = Collector(sc, STEPS), Collector(sc, STEPS)
+    fast.defer_rows = defer_rows
     for n in range(200):
-        robots = [int(r) for r in rng.choice([1, 2, 3], size=rng.integers(1, 4), replace=False)]
+        robots = [int(r) for r in rng.choice([1, 2, 3], size=1 if one_robot_a_log else
+                                             rng.integers(1, 4), replace=False)]
         rows = [StateRow(int(k), 0.001 * int(k), [tuple(rng.normal(size=3)) for _ in robots],
                          [tuple(rng.normal(size=3)) for _ in robots],
                          [bool(b) for b in rng.integers(0, 2, len(robots))])
@@ -171,6 +178,9 @@ def test_a_log_filed_at_once_equals_its_rows_filed_one_by_one():
         fast.horizon = lambda h=horizon: h
         fast.add(_log(rows, robots))
         _filed_row_by_row(slow, _log(rows, robots), horizon)
+    if defer_rows > 1000:
+        assert not fast.have_state.any()  # held: nothing filed yet
+    fast.flush()
     for name in ("q", "q_dot"):
         assert np.array_equal(getattr(fast.ts, name), getattr(slow.ts, name), equal_nan=True)
     assert np.array_equal(fast.have_state, slow.have_state)
@@ -178,3 +188,14 @@ def test_a_log_filed_at_once_equals_its_rows_filed_one_by_one():
     assert (fast.refused, fast.out_of_range, fast.newest_k) == (
         slow.refused, slow.out_of_range, slow.newest_k)
     assert fast.refused["second state row for a step"] > 0 and fast.out_of_range > 0
+
+
+def test_held_logs_are_filed_for_whoever_reads_the_cells(collector):
+    from deploy.report.live_view import collector_rows
+
+    collector.defer_rows = 10_000
+    collector.add(_log([_row(k) for k in range(0, 6)]))
+    assert collector.newest_k == -1  # held
+    assert collector_rows(collector, realtime=True)() == 5  # a live view's look files them
+    collector.add(_log([_row(k) for k in range(6, 9)]))
+    assert collector.series(realtime=True).q.shape[0] == 9  # and the run's series
