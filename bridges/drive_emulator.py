@@ -174,8 +174,12 @@ class RobotEmulator:
         self._encoder_period = 1.0 / encoder_rate_hz
         self._next_encoder = 0.0
         self._row = 0  # this robot's row in self.plant (shared by a FleetEmulator)
-        self._wheel_speed = self.model.wheel_speeds(float(self.q[2]), self.q_dot)
-        self.wheel_rev = np.zeros(4)  # each wheel's angle (turns) since power-up
+        # the wheels' kinematics on floats (the physics' tick, a robot after another):
+        # numpy on four numbers cost more in dispatch than in arithmetic, cold after the
+        # emulator's sleep (bridges/odometry.py)
+        self._wheel_rows = tuple(tuple(float(v) for v in row) for row in self.model.P)
+        self._wheel_speed = self._wheel_speeds_now()
+        self.wheel_rev = [0.0] * 4  # each wheel's angle (turns) since power-up
         self.truth: list[tuple[float, np.ndarray, np.ndarray]] = []
         self.lag: list[tuple[float, float]] = []  # realtime: (t, how far behind the wall clock)
         self.monotonic_origin_s = math.nan  # realtime: time.monotonic() at t = 0
@@ -219,7 +223,17 @@ class RobotEmulator:
         return self.plant.q_dot[self._row]
 
     def wheel_speeds_radps(self) -> np.ndarray:
-        return self._wheel_speed.copy()
+        return np.array(self._wheel_speed)
+
+    def _wheel_speeds_now(self) -> list[float]:
+        """theta_dot = (1/R) P T(phi)^T q_dot (the inverse of eq. 1; MecanumModel.wheel_speeds)
+        at the robot's state now."""
+        x, y, phi = self.q.tolist()
+        vx, vy, w = self.q_dot.tolist()
+        c, s = math.cos(phi), math.sin(phi)
+        bx, by = c * vx + s * vy, -s * vx + c * vy  # T(phi)^T q_dot
+        r = self.model.params.wheel_radius_m
+        return [(p0 * bx + p1 * by + p2 * w) / r for p0, p1, p2 in self._wheel_rows]
 
     def wheel_speed(self, wheel: int) -> float:
         """Wheel ``wheel``'s speed now (rad/s)."""
@@ -288,9 +302,11 @@ class RobotEmulator:
         realtime emulator catching up skips the stale ones)."""
         h = self._h * ticks
         self._ticks += ticks
-        w_old, w_new = self._wheel_speed, self.model.wheel_speeds(float(self.q[2]), self.q_dot)
+        w_old, w_new = self._wheel_speed, self._wheel_speeds_now()
         self._wheel_speed = w_new
-        self.wheel_rev += 0.5 * (w_old + w_new) * h / (2.0 * math.pi)
+        two_pi, rev = 2.0 * math.pi, self.wheel_rev
+        for j in range(4):
+            rev[j] += 0.5 * (w_old[j] + w_new[j]) * h / two_pi
         self._drives_tick(self.t)
         self._send_due(send_encoders)
 

@@ -291,6 +291,7 @@ class _Packing:
 
 
 FLOAT32_MAX = 3.4028234663852886e38  # the largest finite float32
+_TWO_FLOATS = struct.Struct("<ff")
 
 
 @dataclass(frozen=True)
@@ -369,6 +370,30 @@ class OdriveCanSimple:
             self._by_type[cls] = layout
             self._by_cmd[spec.cmd] = layout
         self._torque_packing = self._torque_struct()
+        enc = self._by_type[EncoderEstimate]  # two float32, position then velocity: "<ff"
+        self._encoder_packed = enc.packing is not None and not enc.packing.ints and \
+            enc.packing.floats == [("Pos_Estimate", 0), ("Vel_Estimate", 4)] and enc.length == 8
+
+    def encoder_frame(self, node: int, position_rev: float, velocity_rev_s: float
+                      ) -> can.Message:
+        """:meth:`encode` of ``EncoderEstimate(node, position_rev, velocity_rev_s)``, the same
+        frame and the same refusals (tests/unit/test_can_protocol.py), without the message
+        object, the signals' dict and the decode it checks the float32 values with: an
+        emulated drive sends one a wheel at the encoder rate."""
+        pos, vel = float(position_rev), float(velocity_rev_s)
+        bound, finite = self.max_abs_velocity_rev_s, math.isfinite
+        if not self._encoder_packed or node not in self.node_ids or not (
+                finite(pos) and finite(vel)) or abs(vel) > bound:
+            return self.encode(EncoderEstimate(node, pos, vel))  # its refusal says why
+        try:
+            data = _TWO_FLOATS.pack(pos, vel)
+        except (OverflowError, struct.error):
+            return self.encode(EncoderEstimate(node, pos, vel))
+        pos32, vel32 = _TWO_FLOATS.unpack(data)  # what the bus carries, as decode reads it
+        if not (finite(pos32) and finite(vel32)) or abs(vel32) > bound:
+            return self.encode(EncoderEstimate(node, pos, vel))
+        return can.Message(arbitration_id=(node << 5) | CMD_GET_ENCODER_ESTIMATES,
+                           is_extended_id=False, data=data, dlc=8)
 
     def _torque_struct(self) -> struct.Struct | None:
         """Set_Input_Torque's payload as one ``struct`` (None: the DBC lays it out

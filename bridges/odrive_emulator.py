@@ -128,11 +128,21 @@ class OdriveEmulator(RobotEmulator):
                     self._disarm(a, AXIS_ERROR_WATCHDOG_TIMER_EXPIRED)
 
     def _encoders_due(self, send: bool) -> None:
-        if send:
-            for a in self.axes:
-                self._send(self._encoder_frame(a))
-        else:
+        if not send:
             self.counters.shed += len(self.axes)
+            return
+        two_pi, codec = 2.0 * math.pi, self.protocol
+        for a in self.axes:  # what _send(_encoder_frame(a)) sends, by the codec's short path
+            if self._silent(a.node):
+                self.counters.silenced += 1
+                continue
+            w = self.wheel_of(a.node)
+            try:
+                frame = codec.encoder_frame(a.node, self.wheel_rev[w], self._wheel_speed[w] / two_pi)
+            except ValueError:
+                self.counters.unencodable += 1
+                continue
+            self._send_frame(frame, a.node)
 
     def _clock_due(self, now: float) -> None:
         if now >= self._next_heartbeat - 1e-9:

@@ -237,6 +237,26 @@ def test_the_torque_frame_is_the_general_encoding_of_its_command(node, torque):
                                       general.is_extended_id, general.is_remote_frame)
 
 
+@given(node=st.sampled_from([*NODES, 9]),
+       pos=st.one_of(st.floats(-1e6, 1e6), st.floats(allow_nan=True, allow_infinity=True)),
+       vel=st.one_of(st.floats(-12.0, 12.0), st.floats(allow_nan=True, allow_infinity=True),
+                     st.sampled_from([10.0, 10.0000001, -10.0000001, 9.9999999])))
+@settings(max_examples=400, deadline=None)
+def test_the_encoder_frame_is_the_general_encoding_of_its_estimate(node, pos, vel):
+    """An emulated drive's encoder estimates by the short path: the frame ``encode`` gives,
+    and what it refuses (a velocity past the bound once rounded to float32 too)."""
+    c = OdriveCanSimple(NODES, role="drive", max_abs_velocity_rev_s=10.0)
+    try:
+        general = c.encode(EncoderEstimate(node, pos, vel))
+    except ValueError as exc:
+        with pytest.raises(ValueError, match=re.escape(str(exc))):
+            c.encoder_frame(node, pos, vel)
+        return
+    fast = c.encoder_frame(node, pos, vel)
+    assert (fast.arbitration_id, bytes(fast.data), fast.dlc, fast.is_extended_id) == (
+        general.arbitration_id, bytes(general.data), general.dlc, general.is_extended_id)
+
+
 def test_a_torque_bound_beyond_float32_takes_the_checked_path():
     c = OdriveCanSimple(NODES, max_abs_torque_nm=1e39)
     with pytest.raises(ValueError, match="cannot encode"):
