@@ -228,7 +228,7 @@ class RobotEmulator:
     def _wheel_speeds_now(self) -> list[float]:
         """theta_dot = (1/R) P T(phi)^T q_dot (the inverse of eq. 1; MecanumModel.wheel_speeds)
         at the robot's state now."""
-        x, y, phi = self.q.tolist()
+        phi = self.q.tolist()[2]
         vx, vy, w = self.q_dot.tolist()
         c, s = math.cos(phi), math.sin(phi)
         bx, by = c * vx + s * vy, -s * vx + c * vy  # T(phi)^T q_dot
