@@ -551,7 +551,7 @@ class OdriveCanSimple:
 
     def torque_frame(self, node: int, torque_nm: float) -> can.Message:
         """:meth:`encode` of ``SetInputTorque(node, torque_nm)``, the same frame and the same
-        refusals (tests/unit/test_odrive.py), without the message object, the plausibility
+        refusals (tests/unit/test_can_protocol.py), without the message object, the plausibility
         match and the signals' dict: four of these a period are a bridge's command, and the
         general path cost 6.7 µs a frame here against 1.3."""
         fast = self._torque_packing

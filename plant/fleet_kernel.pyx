@@ -459,7 +459,7 @@ cdef class FleetDynamics:
                             _rk4_disturbed(&self._models[i], &q[i, 0], &qd[i, 0],
                                            &torques[i, 0], NULL, NULL, NULL, h)
                             continue
-                        # the stage times as ModelPlant._stage_disturbances takes them
+                        # at the stages' times as for the scenario's h_d (above), on its clock
                         _disturbance(self.kind, self.scale, self.constant, ts - start[i], d[0])
                         _disturbance(self.kind, self.scale, self.constant,
                                      (ts + 0.5 * h) - start[i], d[1])
