@@ -30,22 +30,11 @@ class Harmonic:
     phase: float = 0.0
     offset: float = 0.0
 
-    def value(self, th: float) -> float:
-        f = sin if self.fn == "sin" else cos
-        return self.amp * f(self.freq * th + self.phase) + self.offset
-
-    def d1(self, th: float) -> float:
-        a = self.freq * th + self.phase
-        return self.amp * self.freq * (cos(a) if self.fn == "sin" else -sin(a))
-
-    def d2(self, th: float) -> float:
-        a = self.freq * th + self.phase
-        return -self.amp * self.freq**2 * (sin(a) if self.fn == "sin" else cos(a))
-
     def with_derivatives(self, th: float) -> tuple[float, float, float]:
-        """(value, d1, d2) at ``th``, each as its own method gives it (the same operations
-        in the same order), the angle's sine and cosine taken once: the leader steps the
-        path once a step, its batches ahead of need at every wake."""
+        """amp fn(freq th + phase) + offset at ``th``, and its first and second
+        derivatives in ``th``, the angle's sine and cosine taken once (the compiled batch,
+        agents/law_kernel_sections/leader_path.pxi, does the same operations in the same
+        order)."""
         a = self.freq * th + self.phase
         s, c = sin(a), cos(a)
         if self.fn == "sin":
