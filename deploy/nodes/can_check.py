@@ -32,6 +32,12 @@ from deploy.nodes.can_options import MAX_SPIN_TORQUE_NM, DriverOptionError
 
 CYCLE_S = 0.01  # can-check's control period: torque and the driver's periodic frames
 ENABLE_WITHIN_S = 1.0
+# before its torque a wheel is held at zero torque until it turns slower than this (the
+# robot on the ground still moving from the wheel spun before it), at most REST_WITHIN_S:
+# a wheel carried at 1.35 rev/s by the robot slowed under +0.3 N m as the robot stopped,
+# and its change read as turning against the torque (the plug-in spin test, under load)
+AT_REST_REV_S = 0.05
+REST_WITHIN_S = 3.0
 STATUS_TIMEOUT_S = 10.0  # the monitor's: can-check reports silence itself
 
 
@@ -105,6 +111,11 @@ def spin(c: Check, n: int, torque_nm: float, seconds: float) -> str:
             c.send([d.torque_frame(n, 0.0)])
             c.listen(CYCLE_S, cycle=True)
         print(f"node {n}: {d.describe(n)}")
+        rest_by = time.monotonic() + REST_WITHIN_S
+        while c.speeds[n] and abs(c.speeds[n][-1]) > AT_REST_REV_S \
+                and time.monotonic() < rest_by:
+            c.send([d.torque_frame(n, 0.0)])  # (feeds an ODrive's watchdog)
+            c.listen(CYCLE_S, cycle=True)
         before = c.speeds[n][-1] if c.speeds[n] else 0.0  # its speed as the torque starts
         c.speeds[n] = []
         end = time.monotonic() + seconds
