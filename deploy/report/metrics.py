@@ -49,7 +49,8 @@ TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "ji
                # there is no command to time out, no sample to arrive stale)
                "command_timeout_s", "nonfinite_commands_reported", "stale_samples",
                "overloaded_steps",
-               "zero_torque_longest_s", "deadline_misses_by_node", "longest_stall",
+               "zero_torque_longest_s", "deadline_misses_by_node", "jitter_p99_ms_by_node",
+               "longest_stall",
                "reports_missing", "unanswered_states", "restarts_not_rejoined",
                "ros2",  # what the ROS 2 gateway published and refused
                # which output files the run wrote (a recording, figures): not a figure

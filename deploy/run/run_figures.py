@@ -207,6 +207,9 @@ def run_figures(obs: Observer, children: list[Child], listener_zid: str, wall: f
         if bridges:  # on CAN: each command's arrival -> its torque frames on the bus
             out["bridge_latency_ms"] = percentiles_ms([x for b in bridges for x in b.latency_ns])
         out["jitter_ms"] = percentiles_ms([j for r in reports.values() for j in r.jitter_ns])
+        # whose loop is late: on a loaded core the nodes differ by their priority and turn
+        out["jitter_p99_ms_by_node"] = {role: percentiles_ms(r.jitter_ns)["p99"]
+                                        for role, r in sorted(reports.items()) if r.jitter_ns}
         out["deadline_misses"] = sum(r.deadline_misses for r in reports.values())
         out["deadline_misses_by_node"] = {role: r.deadline_misses
                                           for role, r in sorted(reports.items())}

@@ -338,6 +338,10 @@ def test_realtime_run_reports_latency_jitter_and_misses(tmp_path):
     assert set(by_node) == {"leader", "plant", "agent-1", "agent-2", "agent-3"}
     assert sum(by_node.values()) == m["deadline_misses"]
     assert max(by_node.values()) <= MAX_MISS_SHARE * 400 and m["verdict"]["on_time"]
+    # whose loop woke late: each node's own p99 (pooled, they make jitter_ms)
+    late = m["jitter_p99_ms_by_node"]
+    assert {"plant", "agent-1", "agent-2", "agent-3"} <= set(late) <= set(by_node)
+    assert all(np.isfinite(v) and v >= 0.0 for v in late.values())
     assert abs(m["steps"] - 400) <= 4  # the plant kept the wall clock
     ts = TimeSeries.load(out / "timeseries.npz")
     assert np.isfinite(ts.torque).all() and np.abs(ts.torque).max() <= 2.0  # lab's limit
