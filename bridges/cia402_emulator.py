@@ -79,6 +79,8 @@ class _Params:
     slope_nm_s: float  # the torque slope at the wheel (N m/s)
     units: Units
     consumers: tuple[tuple[int, float], ...]  # (producer node, heartbeat time s) of 0x1016
+    nm_per_mille: float  # units.wheel_nm_per_mille, read at every physics tick
+    increments_per_rev: float  # units.increments_per_wheel_rev, at every SYNC
 
 
 class _ClockedTask:
@@ -149,6 +151,9 @@ class _Drive:
         self.cw_received = 0  # controlwords obeyed (by RPDO or SDO), for the tests
         self._stale = True
         self._cached: _Params | None = None
+        # _target_nm's value until the target or a parameter is written (None: stale);
+        # read twice a physics tick (the torque applied, the drive's tick)
+        self._target_cache: float | None = None
 
     # --- the bus ------------------------------------------------------------------------
     def send(self, can_id: int, data: Any) -> None:
@@ -171,6 +176,7 @@ class _Drive:
             store.clear()
             self.state = p.State.SWITCH_ON_DISABLED  # transition 1 done during the boot
             self.error_code, self.target, self.applied_nm, self.previous_cw = 0, 0, 0.0, 0
+            self._target_cache = None
         else:
             for index in [i for i in store if i < 0x2000]:
                 del store[index]
@@ -207,12 +213,14 @@ class _Drive:
         self.pending = {}
         self.emu._index_rpdos()
 
-    def on_sync(self, now: float) -> None:
+    def on_sync(self, now: float, lead_s: float = 0.0) -> None:
         """Apply the synchronous RPDOs, sample and send the TPDOs due. A SYNC read at
         the emulator time of the one before (the emulator behind the wall clock, reading
         a backlog) samples nothing new: its TPDOs are shed and counted, as the ODrive
         emulator sheds stale encoder estimates (sending them kept a starved emulator
-        falling further behind)."""
+        falling further behind). ``lead_s``: how far the wall clock is past the physics'
+        newest tick (:meth:`RobotEmulator.sample_lead_s`), read once for the robot's
+        drives: they sample on the same SYNC."""
         if not self.operational:
             return
         stale = self.last_sync == now
@@ -226,7 +234,8 @@ class _Drive:
                 if stale:
                     self.emu.counters.shed += 1
                 else:
-                    self.send(lay.cob_id, lay.pack({i: self._value(i) for i, _, _ in lay.fields}))
+                    self.send(lay.cob_id, lay.pack({i: self._value(i, lead_s)
+                                                    for i, _, _ in lay.fields}))
 
     def on_rpdo(self, lay: PdoLayout, data: bytes) -> None:
         if not self.operational:
@@ -256,7 +265,9 @@ class _Drive:
             return self._value(index)
         return None
 
-    def _value(self, index: int) -> int:
+    def _value(self, index: int, lead_s: float | None = None) -> int:
+        """Object ``index``'s value now; a position sampled ``lead_s`` past the newest
+        physics tick (None: the emulator's own reading of the wall clock)."""
         if index == p.STATUSWORD:
             return p.statusword_of(self.state)
         if index == p.ERROR_CODE:
@@ -266,21 +277,22 @@ class _Drive:
         if index == p.MODES_OF_OPERATION_DISPLAY:
             return self.params.mode
         w = self.wheel
-        units = self.params.units
-        per_rev = units.increments_per_wheel_rev
+        par = self.params
+        per_rev = par.increments_per_rev
         if index == p.POSITION_ACTUAL:
             # sampled now, between physics ticks: carried from the newest tick at the
             # wheel's speed (a SYNC read at the tick's time reported a position up to a
             # tick old: 2 mm of odometry drift median at lab's speeds, 200 Hz physics)
+            lead = self.emu.sample_lead_s() if lead_s is None else lead_s
             rev = float(self.emu.wheel_rev[w]) + self.emu.wheel_speed(w) / (2.0 * math.pi) \
-                * self.emu.sample_lead_s()
+                * lead
             raw = round(rev * per_rev)
             return (raw + (1 << 31)) % (1 << 32) - (1 << 31)  # int32, wrapping
         if index == p.VELOCITY_ACTUAL:
             v = round(float(self.emu.wheel_speed(w)) * (per_rev / (2.0 * math.pi)))
             return max(-(1 << 31), min((1 << 31) - 1, v))
         if index == p.TORQUE_ACTUAL:
-            return max(-32768, min(32767, round(self.applied_nm / units.wheel_nm_per_mille)))
+            return max(-32768, min(32767, round(self.applied_nm / par.nm_per_mille)))
         od = self.node.object_dictionary[index]
         return od.decode_raw(self.node.get_data(index, 0))
 
@@ -294,6 +306,7 @@ class _Drive:
         if self._stale or self._cached is None:
             self._cached = self._read_params()
             self._stale = False
+            self._target_cache = None
         return self._cached
 
     def _read_params(self) -> _Params:
@@ -315,7 +328,8 @@ class _Drive:
             quick_stop_option=int(self._object(p.QUICK_STOP_OPTION_CODE))
             if p.QUICK_STOP_OPTION_CODE in od else 2,
             slope_nm_s=slope * units.wheel_nm_per_mille, units=units,
-            consumers=tuple(consumers))
+            consumers=tuple(consumers), nm_per_mille=units.wheel_nm_per_mille,
+            increments_per_rev=units.increments_per_wheel_rev)
 
     def _write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
         """An SDO download or an RPDO: the objects that act (called before the value is
@@ -328,6 +342,7 @@ class _Drive:
             self._controlword(int.from_bytes(data[:2], "little"))
         elif index == p.TARGET_TORQUE:
             self.target = int.from_bytes(data[:2], "little", signed=True)
+            self._target_cache = None
         elif index == p.MODES_OF_OPERATION:
             mode = int.from_bytes(data[:1], "little", signed=True)
             bit = {p.MODE_CYCLIC_SYNC_TORQUE: p.SUPPORTS_CST, p.MODE_PROFILE_TORQUE: p.SUPPORTS_PT}
@@ -401,19 +416,27 @@ class _Drive:
             self.applied_nm = target_nm
 
     def _target_nm(self) -> float:
-        par = self.params
-        if par.mode not in TORQUE_MODES:
-            return 0.0
-        per_mille = max(-par.max_torque, min(par.max_torque, self.target))
-        return self.emu.clamp(per_mille * par.units.wheel_nm_per_mille)
+        """The target torque at the wheel (N m): 0 outside a torque mode, within 0x6072
+        and the scenario's limit."""
+        nm = self._target_cache
+        if nm is None or self._stale:
+            par = self.params  # (a stale cache read anew)
+            if par.mode not in TORQUE_MODES:
+                nm = 0.0
+            else:
+                per_mille = max(-par.max_torque, min(par.max_torque, self.target))
+                nm = self.emu.clamp(per_mille * par.nm_per_mille)
+            self._target_cache = nm
+        return nm
 
     def wheel_torque(self) -> float:
         """What the drive applies to its wheel now (N m)."""
-        if self.state is p.State.OPERATION_ENABLED and self.params.mode == p.MODE_CYCLIC_SYNC_TORQUE:
-            return self._target_nm()  # CST: the newest target, between the physics ticks too
-        if self.state in (p.State.OPERATION_ENABLED, p.State.QUICK_STOP_ACTIVE):
+        state = self.state
+        if state is p.State.OPERATION_ENABLED:
+            if self.params.mode == p.MODE_CYCLIC_SYNC_TORQUE:
+                return self._target_nm()  # CST: the newest target, between the physics ticks too
             return self.applied_nm
-        return 0.0
+        return self.applied_nm if state is p.State.QUICK_STOP_ACTIVE else 0.0
 
 
 class Cia402Emulator(RobotEmulator):
@@ -466,15 +489,18 @@ class Cia402Emulator(RobotEmulator):
                 d.boot()
             self._index_rpdos()
         for d in self.drives:
-            if any(not task.active for task in d.tasks):
-                d.tasks = [task for task in d.tasks if task.active]
             for task in d.tasks:
-                task.due(now)
+                if task.active:
+                    task.due(now)
+                else:  # stopped (an NMT reset, a heartbeat time written): forget it
+                    d.tasks = [t for t in d.tasks if t.active]
 
     def _drives_tick(self, now: float) -> None:
         h, self._last_tick = now - self._last_tick, now
+        f = self.faults
+        silent = f.silent_node if now >= f.silent_after_s else None  # (_silent, at now)
         for d in self.drives:
-            if not self._silent(d.id):
+            if d.id != silent:
                 d.tick(now, h)
 
     # --- frames in --------------------------------------------------------------------
@@ -510,8 +536,9 @@ class Cia402Emulator(RobotEmulator):
             if len(data) > 1:
                 c.bad_length += 1
                 return False
+            lead = self.sample_lead_s()
             for d in self._listening():
-                d.on_sync(now)
+                d.on_sync(now, lead)
             return True
         hit = self._rpdo_of.get(cob)
         if hit is not None:

@@ -299,6 +299,23 @@ def test_torque_is_clamped_by_max_torque_and_the_scenario_limit(lab, rig_factory
     assert r.emu.wheel_torques()[0] == 2.0
 
 
+def test_a_parameter_written_acts_on_the_target_the_drive_holds(lab, rig_factory):
+    """The drive keeps its target torque in N m between writes: a parameter written
+    after it (0x6072, 0x6060) changes the torque applied without a new target."""
+    r = rig_factory(lab)
+    r.enable()
+    r.period(np.array([1.5, -1.5, 0.5, 0.0]))
+    assert np.allclose(r.emu.wheel_torques(), [1.5, -1.5, 0.5, 0.0])
+    r.emu.drive(1).node.sdo[p.MAX_TORQUE].raw = 500  # 1 N m (2 N m at 1000 per mille)
+    r.emu.drive(2).node.sdo[p.MODES_OF_OPERATION].raw = 0  # no mode: no torque
+    r.period()
+    assert np.allclose(r.emu.wheel_torques(), [1.0, 0.0, 0.5, 0.0])
+    r.emu.drive(2).node.sdo[p.MODES_OF_OPERATION].raw = p.MODE_CYCLIC_SYNC_TORQUE
+    r.emu.drive(1).node.sdo[p.MAX_TORQUE].raw = 1000
+    r.period()
+    assert np.allclose(r.emu.wheel_torques(), [1.5, -1.5, 0.5, 0.0])
+
+
 def test_a_lost_sync_faults_the_enabled_drive_and_a_fault_reset_recovers_it(calm, rig_factory):
     r = rig_factory(calm, watchdog_timeout_s=0.2)
     r.enable()
