@@ -527,6 +527,8 @@ class AgentNode:
         # woken by its robot's sample only: the leader's batches and the neighbours'
         # shares wait in their sockets until then (deploy/runtime/datagrams.py)
         self.node.wake_on([self.node.keys.sample(self.rid)])
+        keys = self.node.keys
+        self.node.connect_ahead([keys.cmd(self.rid), keys.telemetry(self.rid)])
         last_k = -1
         last_step = None
         pace = LoopPace(dt)

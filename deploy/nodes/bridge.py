@@ -25,6 +25,7 @@ import queue
 import sys
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -110,6 +111,7 @@ class BridgeNode:
         self._frames: queue.SimpleQueue = queue.SimpleQueue()
         self._closing = False
         self._reading_in_loop = False  # the run's loop reads the bus (no reader thread)
+        self._pre_run_last: float | None = None  # the odometry's newest idle period
         # the other robots, for perception: their published states (initially the scenario's)
         self.positions, self.velocities = q0[:, :2].copy(), np.zeros((sc.n, 2))
         self.radii = [sc.spec.robot.body_radius_m] * sc.n
@@ -135,9 +137,10 @@ class BridgeNode:
     def _read_bus(self) -> None:
         """Until the run starts: the frames as they come (the bring-up and the wait for
         ``ctl/start`` read the bus for the bridge). The run's loop reads them itself."""
+        wait_s = min(0.05, self.sc.dt)  # (the run's loop takes over within a period)
         while not self.stop() and not self._closing and not self._reading_in_loop:
             try:
-                frame = self.bus.recv(timeout=0.05)
+                frame = self.bus.recv(timeout=wait_s)
             except Exception as exc:  # a bus that failed: faulted by missing heartbeats
                 print(f"{self.node.role}: CAN receive failed: {exc}", file=sys.stderr)
                 time.sleep(0.05)
@@ -332,28 +335,42 @@ class BridgeNode:
         """Before the run: keep the odometry going (the robot may be pushed) and the
         axes idle until ``ctl/start``; t = 0 on this clock, or None."""
         deadline = time.monotonic() + timeout_s
-        last = time.monotonic()
-        while not self.stop() and time.monotonic() < deadline:
-            if self.node.mailbox.wait_until(lambda: self.control.start is not None,
-                                            self.sc.dt):
+        self._pre_run_last = time.monotonic()
+        self._idle_until(deadline, lambda: self.control.start is not None)
+        return None if self.control.start is None else self.control.wait_for_start(0.0)
+
+    def _idle_until(self, until: float, ready: Callable[[], bool] = lambda: False) -> None:
+        """Idle periods until ``until`` (time.monotonic()), ``ready()`` or a stop: the
+        drives' frames the reader thread heard applied, the odometry kept going (the robot
+        may be pushed), the driver's cycle frames (CiA 402: SYNC) sent, every period."""
+        while not self.stop() and time.monotonic() < until:
+            if self.node.mailbox.wait_until(ready, min(self.sc.dt, until - time.monotonic())):
                 break
             now = time.monotonic()
-            self._sample(now, now - last)
+            last = self._pre_run_last
+            self._sample(now, self.sc.dt if last is None else now - last)
             self._cycle(now)
-            last = now
-        self._pre_run_last = last
-        return None if self.control.start is None else self.control.wait_for_start(0.0)
+            self._pre_run_last = now
 
     def run_realtime(self, t0_mono: float, steps: int) -> None:
         dt = self.sc.dt
         self.clock.t0_s = t0_mono
+        # the start's lead idles as the wait for it did, up to two periods before the
+        # first: the loop reading the bus only from t = 0 found the lead's frames there
+        # (0.3 s, ~120 of an ODrive robot): ~4 ms of a bridge's first period, and on one
+        # core the three bridges' first periods in a row made each skip the next 1-3
+        # (the run's only steps not simulated)
+        self._idle_until(t0_mono + self.phase_s - 2.0 * dt)
+        keys = self.node.keys
+        self.node.connect_ahead([keys.sample(self.rid), keys.state_log(self.node.role)])
         # from here the loop reads the bus at each period (what the thread had queued
-        # first); woken by its clock and by its agent's commands only
+        # first; it hands over within a period); woken by its clock and by its agent's
+        # commands only
         self._reading_in_loop = True
         self._reader.join(1.0)
         self.node.wake_on([self.node.keys.cmd(self.rid)])
         ticker = Periodic(t0_mono + self.phase_s, dt, self.timing, self.node.mailbox)
-        last = getattr(self, "_pre_run_last", None)
+        last: float | None = self._pre_run_last
         try:
             while not self.stop():
                 k = ticker.wait_next(self.stop)

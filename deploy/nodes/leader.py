@@ -114,6 +114,7 @@ class LeaderNode:
         n = realtime_batch(self.sc.dt, isinstance(self.generator, SteeredLeader))
         self.t0_mono = t0_mono
         self.node.wake_on(())  # its timer only (it hears nothing on the data path)
+        self.node.connect_ahead([self.node.keys.leader_state])
         ticker = Periodic(t0_mono, n * self.sc.dt, self.timing, self.node.mailbox)
         while not self.stop():
             b = ticker.wait_next(self.stop)

@@ -313,6 +313,7 @@ class PlantNode:
         # (where they act), stamped by the kernel as they came (the latency's end)
         self.node.wake_on(())
         self.node.stamp_arrivals()
+        self.node.connect_ahead([*self.sample_keys, self.node.keys.state_log(PLANT_ROLE)])
         start_unix_ns = time.time_ns() + int(START_LEAD_S * 1e9)
         t0 = time.monotonic() + START_LEAD_S
         self._control("start", start_unix_ns=start_unix_ns)

@@ -512,6 +512,24 @@ class DatagramPath:
             self._routes[key] = peers
         return peers
 
+    def connect_ahead(self, keys: Iterable[str]) -> int:
+        """Open now the connections that sending on ``keys`` will take (a send dials a
+        receiver it has no connection to): how many. A realtime node does so before its
+        first period: every node's first frames of a run dialled at t = 0 (a connection,
+        its hello and the receiver's accept and check, in both processes) put a burst on
+        a core that had none to spare. A receiver that cannot be reached yet is dialled
+        at the first send, as before."""
+        opened = 0
+        for key in keys:
+            for p in self._route(key):
+                if p.sock is None:
+                    try:
+                        self._dial(p)
+                        opened += 1
+                    except OSError:
+                        p.close()
+        return opened
+
     # -- sending ------------------------------------------------------------------
     def send(self, key: str, payload: bytes) -> int:
         """``payload`` on ``key`` to every local node that hears it; returns how many

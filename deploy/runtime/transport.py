@@ -467,18 +467,8 @@ class Node:
         (a plant, its whole state once a step): the message is not decoded again here."""
         by_datagram = self._by_datagram.get(key)
         if by_datagram is None:
-            by_datagram = self._by_datagram[key] = self._is_data(key)
-        pub = None if by_datagram else self._pubs.get(key)
-        if pub is None and not by_datagram:
-            cc = self._zenoh.CongestionControl
-            # data in realtime may be dropped under congestion (newest wins);
-            # control and reports never are
-            must_arrive = self.lossless or "/ctl/" in key or "/report/" in key
-            pub = self.session.declare_publisher(
-                key, express=True,
-                congestion_control=cc.BLOCK if must_arrive else cc.DROP,
-            )
-            self._pubs[key] = pub
+            by_datagram = self._sends_by_datagram(key)
+        pub = None if by_datagram else self._publisher(key)
         seq = self._seq.get(key, 0)
         self._seq[key] = seq + 1
         costs = self.costs.ns
@@ -511,6 +501,41 @@ class Node:
                 print(f"{self.role}: not sent on {key}: {exc}", file=sys.stderr)
             return None
         return msg
+
+    def _sends_by_datagram(self, key: str) -> bool:
+        """Whether ``key`` goes out on the datagram path (remembered)."""
+        by_datagram = self._by_datagram.get(key)
+        if by_datagram is None:
+            by_datagram = self._by_datagram[key] = self._is_data(key)
+        return by_datagram
+
+    def _publisher(self, key: str) -> Any:
+        """zenoh's publisher of ``key``, declared at its first use."""
+        pub = self._pubs.get(key)
+        if pub is None:
+            cc = self._zenoh.CongestionControl
+            # data in realtime may be dropped under congestion (newest wins);
+            # control and reports never are
+            must_arrive = self.lossless or "/ctl/" in key or "/report/" in key
+            pub = self._pubs[key] = self.session.declare_publisher(
+                key, express=True,
+                congestion_control=cc.BLOCK if must_arrive else cc.DROP,
+            )
+        return pub
+
+    def connect_ahead(self, keys: Iterable[str]) -> None:
+        """What the first publish on each of ``keys`` would open, opened now: the datagram
+        path's connections to its receivers (:meth:`DatagramPath.connect_ahead`), zenoh's
+        publisher of a key that goes by zenoh. A realtime node does so before its first
+        period, where each of a run's nodes used to open them at t = 0, at once."""
+        by_datagram = []
+        for key in keys:
+            if self._sends_by_datagram(key):
+                by_datagram.append(key)
+            else:
+                self._publisher(key)
+        if by_datagram:
+            self.datagrams.connect_ahead(by_datagram)  # type: ignore[union-attr]
 
     def wake_on(self, keys: Iterable[str] | None) -> None:
         """On the datagram path, be woken from a wait only by frames on ``keys`` (None:

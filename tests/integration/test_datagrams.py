@@ -131,6 +131,30 @@ def test_a_restarted_receiver_is_dialled_again_and_a_gone_one_costs_a_count(run_
     assert _frames(again, 1)[0].endswith(b"second")
 
 
+def test_connections_opened_ahead_carry_the_first_frame_and_a_missing_receiver_waits(run_dir):
+    """``connect_ahead`` opens what the first send would dial (a realtime node does so
+    before its first period): the receiver has accepted it before any frame, and the
+    first frame goes on it; a receiver not there yet is dialled at the send, as before."""
+    tx, rx = _pair(run_dir)
+    assert tx.connect_ahead([KEY, "omr/t/robot/1/sample"]) == 1  # nobody hears the sample
+    assert rx.recv_wait(0.2) is None  # the accept and the hello: no frame to deliver
+    assert len(rx._conns) == 1 and tx.connect_ahead([KEY]) == 0  # opened once
+    assert tx.send(KEY, b"first") == 0
+    assert _frames(rx, 1)[0].endswith(b"first") and len(rx._conns) == 1
+    rx.close()
+    late = DatagramPath(run_dir, "late", True)
+    late.hear(["omr/t/robot/2/cmd"])
+    key2 = "omr/t/robot/2/cmd"
+    late.close()  # gone before the node connects ahead: nothing opened, nothing raised
+    tx.refresh()
+    assert tx.connect_ahead([key2]) == 0
+    again = DatagramPath(run_dir, "late", True)
+    again.hear([key2])
+    tx.refresh()
+    assert tx.send(key2, b"dialled at the send") == 0
+    assert _frames(again, 1)[0].endswith(b"dialled at the send")
+
+
 def test_another_thread_wakes_the_waiting_one(run_dir):
     rx = DatagramPath(run_dir, "rx", True)
     threading.Timer(0.05, rx.wake).start()
