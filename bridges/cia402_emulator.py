@@ -67,6 +67,10 @@ PARAMETERS = frozenset({p.MODES_OF_OPERATION, p.MAX_TORQUE, p.QUICK_STOP_OPTION_
                         p.TORQUE_SLOPE, p.MOTOR_RATED_TORQUE, p.GEAR_RATIO,
                         p.POSITION_ENCODER_RESOLUTION, p.CONSUMER_HEARTBEAT_TIME})
 POSITIVE = frozenset({p.MOTOR_RATED_TORQUE, p.GEAR_RATIO, p.POSITION_ENCODER_RESOLUTION})
+# the objects the drive samples (at a SYNC, or as an SDO upload reads them), not the store's
+LIVE = frozenset({p.STATUSWORD, p.MODES_OF_OPERATION_DISPLAY, p.POSITION_ACTUAL,
+                  p.VELOCITY_ACTUAL, p.TORQUE_ACTUAL, p.ERROR_CODE, 0x1001})
+TWO_PI = 2.0 * math.pi
 
 
 @dataclass(frozen=True)
@@ -147,6 +151,7 @@ class _Drive:
         self.heartbeats: dict[int, float] = {}  # producer node -> when its heartbeat came
         self.rpdos: dict[int, PdoLayout] = {}
         self.tpdos: list[PdoLayout] = []
+        self.tpdo_stored: dict[int, tuple[int, ...]] = {}  # a TPDO's objects from the store
         self.pending: dict[int, bytes] = {}  # synchronous RPDOs waiting for SYNC
         self.cw_received = 0  # controlwords obeyed (by RPDO or SDO), for the tests
         self._stale = True
@@ -210,6 +215,8 @@ class _Drive:
         self.node.tpdo.read()
         self.rpdos = {m.cob_id: PdoLayout.of(m) for m in self.node.rpdo.values() if m.enabled}
         self.tpdos = [PdoLayout.of(m) for m in self.node.tpdo.values() if m.enabled]
+        self.tpdo_stored = {lay.cob_id: tuple(i for i, _, _ in lay.fields if i not in LIVE)
+                            for lay in self.tpdos}
         self.pending = {}
         self.emu._index_rpdos()
 
@@ -229,13 +236,18 @@ class _Drive:
         for cob_id, data in list(self.pending.items()):
             self._apply_rpdo(self.rpdos[cob_id], data)
         self.pending.clear()
+        sampled = None  # the live objects, sampled once for this SYNC's TPDOs
         for lay in self.tpdos:
             if lay.synchronous and (lay.trans_type == 0 or self.syncs % lay.trans_type == 0):
                 if stale:
                     self.emu.counters.shed += 1
-                else:
-                    self.send(lay.cob_id, lay.pack({i: self._value(i, lead_s)
-                                                    for i, _, _ in lay.fields}))
+                    continue
+                if sampled is None:
+                    sampled = self._live(lead_s)
+                stored = self.tpdo_stored.get(lay.cob_id)
+                values = sampled if not stored else \
+                    {**sampled, **{i: self._value(i) for i in stored}}
+                self.send(lay.cob_id, lay.pack(values))
 
     def on_rpdo(self, lay: PdoLayout, data: bytes) -> None:
         if not self.operational:
@@ -260,41 +272,39 @@ class _Drive:
 
     # --- the object dictionary's live values -------------------------------------------
     def _read(self, index: int, subindex: int, od: Any) -> int | None:
-        if index in (p.STATUSWORD, p.MODES_OF_OPERATION_DISPLAY, p.POSITION_ACTUAL,
-                     p.VELOCITY_ACTUAL, p.TORQUE_ACTUAL, p.ERROR_CODE, 0x1001):
+        if index in LIVE:
             return self._value(index)
         return None
 
-    def _value(self, index: int, lead_s: float | None = None) -> int:
-        """Object ``index``'s value now; a position sampled ``lead_s`` past the newest
-        physics tick (None: the emulator's own reading of the wall clock)."""
-        if index == p.STATUSWORD:
-            return p.statusword_of(self.state)
-        if index == p.ERROR_CODE:
-            return self.error_code
-        if index == 0x1001:
-            return ERROR_REGISTER_GENERIC_COMMUNICATION if self.error_code else 0
-        if index == p.MODES_OF_OPERATION_DISPLAY:
-            return self.params.mode
-        w = self.wheel
-        par = self.params
-        per_rev = par.increments_per_rev
-        if index == p.POSITION_ACTUAL:
-            # sampled now, between physics ticks: carried from the newest tick at the
-            # wheel's speed (a SYNC read at the tick's time reported a position up to a
-            # tick old: 2 mm of odometry drift median at lab's speeds, 200 Hz physics)
-            lead = self.emu.sample_lead_s() if lead_s is None else lead_s
-            rev = float(self.emu.wheel_rev[w]) + self.emu.wheel_speed(w) / (2.0 * math.pi) \
-                * lead
-            raw = round(rev * per_rev)
-            return (raw + (1 << 31)) % (1 << 32) - (1 << 31)  # int32, wrapping
-        if index == p.VELOCITY_ACTUAL:
-            v = round(float(self.emu.wheel_speed(w)) * (per_rev / (2.0 * math.pi)))
-            return max(-(1 << 31), min((1 << 31) - 1, v))
-        if index == p.TORQUE_ACTUAL:
-            return max(-32768, min(32767, round(self.applied_nm / par.nm_per_mille)))
+    def _value(self, index: int) -> int:
+        """Object ``index``'s value now (a live one sampled at the wall clock)."""
+        if index in LIVE:
+            return self._live(self.emu.sample_lead_s())[index]
         od = self.node.object_dictionary[index]
         return od.decode_raw(self.node.get_data(index, 0))
+
+    def _live(self, lead_s: float) -> dict[int, int]:
+        """The objects the drive samples, the position ``lead_s`` past the newest physics
+        tick: a SYNC's TPDOs take them at once (the drive samples them together)."""
+        par, emu, w = self.params, self.emu, self.wheel
+        per_rev = par.increments_per_rev
+        speed = emu.wheel_speed(w)
+        # sampled now, between physics ticks: carried from the newest tick at the wheel's
+        # speed (a SYNC read at the tick's time reported a position up to a tick old: 2 mm
+        # of odometry drift median at lab's speeds, 200 Hz physics)
+        rev = float(emu.wheel_rev[w]) + speed / TWO_PI * lead_s
+        raw = round(rev * per_rev)
+        v = round(float(speed) * (per_rev / TWO_PI))
+        error = self.error_code
+        return {
+            p.STATUSWORD: p.statusword_of(self.state),
+            p.ERROR_CODE: error,
+            0x1001: ERROR_REGISTER_GENERIC_COMMUNICATION if error else 0,
+            p.MODES_OF_OPERATION_DISPLAY: par.mode,
+            p.POSITION_ACTUAL: (raw + (1 << 31)) % (1 << 32) - (1 << 31),  # int32, wrapping
+            p.VELOCITY_ACTUAL: max(-(1 << 31), min((1 << 31) - 1, v)),
+            p.TORQUE_ACTUAL: max(-32768, min(32767, round(self.applied_nm / par.nm_per_mille))),
+        }
 
     def _object(self, index: int, sub: int | None = None) -> Any:
         od = self.node.object_dictionary
