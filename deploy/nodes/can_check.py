@@ -38,6 +38,12 @@ ENABLE_WITHIN_S = 1.0
 # and its change read as turning against the torque (the plug-in spin test, under load)
 AT_REST_REV_S = 0.05
 REST_WITHIN_S = 3.0
+# a spin lasts until the wheel's readings span --spin-time after its torque started, by
+# when they reached this host (the kernel's stamp): can-check held off the CPU for most of
+# a window timed by its own clock heard two readings of a wheel that had not sped up yet,
+# and read the robot's coasting as the wheel turning against its torque (the plug-in spin
+# test beside CI's realtime phase). At most this much longer when no reading comes
+SPIN_GRACE_S = 2.0
 STATUS_TIMEOUT_S = 10.0  # the monitor's: can-check reports silence itself
 
 
@@ -50,6 +56,7 @@ class Check:
     monitor: DriverMonitor
     heard: set[int] = field(default_factory=set)
     speeds: dict[int, list[float]] = field(default_factory=dict)
+    speeds_at: dict[int, list[float]] = field(default_factory=dict)  # when each reading came
     next_cycle: float = 0.0
 
     def send(self, frames: list) -> None:
@@ -73,6 +80,7 @@ class Check:
             self.monitor.feed(report, time.monotonic())
             if report.velocity_rev_s is not None:
                 self.speeds.setdefault(report.node, []).append(report.velocity_rev_s)
+                self.speeds_at.setdefault(report.node, []).append(arrival(frame))
 
     def table(self) -> str:
         rows = ["node  state      fault                         position_rev  velocity_rev/s  "
@@ -117,9 +125,10 @@ def spin(c: Check, n: int, torque_nm: float, seconds: float) -> str:
             c.send([d.torque_frame(n, 0.0)])  # (feeds an ODrive's watchdog)
             c.listen(CYCLE_S, cycle=True)
         before = c.speeds[n][-1] if c.speeds[n] else 0.0  # its speed as the torque starts
-        c.speeds[n] = []
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
+        c.speeds[n], c.speeds_at[n] = [], []
+        started, give_up = time.time(), time.monotonic() + seconds + SPIN_GRACE_S
+        while not spun_long_enough(c.speeds_at[n], started, seconds) \
+                and time.monotonic() < give_up:
             c.send([d.torque_frame(n, torque_nm)])  # also feeds an ODrive's watchdog
             c.listen(CYCLE_S, cycle=True)
     finally:
@@ -129,6 +138,20 @@ def spin(c: Check, n: int, torque_nm: float, seconds: float) -> str:
     if not speeds:
         return f"node {n}: no encoder readings while spinning"
     return spin_verdict(n, torque_nm, before, speeds)
+
+
+def arrival(frame: object) -> float:
+    """When ``frame`` reached this host (time.time()): the bus's stamp (the kernel's, on
+    socketcan and the UDP buses), or now where it has none or another clock's."""
+    now = time.time()
+    stamp = getattr(frame, "timestamp", None) or 0.0
+    return stamp if abs(stamp - now) < 1.0 else now
+
+
+def spun_long_enough(readings_at: list[float], started: float, seconds: float) -> bool:
+    """Whether the readings of a wheel driven since ``started`` (time.time()) span
+    ``seconds`` of it: the newest came that long after the torque started."""
+    return bool(readings_at) and readings_at[-1] >= started + seconds
 
 
 def spin_verdict(n: int, torque_nm: float, before: float, speeds: list[float]) -> str:
