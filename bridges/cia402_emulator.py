@@ -220,7 +220,7 @@ class _Drive:
         self.pending = {}
         self.emu._index_rpdos()
 
-    def on_sync(self, now: float, lead_s: float = 0.0) -> None:
+    def on_sync(self, now: float, lead_s: float) -> None:
         """Apply the synchronous RPDOs, sample and send the TPDOs due. A SYNC read at
         the emulator time of the one before (the emulator behind the wall clock, reading
         a backlog) samples nothing new: its TPDOs are shed and counted, as the ODrive
@@ -246,7 +246,7 @@ class _Drive:
                     sampled = self._live(lead_s)
                 stored = self.tpdo_stored.get(lay.cob_id)
                 values = sampled if not stored else \
-                    {**sampled, **{i: self._value(i) for i in stored}}
+                    {**sampled, **{i: self._stored(i) for i in stored}}
                 self.send(lay.cob_id, lay.pack(values))
 
     def on_rpdo(self, lay: PdoLayout, data: bytes) -> None:
@@ -272,14 +272,12 @@ class _Drive:
 
     # --- the object dictionary's live values -------------------------------------------
     def _read(self, index: int, subindex: int, od: Any) -> int | None:
-        if index in LIVE:
-            return self._value(index)
+        if index in LIVE:  # sampled at the wall clock
+            return self._live(self.emu.sample_lead_s())[index]
         return None
 
-    def _value(self, index: int) -> int:
-        """Object ``index``'s value now (a live one sampled at the wall clock)."""
-        if index in LIVE:
-            return self._live(self.emu.sample_lead_s())[index]
+    def _stored(self, index: int) -> int:
+        """Object ``index``'s value as the object dictionary holds it."""
         od = self.node.object_dictionary[index]
         return od.decode_raw(self.node.get_data(index, 0))
 
