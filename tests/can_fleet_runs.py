@@ -8,7 +8,7 @@ tests/realtime_clock.py.
 At 100 Hz: at lab's 200 Hz the nine processes took 1.6 (ODrive) and 1.63 (CiA 402) of
 the 2 cores of a quiet machine after the compiled kernels, loop jitter p99 6.0 / 9.0 ms
 against 5 ms; at 100 Hz 2.3-4.7 ms against 10 ms (docs/hardware.md). The launcher's
-recording is left out: nothing here reads it.
+recording is left out but where a test reads it.
 """
 
 from __future__ import annotations
@@ -29,11 +29,12 @@ COMMAND_TIMEOUT_S = 0.1  # the bridge's default
 
 
 def run_fleet(out: Path, fleet: str, driver: str, *extra: str,
-              duration_s: float = DURATION_S) -> tuple[str, dict]:
+              duration_s: float = DURATION_S, record: bool = False) -> tuple[str, dict]:
     """One run to its end: (its stdout, its metrics.json); no process of it left."""
     code, stdout, err = finish(start("run", "lab", "--plant", "can-emulated", "--driver", driver,
                                      "--duration", repr(duration_s), "--fleet", fleet, "--out",
-                                     str(out), "--control-rate", RATE_HZ, "--no-record",
+                                     str(out), "--control-rate", RATE_HZ,
+                                     *([] if record else ["--no-record"]),
                                      "--no-figures", *extra), timeout=300)
     assert code == 0, err[-3000:]
     left = pids_with(fleet) | pids_with(str(out))

@@ -335,8 +335,8 @@ class NodeReport(Message, frozen=True):
     # that loop's wall time, s
     cpu_s: Finite = 0.0
     loop_s: Finite = 0.0
-    # plant: samples and replies it could not keep for the run's recording (its record of
-    # them failed to write: deploy/runtime/wire_spool.py)
+    # plant or CAN bridge: samples and replies it could not keep for the run's recording
+    # (its record of them failed to write: deploy/runtime/wire_spool.py)
     unrecorded: int = 0
     # the time its run loop spent in each part of its steps, ns (deploy/runtime/step_costs.py)
     step_costs_ns: dict[str, int] = {}

@@ -51,6 +51,7 @@ from deploy.runtime.node_runtime import ControlInbox, Periodic, StopFlag, Timing
 from deploy.runtime.step_costs import CAN, HANDLE, LAW, TELEMETRY, now_ns
 from deploy.runtime.step_guard import SEQ_SLACK, OwnClock
 from deploy.runtime.transport import Node
+from deploy.runtime.wire_spool import SpoolWriter, spool_path
 from plant.command import ZeroTorqueSpans, exceeds, torque_bound
 from plant.perception import Perception
 
@@ -70,8 +71,14 @@ class BridgeNode:
     def __init__(self, sc: Scenario, robot_id: int, node: Node, stop: StopFlag, bus: Any,
                  protocol: WheelDriver, node_ids: list[int],
                  command_timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S,
-                 heartbeat_timeout_s: float = 0.35) -> None:
+                 heartbeat_timeout_s: float = 0.35, spool_dir: str | None = None) -> None:
+        """``spool_dir``: keep a record of every sample sent and every command heard
+        there, for the recording of the launcher on this host (wire_spool.py), as the
+        plant does."""
         self.sc, self.rid, self.node, self.stop = sc, robot_id, node, stop
+        if spool_dir is not None:
+            node.spool = SpoolWriter(spool_path(spool_dir, node.role),
+                                     {node.keys.sample(robot_id), node.keys.cmd(robot_id)})
         self.index = sc.index_of(robot_id)
         # this bridge's periods start this long after the run's (staggered: the drives'
         # reports, a sample and then the torque frames of every bridge of a host no
@@ -462,10 +469,14 @@ class BridgeNode:
     def finish(self, linger_s: float = 5.0) -> None:
         """Report, then stay until this robot's agent has left (as the plant does),
         so it does not mistake the end of the run for a lost bridge."""
+        spool = self.node.spool
+        if spool is not None:  # its record of the samples and commands, whole before the report
+            spool.flush()
         publish_report(self.node, self.rid, self.steps_done, self.timing,
                        command_stops=self.command_stops[:1000],
                        zero_torque=self.zero_torque.close(self.steps_done * self.sc.dt),
-                       torque_clipped={str(self.rid): self.clipped} if self.clipped else {})
+                       torque_clipped={str(self.rid): self.clipped} if self.clipped else {},
+                       unrecorded=0 if spool is None else spool.lost)
         c = self.protocol.counters
         print(f"{self.node.role}: CAN frames sent {self.frames_sent}, arming frames sent "
               f"again {self.rearms}; received decoded {c.decoded}, rejected {c.rejected}",

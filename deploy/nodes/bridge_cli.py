@@ -14,7 +14,14 @@ from deploy.nodes.can_options import (
     make_driver,
     open_bus,
 )
-from deploy.nodes.cli import EXIT_STARTUP, add_node_options, run_node, run_scenario, steps_of
+from deploy.nodes.cli import (
+    EXIT_STARTUP,
+    add_node_options,
+    add_spool_option,
+    run_node,
+    run_scenario,
+    steps_of,
+)
 
 
 def _cmd_bridge(args: argparse.Namespace) -> int:
@@ -46,7 +53,7 @@ def _cmd_bridge(args: argparse.Namespace) -> int:
 
     def build(sc, node, stop):
         made.append(BridgeNode(sc, args.robot, node, stop, bus, driver, list(driver.node_ids),
-                               args.command_timeout, args.heartbeat_timeout))
+                               args.command_timeout, args.heartbeat_timeout, args.spool))
         return made[0]
 
     def realtime(obj, sc):
@@ -79,6 +86,7 @@ def add_bridge_commands(sub: argparse._SubParsersAction) -> None:
     add_option(p, "--command-timeout", help="zero torque when the newest command is older "
                "than this")
     add_option(p, "--heartbeat-timeout")
+    add_spool_option(p, "every sample sent and every command heard")
     p.add_argument("--self-start", action="store_true",
                    help="start the clock now instead of waiting for ctl/start (bring-up)")
     p.set_defaults(func=_cmd_bridge)

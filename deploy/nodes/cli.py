@@ -286,6 +286,15 @@ def add_node_options(p: argparse.ArgumentParser) -> None:
     add_option(p, "--lost-peer-grace")
 
 
+def add_spool_option(p: argparse.ArgumentParser, what: str) -> None:
+    """``--spool DIR``: the node keeps ``what`` for a recording made on its host
+    (deploy/runtime/wire_spool.py)."""
+    p.add_argument("--spool", metavar="DIR",
+                   help=f"keep {what} in a file of DIR (on this host) for the run's "
+                   "recording: `omnifleet run` gives its run directory when it records, and "
+                   "then does not hear them on the wire")
+
+
 def add_law_option(p: argparse.ArgumentParser) -> None:
     """``--law``: every agent on another control law than the scenario's ``[law]``."""
     from agents.laws import NAMES
@@ -330,10 +339,7 @@ def add_node_commands(sub: argparse._SubParsersAction) -> None:
     plant.add_argument("--gui", action="store_true",
                        help="pybullet: open the simulator's window (needs a display)")
     add_option(plant, "--command-timeout")
-    plant.add_argument("--spool", metavar="DIR",
-                       help="keep every sample sent and every reply heard in a file of DIR "
-                       "(on this host) for the run's recording: `omnifleet run` gives its run "
-                       "directory when it records, and then does not hear them on the wire")
+    add_spool_option(plant, "every sample sent and every reply heard")
     plant.set_defaults(func=_cmd_plant)
 
     leader = sub.add_parser("leader", help="run the virtual leader (reference generator)")

@@ -106,7 +106,7 @@ class Launcher:
         self.truth_files: dict[int, Path] = {}  # can-emulated: each emulator's ground truth
         self.loop_clock = LoopClock()
         self.early: EarlyLoad | None = None  # realtime: the fleet's first second
-        self.spool: SpoolReader | None = None  # the plant's samples and replies (recording)
+        self.spool: SpoolReader | None = None  # the samples and replies kept (recording)
         # called once with the run's final series, as soon as every node's report (and so
         # all of its data) is in, while the nodes are still leaving: a caller starts
         # drawing the figures then

@@ -53,8 +53,8 @@ class Observer:
         self.keyring = keyring
         self.recorder = recorder  # McapRecorder or None
         self.record_all = record_all  # subscribe to every key (recording)
-        # the plant keeps its samples and replies for the recording (SpooledWire): they
-        # are not heard here
+        # the plant (on CAN: each bridge) keeps its samples and replies for the recording
+        # (SpooledWire): they are not heard here
         self.spooled = spooled
         self.steps = steps
         self.collector = Collector(sc, steps)
@@ -76,7 +76,7 @@ class Observer:
 
     def listened_keys(self) -> list[str]:
         """Recording: every key of the fleet, but the samples and replies when the plant
-        keeps them (``spooled``: what is left is the list below). Otherwise only what the
+        or the bridges keep them (``spooled``: what is left is the list below). Otherwise only what the
         series and the metrics need (each message heard costs CPU in every listener)."""
         k = self.keys
         if self.record_all and not self.spooled:
@@ -123,14 +123,17 @@ class Observer:
             self.collector.add(msg)
 
     def note_unrecorded(self) -> None:
-        """Once the reports are in: the samples and replies the plant could not keep for
-        the recording (``spooled``) make the recording incomplete, and the run fail."""
-        plant = self.collector.reports.get(PLANT_ROLE)
-        if self.recorder is not None and plant is not None and plant.unrecorded:
-            self.recorder.missed(
-                f"the plant could not keep {plant.unrecorded} of its samples and replies for "
-                "the recording (its record of them failed to write: logs/plant.log)",
-                plant.unrecorded)
+        """Once the reports are in: the samples and replies the plant (on CAN: a bridge)
+        could not keep for the recording (``spooled``) make the recording incomplete, and
+        the run fail."""
+        if self.recorder is None:
+            return
+        for role, report in sorted(self.collector.reports.items()):
+            if report.unrecorded:
+                self.recorder.missed(
+                    f"the {role} could not keep {report.unrecorded} of its samples and replies "
+                    f"for the recording (its record of them failed to write: logs/{role}.log)",
+                    report.unrecorded)
 
     def _on_control(self, msg: Control) -> None:
         if msg.command == "start" and self.run_t0 is None:
@@ -216,8 +219,8 @@ class Observer:
 
 
 class SpooledWire:
-    """The plant's own record of the samples it sent and the replies it heard
-    (deploy/runtime/wire_spool.py), decoded for the recorder: a source of
+    """The plant's (on CAN: each bridge's) own record of the samples it sent and the
+    replies it heard (deploy/runtime/wire_spool.py), decoded for the recorder: a source of
     ``McapRecorder.add_source``, read on the recorder's thread (with a codec of its own).
     A record that does not decode (none should: the plant wrote what it sent or had
     decoded) comes as None, which the recorder counts as failed."""

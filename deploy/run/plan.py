@@ -149,13 +149,12 @@ def plan_run(sc: Scenario, a: LaunchOptions, launcher_endpoint: str,
                                       *(["--plant-role", LAUNCHER_ROLE] if on_can else [])],
                   logs / "leader.log")]
     if on_can:
-        plan += _can_plan(sc, a, cmd, common, out, truth)
+        plan += _can_plan(sc, a, cmd, common, out, truth, run_dir)
     else:
         plan.append(Child(PLANT_ROLE, None, [*cmd, "plant", *common, "--plant", a.plant,
                                              *_priority(a, world_priority(a.realtime_priority)),
                                              *(["--gui"] if a.gui else []),
-                                             *(["--spool", str(run_dir or _unstarted())]
-                                               if spools(a) else [])],
+                                             *_spool(a, run_dir)],
                           logs / "plant.log"))
     for r in sc.robot_ids:
         source = ["--plant-role", bridge_role(r)] if on_can else []
@@ -166,10 +165,15 @@ def plan_run(sc: Scenario, a: LaunchOptions, launcher_endpoint: str,
     return RunPlan(plan, truth)
 
 
+def _spool(a: LaunchOptions, run_dir: Path | None) -> list[str]:
+    """The ``--spool`` of the node that holds the robots' samples and replies."""
+    return ["--spool", str(run_dir or _unstarted())] if spools(a) else []
+
+
 def spools(a: LaunchOptions) -> bool:
-    """Whether the plant keeps its samples and replies for the launcher's recording
-    (a CAN run has no plant: its bridges' messages are heard on the wire)."""
-    return a.record and a.spool and a.plant != CAN_EMULATED
+    """Whether the plant (on CAN: each bridge) keeps its samples and the replies it hears
+    for the launcher's recording, which then does not hear them on the wire."""
+    return a.record and a.spool
 
 
 def key_roles(sc: Scenario, plant: str) -> list[str]:
@@ -264,7 +268,7 @@ def _links(sc: Scenario, plan: list[Child], on_can: bool, run_dir: Path | None,
 
 
 def _can_plan(sc: Scenario, a: LaunchOptions, cmd: list[str], common: list[str], out: Path,
-              truth: dict[int, Path]) -> list[Child]:
+              truth: dict[int, Path], run_dir: Path | None) -> list[Child]:
     """One driver emulator process for the whole fleet and a bridge per robot; every
     robot on a CAN bus of its own (``omnifleet_udp``, bridges/udp_can.py: a multicast
     group and a port per robot, so robots never hear each other; python-can's
@@ -295,7 +299,8 @@ def _can_plan(sc: Scenario, a: LaunchOptions, cmd: list[str], common: list[str],
         plan.append(Child(bridge_role(r), r, [
             *cmd, "bridge", *common, *_priority(a, a.realtime_priority), "--robot", str(r),
             *driver, "--can-interface", CAN_INTERFACE,
-            "--can-channel", group, "--can-arg", port], logs / f"{bridge_role(r)}.log"))
+            "--can-channel", group, "--can-arg", port, *_spool(a, run_dir)],
+            logs / f"{bridge_role(r)}.log"))
     plan.insert(0, Child("emulator", None, [*emulate, *_can_faults(a.faults)],
                          logs / "emulator.log", zenoh=False, stop_after_run=True))
     return plan

@@ -25,6 +25,7 @@ from tests.can_fleet_runs import (
     RESTART_AFTER,
     clean_fleet_run,
     killed_fleet_run,
+    run_fleet,
 )
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.realtime]
@@ -112,3 +113,30 @@ def test_the_restarted_agent_takes_its_robot_back_into_the_band(killed_run):
     assert back < ts.t[-1] - 1.0  # and stayed there for the last second at least
     assert m["settling_time_s"][0] < m["settling_bound_s"]  # robots 1 and 3 carried on
     assert m["settling_time_s"][2] < m["settling_bound_s"]
+
+
+def test_a_recorded_fleet_holds_every_sample_and_command_its_bridges_handled(tmp_path):
+    """Each bridge keeps the samples it sends and the commands it hears for the recording
+    (deploy/runtime/wire_spool.py), as the plant does; the launcher no longer hears them.
+    The recording holds exactly those: per robot, one sample for each step its bridge ran,
+    in order, and every command the bridge heard (its report's count)."""
+    import json as json_module
+    import os
+
+    from mcap.reader import make_reader
+
+    out = tmp_path / "run"
+    run_fleet(out, f"t-can-recorded-{os.getpid()}", "odrive-cansimple", duration_s=2.0,
+              record=True)
+    topics: dict[str, list[dict]] = {}
+    with open(out / "recording.mcap", "rb") as f:
+        for _s, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            if channel.topic.startswith(("/robot/", "/report/bridge-")):
+                topics.setdefault(channel.topic, []).append(json_module.loads(message.data))
+    for r in (1, 2, 3):
+        (report,) = topics[f"/report/bridge-{r}"]
+        ks = [m["k"] for m in topics[f"/robot/{r}/sample"]]
+        assert ks == sorted(set(ks)) and len(ks) == report["steps"] > 150, (r, len(ks))
+        heard = {e["key"]: e["value"] for e in report["received"]}
+        (cmds,) = [n for key, n in heard.items() if key.endswith(f"/robot/{r}/cmd")]
+        assert len(topics[f"/robot/{r}/cmd"]) == cmds > 150

@@ -146,25 +146,24 @@ def test_on_the_realtime_clock_the_world_runs_above_the_agents(plant):
 
 
 def test_a_recording_run_has_its_plant_keep_the_samples_and_replies_in_the_run_directory():
-    """The plant's own record of them feeds the recording (deploy/runtime/wire_spool.py)
-    and the launcher no longer subscribes to them; not recording, or no plant (CAN: the
-    bridges' messages are heard on the wire), or ``spool`` off: no record, every key heard."""
+    """The plant's own record of them (on CAN: each bridge's) feeds the recording
+    (deploy/runtime/wire_spool.py) and the launcher no longer subscribes to them; not
+    recording, or ``spool`` off: no record, every key heard."""
     from deploy.run.launcher import make_observer
 
     sc = load_scenario("paper")
 
-    def plant_argv(**kw):
+    def spooling(role, **kw):
         opts = LaunchOptions("paper", kw.pop("plant", "model"), "lockstep", Path("/tmp/out"), **kw)
         children = plan_run(sc, opts, LAUNCHER, RUN_DIR).children
-        return next((c.argv for c in children if c.role == "plant"), None), make_observer(
+        return next(c.argv for c in children if c.role == role), make_observer(
             sc, opts, None).listened_keys()
 
-    argv, heard = plant_argv()
-    assert argv[argv.index("--spool") + 1] == str(RUN_DIR)
-    assert not any(k.endswith(("/sample", "/cmd", "/**")) for k in heard)
-    for kw in ({"record": False}, {"spool": False}):
-        argv, heard = plant_argv(**kw)
-        assert "--spool" not in argv
-    assert heard == ["omr/paper/**"]  # spool off, recording: the launcher hears everything
-    argv, heard = plant_argv(plant="can-emulated")
-    assert argv is None and heard == ["omr/paper/**"]
+    for role, plant in (("plant", "model"), ("bridge-2", "can-emulated")):
+        argv, heard = spooling(role, plant=plant)
+        assert argv[argv.index("--spool") + 1] == str(RUN_DIR)
+        assert not any(k.endswith(("/sample", "/cmd", "/**")) for k in heard)
+        for kw in ({"record": False}, {"spool": False}):
+            argv, heard = spooling(role, plant=plant, **kw)
+            assert "--spool" not in argv
+        assert heard == ["omr/paper/**"]  # spool off, recording: the launcher hears everything
