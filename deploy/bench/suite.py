@@ -681,12 +681,15 @@ class Bench:
         if not self.s.quick:  # the smoke run: paper and the ODrive fleet
             self.measure("one core: lab at 1 kHz", lab, "onecore.lab_1khz_latency_p99_ms",
                          "onecore.lab_1khz_pass")
-        for drv in ("odrive-cansimple",) if self.s.quick else ("odrive-cansimple", "cia402"):
-            name = drv.replace("-", "_")
+        drives = ("odrive-cansimple",) if self.s.quick else ("odrive-cansimple", "cia402")
+        # each plain, then with the core kept from halting (deploy/runtime/idle_poll.py)
+        for drv, awake in ((d, a) for d in drives for a in (False, True)):
+            name = drv.replace("-", "_") + ("_awake" if awake else "")
+            what = f"lab on the CAN fleet ({drv}), 200 Hz, {self.s.can_s:g} s, pinned to one " \
+                   "core" + (", --keep-cores-awake" if awake else "")
             figs = {
                 "pass": self.figure(f"onecore.can_{name}_200hz_pass", "bool",
-                                    f"lab on the CAN fleet ({drv}), 200 Hz, {self.s.can_s:g} s, "
-                                    "pinned to one core: verdict PASS", (">=", 1.0)),
+                                    f"{what}: verdict PASS", (">=", 1.0)),
                 "unsimulated": self.figure(f"onecore.can_{name}_200hz_steps_not_simulated",
                                            "steps", "the same: steps asked, not simulated",
                                            ("<=", 0.0)),
@@ -697,20 +700,28 @@ class Bench:
                 "settling": self.figure(f"onecore.can_{name}_200hz_settling_max_s", "s",
                                         "the same: the slowest robot's settling time (never "
                                         "settled: the run's duration)", ("<", 1.0)),
+                "bridge_cpu": self.figure(f"onecore.can_{name}_200hz_bridge_cpu_us", "µs",
+                                          "the same: the busiest bridge's CPU a step"),
             }
 
-            def can(drv: str = drv, figs: dict[str, Figure] = figs) -> None:
+            def can(drv: str = drv, figs: dict[str, Figure] = figs, awake: bool = awake) -> None:
                 for _ in range(self.s.repeats):
                     m = self.run_fleet("lab", "--plant", "can-emulated", "--driver", drv,
-                                       "--duration", str(self.s.can_s), cpus=cpu)
+                                       "--duration", str(self.s.can_s),
+                                       *(["--keep-cores-awake"] if awake else []), cpus=cpu)
                     figs["pass"].add(float(m["verdict"]["pass"]))
                     figs["unsimulated"].add(float(m["steps_asked"] - m["steps_simulated"]))
                     figs["jitter"].add(m["jitter_ms"]["p99"], "no node reported its jitter")
                     figs["misses"].add(float(m["deadline_misses"]))
                     figs["settling"].add(max(m["sim_time_s"] if x is None else x
                                              for x in m["settling_time_s"]))
+                    figs["bridge_cpu"].add(max((p["cpu_us_per_step"] for p in m["processes"]
+                                                if p["role"].startswith("bridge-")
+                                                and p.get("cpu_us_per_step") is not None),
+                                               default=None), "no bridge reported its CPU")
 
-            self.measure(f"one core: the CAN fleet ({drv}) at 200 Hz", can,
+            self.measure(f"one core: the CAN fleet ({drv}) at 200 Hz"
+                         + (", cores kept awake" if awake else ""), can,
                          *(f.name for f in figs.values()))
 
     def groups(self) -> dict[str, Callable[[], None]]:

@@ -36,6 +36,10 @@ def _options_problem(args: argparse.Namespace, sc, plant: str) -> str | None:
         return problem
     if args.in_process and args.clock == "realtime":
         return "--in-process runs lockstep only"
+    if args.keep_cores_awake and (args.clock != "realtime" or not args.priority):
+        return ("--keep-cores-awake needs --clock realtime with its nodes under SCHED_FIFO "
+                "(--priority 1 or more): a node of the normal policy that hands its core "
+                "over would give it to the spinner (deploy/runtime/idle_poll.py)")
     if sc.leader_spec().steered is not None and (args.clock != "realtime" or args.ros2 is None):
         return ('this scenario\'s leader follows ROS 2 (leader.path = "ros2"): run it with '
                 "--clock realtime --ros2 [ENDPOINT] (a ROS 2 node then drives it on "
@@ -275,6 +279,7 @@ def _run_distributed(sc, args: argparse.Namespace, plant: str, out: Path, label:
         duration_s=args.duration, control_rate_hz=args.control_rate,
         step_deadline_s=args.step_deadline, startup_timeout_s=args.startup_timeout,
         record=not args.no_record, fleet=args.fleet, endpoint=args.endpoint, gui=args.gui,
+        keep_cores_awake=args.keep_cores_awake,
         faults=fault_plan(args, sc), realtime_priority=args.priority, recorder=recorder,
         lowlatency=args.zenoh_transport == "lowlatency", datagrams=args.data_path == "datagram",
         # --law: the agents read the scenario's file, and are told (a file's path made absolute)
@@ -444,6 +449,13 @@ def add_run_command(sub: argparse._SubParsersAction) -> None:
                f"simulated plant's by N + {WORLD_ABOVE_AGENTS} (it is the fleet's clock); 0 "
                "leaves them at normal priority; the driver emulator always asks for "
                f"{EMULATOR_PRIORITY}")
+    run.add_argument("--keep-cores-awake", action="store_true",
+                     help="realtime: keep every core this run may use from halting while the "
+                     "fleet runs (a spinning process below everything else on each): on a "
+                     "virtual machine a halted CPU wakes slow and cold; the CAN fleet pinned "
+                     "to one core kept its period with it where it did not without. The cores "
+                     "show busy meanwhile; on a guest using all of its CPUs the host may then "
+                     "preempt it (docs/distributed.md)")
     run.add_argument("--faults", metavar="PLAN",
                      help="inject the faults of a fault plan (TOML; docs/faults.md): lossy, "
                      "delayed or partitioned links, killed and restarted processes, CAN frame "

@@ -33,6 +33,7 @@ from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, WIRE_VERSION, Keys, LeaderSteer, control
 from deploy.report.run_folder import RECORDING
 from deploy.report.timeseries import TimeSeries
+from deploy.run.awake import cores_kept_awake
 from deploy.run.early_load import EarlyLoad, EarlyLoadProbe
 from deploy.run.kill_schedule import KillSchedule
 from deploy.run.observer import Observer, SpooledWire
@@ -169,6 +170,8 @@ class Launcher:
                           listener_cpu=self.loop_clock)
         if self.early is not None:
             out["early_load"] = self.early.as_json()
+        if o.keep_cores_awake:
+            out["cores_kept_awake"] = sorted(os.sched_getaffinity(0))
         return out
 
     def _run_fleet(self, node: Node, endpoint: str, run_dir: Path, progress: Progress) -> float:
@@ -183,7 +186,8 @@ class Launcher:
         self._wait_ready(node, roles)
         start = time.perf_counter()
         self.loop_clock.costs = node.costs
-        with self.loop_clock:  # this process's CPU over the run (it hears the whole fleet)
+        awake = os.sched_getaffinity(0) if o.keep_cores_awake else None
+        with cores_kept_awake(awake), self.loop_clock:  # this process's CPU over the run
             if o.plant == CAN_EMULATED:
                 self._announce_start(node)
             self._supervise(node, progress)

@@ -83,6 +83,9 @@ class LaunchOptions:
     extra_agent_args: list[str] = field(default_factory=list)
     faults: FaultPlan | None = None  # given to every node; kills done by the launcher
     realtime_priority: int = REALTIME_PRIORITY  # nice -N for every node on the realtime clock
+    # realtime: a spinner below everything on each core the run may use, while the fleet
+    # runs (deploy/runtime/idle_poll.py)
+    keep_cores_awake: bool = False
     # zenoh's low-latency transport on every link: off, it lost 1 in 24 messages over 64 kB
     # (a node's end-of-run report) in zenoh 1.10.2 (docs/distributed.md)
     lowlatency: bool = False

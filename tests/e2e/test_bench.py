@@ -60,8 +60,9 @@ EXPECTED = {
     "budget.floor.agent_pieces_hot_us", "budget.floor.agent_pieces_cold_us", "budget.floor.wake_us",
     "budget.floor.law_kernel_hot_us", "budget.floor.law_kernel_cold_us",
     "onecore.paper_1khz_passed", "onecore.paper_1khz_unsettled_robots",
-    *(f"onecore.can_odrive_cansimple_200hz_{w}" for w in (
-        "pass", "steps_not_simulated", "jitter_p99_ms", "deadline_misses", "settling_max_s")),
+    *(f"onecore.can_odrive_cansimple{awake}_200hz_{w}" for awake in ("", "_awake") for w in (
+        "pass", "steps_not_simulated", "jitter_p99_ms", "deadline_misses", "settling_max_s",
+        "bridge_cpu_us")),
 }
 TARGETS = {"lockstep.overhead_ratio": "<= 1.5", "lockstep.real_time_factor_500hz": ">= 10",
            "realtime.latency_p99_ms": "<= 1", "realtime.jitter_p99_ms": "<= 0.5",

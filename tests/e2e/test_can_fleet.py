@@ -119,15 +119,20 @@ def test_a_recorded_fleet_holds_every_sample_and_command_its_bridges_handled(tmp
     """Each bridge keeps the samples it sends and the commands it hears for the recording
     (deploy/runtime/wire_spool.py), as the plant does; the launcher no longer hears them.
     The recording holds exactly those: per robot, one sample for each step its bridge ran,
-    in order, and every command the bridge heard (its report's count)."""
+    in order, and every command the bridge heard (its report's count). The run keeps its
+    cores awake (deploy/runtime/idle_poll.py): a spinner on each, none left after it."""
     import json as json_module
     import os
 
     from mcap.reader import make_reader
 
+    from tests.procs import pids_with
+
     out = tmp_path / "run"
-    run_fleet(out, f"t-can-recorded-{os.getpid()}", "odrive-cansimple", duration_s=2.0,
-              record=True)
+    _, m = run_fleet(out, f"t-can-recorded-{os.getpid()}", "odrive-cansimple", "--keep-cores-awake",
+                     duration_s=2.0, record=True)
+    assert m["cores_kept_awake"] == sorted(os.sched_getaffinity(0))
+    assert not pids_with("deploy.runtime.idle_poll")
     topics: dict[str, list[dict]] = {}
     with open(out / "recording.mcap", "rb") as f:
         for _s, channel, message in make_reader(f).iter_messages(log_time_order=False):

@@ -1,0 +1,38 @@
+"""The launcher's side of ``--keep-cores-awake``: a spinning process at the lowest
+priority on each core the fleet may run on, for as long as the fleet's run lasts
+(deploy/runtime/idle_poll.py says why and what it costs)."""
+
+from __future__ import annotations
+
+import subprocess
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from deploy.runtime.own_python import child_env, python_module
+
+STOP_WAIT_S = 5.0
+
+
+@contextmanager
+def cores_kept_awake(cores: set[int] | None) -> Iterator[list[int]]:
+    """While inside: one spinner per core of ``cores`` (None or empty: none), pinned and
+    at the lowest priority; yields their pids. On the way out, however left, each is
+    killed by pid and reaped."""
+    procs: list[subprocess.Popen] = []
+    try:
+        for core in sorted(cores or ()):
+            procs.append(subprocess.Popen(
+                [*python_module("deploy.runtime.idle_poll"), str(core)],
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, env=child_env(),
+                # a session, so an autogroup, of its own: it lowers that one, not ours
+                start_new_session=True))
+        yield [p.pid for p in procs]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+        for p in procs:
+            try:
+                p.wait(STOP_WAIT_S)
+            except subprocess.TimeoutExpired:  # cannot happen after SIGKILL; never hang on it
+                pass

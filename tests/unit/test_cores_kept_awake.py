@@ -1,0 +1,79 @@
+"""``omnifleet run --keep-cores-awake`` (deploy/run/awake.py, deploy/runtime/idle_poll.py):
+one spinner per core, pinned to it, below everything (SCHED_IDLE, nice 19, an autogroup
+of its own at nice 19, never the launcher's), ended by pid however the run is left; and
+refused where it would take cores from the nodes (lockstep, nodes not under SCHED_FIFO)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from deploy.run.awake import cores_kept_awake
+
+pytestmark = pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="Linux scheduling policies")
+
+
+def _policy(pid: int) -> tuple[int, set[int], int, str]:
+    """(policy, affinity, nice, autogroup line) of a live process, once it has set them."""
+    deadline = time.monotonic() + 30.0
+    while True:
+        policy = os.sched_getscheduler(pid)
+        if policy == os.SCHED_IDLE or time.monotonic() > deadline:
+            break
+        time.sleep(0.02)  # the child lowers itself right after its interpreter starts
+    with open(f"/proc/{pid}/autogroup") as f:
+        group = f.read().strip()
+    return policy, os.sched_getaffinity(pid), os.getpriority(os.PRIO_PROCESS, pid), group
+
+
+def _gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+def test_one_spinner_a_core_below_everything_in_an_autogroup_of_its_own():
+    with open("/proc/self/autogroup") as f:
+        ours = f.read().strip()
+    cores = sorted(os.sched_getaffinity(0))
+    with cores_kept_awake(set(cores)) as pids:
+        assert len(pids) == len(cores)
+        seen = [_policy(pid) for pid in pids]
+    for (policy, affinity, nice, group), core in zip(seen, cores, strict=True):
+        assert policy == os.SCHED_IDLE and affinity == {core} and nice == 19
+        assert group.endswith("nice 19") and group.split()[0] != ours.split()[0]
+    with open("/proc/self/autogroup") as f:
+        assert f.read().strip() == ours  # the launcher's own group left as it was
+    assert all(_gone(pid) for pid in pids)  # ended by pid, reaped
+
+
+def test_the_spinners_end_when_the_run_inside_fails():
+    pids: list[int] = []
+    with pytest.raises(RuntimeError), cores_kept_awake({min(os.sched_getaffinity(0))}) as started:
+        pids += started
+        raise RuntimeError("the run failed")
+    assert pids and all(_gone(pid) for pid in pids)
+
+
+def test_no_core_no_spinner():
+    with cores_kept_awake(None) as pids:
+        assert pids == []
+
+
+@pytest.mark.parametrize("args", [
+    ("--keep-cores-awake",),  # lockstep (the default clock)
+    ("--clock", "realtime", "--priority", "0", "--keep-cores-awake"),
+])
+def test_refused_where_it_would_take_the_nodes_cores(args, tmp_path):
+    out = subprocess.run([sys.executable, "-m", "deploy.cli", "run", "lab", *args,
+                          "--out", str(tmp_path / "run")], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 2, out.stderr
+    assert "--keep-cores-awake needs --clock realtime" in out.stderr
+    assert not (tmp_path / "run").exists()  # refused before anything ran
