@@ -12,7 +12,7 @@ agents' 340-416 -> 275-346, the emulator's 1,220-1,303 -> 1,058-1,178, and in 2 
 of 3 jitter p99 6.0-6.8 -> 1.0-1.2 ms and 168-279 -> 0 steps not simulated (the
 third pair both FAIL, the hour slow). A core that is never idle (the paper at 1 kHz on
 one core) gains nothing. On both cores the nodes' CPU fell as much (bridges 688-720 ->
-556-589 µs) but jitter p99 rose 0.48-0.58 -> 1.4-2.0 ms: a guest that keeps both of
+554-589 µs) but jitter p99 rose 0.48-0.58 -> 1.4-2.0 ms: a guest that keeps both of
 its CPUs busy is preempted by its host (steal 2 -> 46 ticks in 20 s).
 
 What it costs and why it never takes a core from the fleet: SCHED_IDLE (below every
