@@ -13,6 +13,7 @@ import time
 import pytest
 
 from deploy.run.awake import cores_kept_awake
+from tests.procs import stat_fields
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="Linux scheduling policies")
 
@@ -30,14 +31,6 @@ def _policy(pid: int) -> tuple[int, set[int], int, str]:
     return policy, os.sched_getaffinity(pid), os.getpriority(os.PRIO_PROCESS, pid), group
 
 
-def _gone(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    return False
-
-
 def test_one_spinner_a_core_below_everything_in_an_autogroup_of_its_own():
     with open("/proc/self/autogroup") as f:
         ours = f.read().strip()
@@ -50,7 +43,7 @@ def test_one_spinner_a_core_below_everything_in_an_autogroup_of_its_own():
         assert group.endswith("nice 19") and group.split()[0] != ours.split()[0]
     with open("/proc/self/autogroup") as f:
         assert f.read().strip() == ours  # the launcher's own group left as it was
-    assert all(_gone(pid) for pid in pids)  # ended by pid, reaped
+    assert not any(stat_fields(pid) for pid in pids)  # ended by pid and reaped: not even a zombie
 
 
 def test_the_spinners_end_when_the_run_inside_fails():
@@ -58,7 +51,7 @@ def test_the_spinners_end_when_the_run_inside_fails():
     with pytest.raises(RuntimeError), cores_kept_awake({min(os.sched_getaffinity(0))}) as started:
         pids += started
         raise RuntimeError("the run failed")
-    assert pids and all(_gone(pid) for pid in pids)
+    assert pids and not any(stat_fields(pid) for pid in pids)  # gone, not even a zombie
 
 
 def test_no_core_no_spinner():
