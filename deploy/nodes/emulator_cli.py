@@ -15,6 +15,7 @@ that cannot be opened), 130 SIGINT, 143 SIGTERM. Also runnable alone:
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 from pathlib import Path
@@ -29,6 +30,7 @@ from deploy.nodes.can_options import (
     driver_settings,
     open_buses,
 )
+from deploy.runtime.parent_death import die_with_parent
 from deploy.runtime.priority import add_priority_argument, raise_priority
 
 if TYPE_CHECKING:  # imported when the command runs (the emulator's start stays light)
@@ -63,6 +65,10 @@ def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--truth-out", metavar="FILE.npz", action="append",
                    help="write the robot's true pose and velocity (t, q, q_dot at the encoder "
                    "rate) here on exit; once per --robot, in the same order")
+    p.add_argument("--exit-with-parent", action="store_true",
+                   help="stop (as on SIGTERM) when the process that started this one ends, "
+                   "however it ends (`omnifleet run` passes it: an emulator it can no longer "
+                   "stop never outlives it)")
 
 
 def add_emulate_command(sub: argparse._SubParsersAction) -> None:
@@ -94,6 +100,10 @@ def run_emulate(args: argparse.Namespace) -> int:
         print(f"{PROG}: {msg}", file=sys.stderr)
         return EXIT_BAD_INPUT
 
+    if args.exit_with_parent:
+        die_with_parent()  # SIGTERM as the launcher dies: the handler below stops the run
+        if os.getppid() == 1:  # it is gone already
+            return bad("the process that started this one has ended")
     robots: list[int] = list(args.robot)
     checked = _checked_drives(args, robots)
     if isinstance(checked, str):

@@ -4,6 +4,7 @@ priority on each core the fleet may run on, for as long as the fleet's run lasts
 
 from __future__ import annotations
 
+import os
 import subprocess
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -22,7 +23,7 @@ def cores_kept_awake(cores: set[int] | None) -> Iterator[list[int]]:
     try:
         for core in sorted(cores or ()):
             procs.append(subprocess.Popen(
-                [*python_module("deploy.runtime.idle_poll"), str(core)],
+                [*python_module("deploy.runtime.idle_poll"), str(core), str(os.getpid())],
                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, env=child_env(),
                 # a session, so an autogroup, of its own: it lowers that one, not ours
                 start_new_session=True))

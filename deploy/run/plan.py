@@ -293,7 +293,9 @@ def _can_plan(sc: Scenario, a: LaunchOptions, cmd: list[str], common: list[str],
                          "--physics-rate", repr(1.0 / sc.dt),
                          # the physics must not lag the wall clock when the host is short
                          # of CPU (best effort: needs CAP_SYS_NICE, else the log says so)
-                         "--priority", str(EMULATOR_PRIORITY)]
+                         "--priority", str(EMULATOR_PRIORITY),
+                         # it runs until stopped: a launcher killed outright cannot stop it
+                         "--exit-with-parent"]
     for i, r in enumerate(sc.robot_ids):
         group, port = f"239.74.{os.getpid() % 250 + 1}.{i + 1}", f"port={free_udp_port()}"
         truth[r] = out / f"truth-{r}.npz"

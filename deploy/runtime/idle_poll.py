@@ -59,9 +59,12 @@ def lower_to_idle() -> list[str]:
     return refused
 
 
-def spin(core: int) -> None:
-    """Pinned to ``core`` at the lowest priority, busy until killed."""
+def spin(core: int, parent: int) -> None:
+    """Pinned to ``core`` at the lowest priority, busy until killed or until ``parent``
+    (the pid of the process that started it) ends."""
     die_with_parent()
+    if os.getppid() != parent:  # it ended before the kernel was told to say so
+        return
     os.sched_setaffinity(0, {core})
     refused = lower_to_idle()
     if refused:  # it would compete with what it is meant to leave the core to: leave
@@ -72,10 +75,10 @@ def spin(core: int) -> None:
 
 
 def main(argv: list[str]) -> int:
-    if len(argv) != 1 or not argv[0].isdigit():
-        print("usage: python -m deploy.runtime.idle_poll CORE", file=sys.stderr)
+    if len(argv) != 2 or not all(a.isdigit() for a in argv):
+        print("usage: python -m deploy.runtime.idle_poll CORE PARENT_PID", file=sys.stderr)
         return 2
-    spin(int(argv[0]))
+    spin(int(argv[0]), int(argv[1]))
     return 1
 
 

@@ -145,3 +145,47 @@ def test_a_recorded_fleet_holds_every_sample_and_command_its_bridges_handled(tmp
         heard = {e["key"]: e["value"] for e in report["received"]}
         (cmds,) = [n for key, n in heard.items() if key.endswith(f"/robot/{r}/cmd")]
         assert len(topics[f"/robot/{r}/cmd"]) == cmds > 150
+
+
+def test_a_launcher_killed_outright_leaves_no_emulator_nor_spinner_behind(tmp_path):
+    """SIGKILL gives the launcher of a CAN fleet no chance to stop anyone: the nodes, the
+    driver emulator (which runs until stopped: it was left spinning at SCHED_FIFO 10) and
+    the spinners of --keep-cores-awake still end, each told by the kernel as its parent
+    dies. Everything left is ended by pid on the way out, whatever happened."""
+    import os
+    import signal
+    import time
+
+    from tests.procs import kill_run, pids_with, start, stat_fields
+
+    out = tmp_path / "run"
+    fleet = f"t-can-sigkill-{os.getpid()}"
+    proc = start("run", "lab", "--plant", "can-emulated", "--duration", "30", "--fleet", fleet,
+                 "--out", str(out), "--no-record", "--no-figures", "--keep-cores-awake")
+
+    def children_of(pid: int) -> set[int]:
+        return {p for p in pids_with("deploy.") if (f := stat_fields(p)) is not None
+                and int(f[1]) == pid and f[0] != "Z"}
+
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None and not any(
+                "idle_poll" in " ".join(open(f"/proc/{p}/cmdline").read().split("\0"))
+                for p in children_of(proc.pid)):
+            time.sleep(0.05)  # polling for the run to start (the spinners start with it)
+        ours = children_of(proc.pid)
+        assert proc.poll() is None and len(ours) >= 9, ours  # 7 nodes, the emulator, spinners
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(30)
+        deadline = time.monotonic() + 30  # a bound for a loaded machine, not a wait
+
+        def left() -> set[int]:
+            return {p for p in ours if (f := stat_fields(p)) is not None and f[0] != "Z"}
+
+        while left() and time.monotonic() < deadline:
+            time.sleep(0.05)  # polling for the processes to have ended
+        assert not left(), "left behind by a launcher killed outright"
+    finally:
+        kill_run(proc, fleet)
+        for p in pids_with(str(out)):  # the emulator's command line names the run's folder
+            os.kill(p, signal.SIGKILL)
