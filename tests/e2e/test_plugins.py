@@ -12,7 +12,9 @@ package installed with pip.
   plug-in that does not load, or is not what its group holds, exits 2 naming it when it
   is asked for, and keeps none of the others from being used.
 
-Every process is ended by pid (tests/procs.py).
+Every process is ended by pid (tests/procs.py). The spin is judged on the wall clock (the
+emulator's physics must keep up with can-check's torque): it runs in the suite's serial
+phase; the other tests hold on a starved scheduler (``load_safe``).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from deploy.report.timeseries import TimeSeries
 
 PLUGIN = Path(__file__).resolve().parents[1] / "plugins" / "toy_plugins.py"
 
-pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.load_safe]
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")
@@ -52,6 +54,7 @@ def plugin_env(tmp_path_factory) -> dict[str, str]:
     return env
 
 
+@pytest.mark.load_safe
 def test_a_plugin_plant_runs_a_fleet_equal_to_itself_in_process(tmp_path, plugin_env):
     fleet = f"t-plugin-{os.getpid()}"
     args = ("run", "paper", "--plant", "weak-motors", "--duration", "1", "--no-figures",
@@ -76,6 +79,11 @@ def test_a_plugin_plant_runs_a_fleet_equal_to_itself_in_process(tmp_path, plugin
 
 
 def test_a_plugin_protocol_brings_up_and_spins_the_drives_at_its_node_ids(plugin_env):
+    """Not ``load_safe``: run beside the suite's other tests, at a tenth of a process's CPU
+    weight, a wheel's speed had not changed by the end of its spin in 2 of 5 CI runs (read
+    as turning against its torque): the emulator's physics and can-check share that
+    starved weight, and the spin is a wall-clock window. It runs one at a time, with a
+    core whenever it wants one, as the other CAN tests do."""
     group = f"239.74.{random.randrange(1, 250)}.{random.randrange(1, 250)}"
     bus = ["--can-interface", "udp_multicast", "--can-channel", group,
            "--can-arg", f"port={random.randrange(40000, 60000)}", "--driver", "toy-odrive"]
@@ -87,6 +95,7 @@ def test_a_plugin_protocol_brings_up_and_spins_the_drives_at_its_node_ids(plugin
     assert len(spins) == 4 and all("positive" in ln for ln in spins), out
 
 
+@pytest.mark.load_safe
 def test_a_broken_plugin_is_named_when_asked_for_and_exits_2(plugin_env, tmp_path):
     rc, _, err = finish(start("run", "paper", "--plant", "broken-plant", env=plugin_env))
     assert rc == 2 and "plant 'broken-plant' (entry point toy_plugins:NOT_THERE) does not load" in err, err
@@ -100,6 +109,7 @@ def test_a_broken_plugin_is_named_when_asked_for_and_exits_2(plugin_env, tmp_pat
     assert rc == 2 and "driver 'not-a-driver'" in err and "is not a DriverEntry" in err, err
 
 
+@pytest.mark.load_safe
 def test_names_nobody_registered_are_refused_listing_the_plugins(plugin_env):
     rc, _, err = finish(start("run", "paper", "--plant", "weak-motor", env=plugin_env))
     assert rc == 2 and "'weak-motor' is not a plant" in err and "weak-motors" in err, err
