@@ -58,7 +58,10 @@ TIMING_KEYS = ("wall_time_s", "real_time_factor", "processes", "latency_ms", "ji
 
 
 def settling_time(t: np.ndarray, err_norm: np.ndarray, threshold: float) -> float | None:
-    """First time after which err_norm stays below threshold; None if it never does."""
+    """First time after which err_norm stays below threshold; None if it never does (or
+    nothing of the run was heard)."""
+    if len(t) == 0:
+        return None
     above = np.nonzero(err_norm >= threshold)[0]
     if len(above) == 0:
         return float(t[0])
@@ -217,7 +220,9 @@ def _gaps(sc: Scenario, series: TimeSeries) -> tuple[np.ndarray, np.ndarray]:
     radii = np.full(n, sc.spec.robot.body_radius_m)
     rr, _ = pair_clearances(q_xy, radii, np.zeros((0, 2)), np.zeros(0))
     # discs, walls and polygons: the true geometry (plant/shapes.py, G2)
-    ro = sc.obstacle_gaps(q_xy).reshape(len(series.t), -1)
+    ro = sc.obstacle_gaps(q_xy)
+    steps = len(series.t)
+    ro = ro.reshape(steps, ro.size // steps if steps else 0)  # (none heard: no gap at all)
     heard = series.state_heard
     if heard is not None:  # gaps only where the states were heard (not filled, never NaN)
         iu, ju = np.triu_indices(n, 1)

@@ -102,6 +102,12 @@ def _write_files(sc: Scenario, series: TimeSeries, metrics: dict[str, Any], out_
     draws them into ``out_dir``), or drawn here when it failed or ``figures`` without one."""
     write_metrics(metrics, out_dir / "metrics.json")
     series.save(out_dir / "timeseries.npz")
+    if series.steps == 0 and (drawing is not None or figures):  # a run nobody heard a state of
+        if drawing is not None:
+            drawing.stop()
+        print("omnifleet: no figures: no robot state was heard (metrics.json says why the "
+              "run failed)", file=sys.stderr, flush=True)
+        return
     if (drawing is not None and not drawing.finish()) or (drawing is None and figures):
         # matplotlib costs ~0.4 s to import: only a run that draws loads it
         from deploy.report.figures import write_figures

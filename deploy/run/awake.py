@@ -14,6 +14,22 @@ from deploy.runtime.own_python import child_env, python_module
 STOP_WAIT_S = 5.0
 
 
+def not_realtime(pids: dict[str, int]) -> list[str]:
+    """The roles among ``pids`` whose process does not run under SCHED_FIFO (the host
+    refused it: no CAP_SYS_NICE, or a CPU group without realtime time), or is gone. A
+    spinner beside such a node takes the core each time the node hands it over
+    (deploy/runtime/idle_poll.py): a CAN fleet in the suite's CPU group of low weight,
+    its nodes refused SCHED_FIFO there, had no state heard in a 1 s run."""
+    out = []
+    for role, pid in sorted(pids.items()):
+        try:
+            if os.sched_getscheduler(pid) != os.SCHED_FIFO:
+                out.append(role)
+        except OSError:
+            out.append(role)
+    return out
+
+
 @contextmanager
 def cores_kept_awake(cores: set[int] | None) -> Iterator[list[int]]:
     """While inside: one spinner per core of ``cores`` (None or empty: none), pinned and

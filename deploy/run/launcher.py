@@ -33,7 +33,7 @@ from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, WIRE_VERSION, Keys, LeaderSteer, control
 from deploy.report.run_folder import RECORDING
 from deploy.report.timeseries import TimeSeries
-from deploy.run.awake import cores_kept_awake
+from deploy.run.awake import cores_kept_awake, not_realtime
 from deploy.run.early_load import EarlyLoad, EarlyLoadProbe
 from deploy.run.kill_schedule import KillSchedule
 from deploy.run.observer import Observer, SpooledWire
@@ -107,6 +107,7 @@ class Launcher:
         self.truth_files: dict[int, Path] = {}  # can-emulated: each emulator's ground truth
         self.loop_clock = LoopClock()
         self.early: EarlyLoad | None = None  # realtime: the fleet's first second
+        self.awake_cores: list[int] = []  # --keep-cores-awake: the cores kept from halting
         self.spool: SpoolReader | None = None  # the samples and replies kept (recording)
         # called once with the run's final series, as soon as every node's report (and so
         # all of its data) is in, while the nodes are still leaving: a caller starts
@@ -171,7 +172,7 @@ class Launcher:
         if self.early is not None:
             out["early_load"] = self.early.as_json()
         if o.keep_cores_awake:
-            out["cores_kept_awake"] = sorted(os.sched_getaffinity(0))
+            out["cores_kept_awake"] = self.awake_cores
         return out
 
     def _run_fleet(self, node: Node, endpoint: str, run_dir: Path, progress: Progress) -> float:
@@ -186,7 +187,7 @@ class Launcher:
         self._wait_ready(node, roles)
         start = time.perf_counter()
         self.loop_clock.costs = node.costs
-        awake = os.sched_getaffinity(0) if o.keep_cores_awake else None
+        awake = self._cores_to_keep_awake() if o.keep_cores_awake else None
         with cores_kept_awake(awake), self.loop_clock:  # this process's CPU over the run
             if o.plant == CAN_EMULATED:
                 self._announce_start(node)
@@ -272,6 +273,19 @@ class Launcher:
             node.mailbox.wait_until(lambda: obs.ended or self.stop(),
                                     0.05 if not self.kills.pending else 0.005, bounded=True,
                                     coalesce_s=0.0 if self.kills.pending else HEAR_EVERY_S)
+
+    def _cores_to_keep_awake(self) -> set[int] | None:
+        """--keep-cores-awake: the cores this run may use, if every node of it runs under
+        SCHED_FIFO (deploy/run/awake.py); else none, and why on stderr."""
+        nodes = {c.role: c.proc.pid for c in self.supervisor.children if c.proc is not None}
+        refused = not_realtime(nodes)
+        if refused:
+            print(f"omnifleet run: --keep-cores-awake: not kept: {', '.join(refused)} not "
+                  "under SCHED_FIFO (the host refused it), and a spinner would take the core "
+                  "each such node hands over", file=sys.stderr, flush=True)
+            return None
+        self.awake_cores = sorted(os.sched_getaffinity(0))
+        return set(self.awake_cores)
 
     def _pass_steering(self, node: Node, passed: int) -> int:
         """A steered leader's newest command (deploy/ros2/gateway.py), to the leader when

@@ -70,3 +70,35 @@ def test_refused_where_it_would_take_the_nodes_cores(args, tmp_path):
     assert out.returncode == 2, out.stderr
     assert "--keep-cores-awake needs --clock realtime" in out.stderr
     assert not (tmp_path / "run").exists()  # refused before anything ran
+
+
+def test_a_node_not_under_sched_fifo_keeps_the_cores_as_they_are():
+    """A spinner beside a node of the normal policy takes the core each time the node
+    hands it over: the launcher keeps no core awake unless every node runs under
+    SCHED_FIFO (deploy/run/awake.py, not_realtime); a process that is gone counts as not."""
+    from deploy.run.awake import not_realtime
+
+    normal = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    try:
+        assert not_realtime({"agent-1": normal.pid, "bridge-1": gone.pid}) == ["agent-1",
+                                                                               "bridge-1"]
+    finally:
+        normal.kill()
+        normal.wait()
+    fifo = subprocess.Popen([sys.executable, "-c", """
+import os, time
+try:
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    print("fifo", flush=True)
+except OSError:  # refused (no privilege, or a CPU group without realtime time)
+    print("refused", flush=True)
+time.sleep(30)
+"""], stdout=subprocess.PIPE, text=True)
+    try:
+        got = fifo.stdout.readline().strip()
+        assert not_realtime({"agent-1": fifo.pid}) == ([] if got == "fifo" else ["agent-1"])
+    finally:
+        fifo.kill()
+        fifo.wait()
