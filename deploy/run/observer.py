@@ -76,8 +76,9 @@ class Observer:
 
     def listened_keys(self) -> list[str]:
         """Recording: every key of the fleet, but the samples and replies when the plant
-        or the bridges keep them (``spooled``: what is left is the list below). Otherwise only what the
-        series and the metrics need (each message heard costs CPU in every listener)."""
+        or the bridges keep them (``spooled``: what is left is the list below). Otherwise
+        only what the series and the metrics need (each message heard costs CPU in every
+        listener)."""
         k = self.keys
         if self.record_all and not self.spooled:
             return [k.everything]

@@ -92,9 +92,9 @@ class LaunchOptions:
     # the per-step data as unix datagrams between the nodes of the run's directory
     # (deploy/runtime/datagrams.py); off: everything on zenoh
     datagrams: bool = True
-    # a recording run: the plant keeps the samples it sends and the replies it hears in
-    # the run's directory for the recording (deploy/runtime/wire_spool.py); off: the
-    # launcher hears them on the wire like the rest
+    # a recording run: the plant (on CAN: each bridge) keeps the samples it sends and the
+    # replies it hears in the run's directory for the recording
+    # (deploy/runtime/wire_spool.py); off: the launcher hears them on the wire like the rest
     spool: bool = True
     # a McapRecorder made (and closed) by the caller, who adds the run's scene to it at
     # the end; None: the launcher makes its own and closes it

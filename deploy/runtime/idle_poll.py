@@ -21,12 +21,13 @@ the realtime nodes run under SCHED_FIFO, which the kernel runs before any of it.
 so: on the lockstep clock (its nodes of the normal and batch policies) a lockstep
 ``paper`` took 4-6x its wall time with a spinner on each core (9-13 s -> 42-58 s):
 its nodes hand their core over after each send (``sched_yield``, priority.hand_over),
-and a spinner that is runnable then takes it for a slice; ``omnifleet run`` refuses the
-option there, and without SCHED_FIFO (``--priority 0``), and keeps no core awake when the
+and a spinner that is runnable then takes it for a slice. ``omnifleet run`` refuses the
+option there and without SCHED_FIFO (``--priority 0``), and keeps no core awake when the
 host refused a node SCHED_FIFO (a CAN fleet in a CPU group without realtime time had no
-state heard in a 1 s run beside spinners: deploy/run/awake.py, ``not_realtime``). The core shows busy for the
-run's duration (power, and a host's share of a guest's time). The process dies with the
-launcher (PR_SET_PDEATHSIG) and is ended by pid when the fleet's run ends.
+state heard in a 1 s run beside spinners: deploy/run/awake.py, ``not_realtime``). The
+core shows busy for the run's duration (power, and a host's share of a guest's time).
+The process dies with the launcher (PR_SET_PDEATHSIG) and is ended by pid when the
+fleet's run ends.
 """
 
 from __future__ import annotations

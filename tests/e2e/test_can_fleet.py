@@ -129,8 +129,8 @@ def test_a_recorded_fleet_holds_every_sample_and_command_its_bridges_handled(tmp
     from tests.procs import pids_with
 
     out = tmp_path / "run"
-    _, m = run_fleet(out, f"t-can-recorded-{os.getpid()}", "odrive-cansimple", "--keep-cores-awake",
-                     duration_s=2.0, record=True)
+    _, m = run_fleet(out, f"t-can-recorded-{os.getpid()}", "odrive-cansimple",
+                     "--keep-cores-awake", duration_s=2.0, record=True)
     assert m["cores_kept_awake"] == sorted(os.sched_getaffinity(0))
     assert not pids_with("deploy.runtime.idle_poll")
     topics: dict[str, list[dict]] = {}
