@@ -77,8 +77,7 @@ def keyring_of(args: argparse.Namespace, sc: Scenario, role: str) -> Keyring | N
 def _open(args: argparse.Namespace, sc: Scenario, role: str, sender: int,
           keyring: Keyring | None) -> Node:
     if args.with_recorder:
-        die_with_parent()
-        if os.getppid() == 1:  # the launcher is already gone
+        if not die_with_parent():  # the launcher is already gone
             sys.exit(EXIT_PEER_LOST)
     cfg = zenoh_config(args.zenoh_config, args.listen, args.connect, gossip=not args.no_gossip,
                        lowlatency=args.lowlatency)

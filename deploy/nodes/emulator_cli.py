@@ -15,7 +15,6 @@ that cannot be opened), 130 SIGINT, 143 SIGTERM. Also runnable alone:
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import sys
 from pathlib import Path
@@ -100,10 +99,9 @@ def run_emulate(args: argparse.Namespace) -> int:
         print(f"{PROG}: {msg}", file=sys.stderr)
         return EXIT_BAD_INPUT
 
-    if args.exit_with_parent:
-        die_with_parent()  # SIGTERM as the launcher dies: the handler below stops the run
-        if os.getppid() == 1:  # it is gone already
-            return bad("the process that started this one has ended")
+    # SIGTERM as the launcher dies: the handler below stops the run
+    if args.exit_with_parent and not die_with_parent():
+        return bad("the process that started this one has ended")
     robots: list[int] = list(args.robot)
     checked = _checked_drives(args, robots)
     if isinstance(checked, str):

@@ -65,8 +65,7 @@ def lower_to_idle() -> list[str]:
 def spin(core: int, parent: int) -> None:
     """Pinned to ``core`` at the lowest priority, busy until killed or until ``parent``
     (the pid of the process that started it) ends."""
-    die_with_parent()
-    if os.getppid() != parent:  # it ended before the kernel was told to say so
+    if not die_with_parent(parent):  # it ended before the kernel was told to say so
         return
     os.sched_setaffinity(0, {core})
     refused = lower_to_idle()

@@ -468,11 +468,7 @@ class Node:
         by_datagram = self._by_datagram.get(key)
         if by_datagram is None:
             by_datagram = self._sends_by_datagram(key)
-        pub = None
-        if not by_datagram:
-            pub = self._pubs.get(key)
-            if pub is None:
-                pub = self._publisher(key)
+        pub = None if by_datagram else self._publisher(key)
         seq = self._seq.get(key, 0)
         self._seq[key] = seq + 1
         costs = self.costs.ns

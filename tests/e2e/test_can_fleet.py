@@ -169,9 +169,8 @@ def test_a_launcher_killed_outright_leaves_no_emulator_nor_spinner_behind(tmp_pa
 
     try:
         deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and proc.poll() is None and not any(
-                "idle_poll" in " ".join(open(f"/proc/{p}/cmdline").read().split("\0"))
-                for p in children_of(proc.pid)):
+        while time.monotonic() < deadline and proc.poll() is None and not (
+                pids_with("deploy.runtime.idle_poll") & children_of(proc.pid)):
             time.sleep(0.05)  # polling for the run to start (the spinners start with it)
         ours = children_of(proc.pid)
         assert proc.poll() is None and len(ours) >= 9, ours  # 7 nodes, the emulator, spinners
