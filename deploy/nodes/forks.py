@@ -159,7 +159,8 @@ def serve(server: socket.socket) -> None:
 def main(argv: list[str]) -> int:
     from deploy.runtime.parent_death import die_with_parent
 
-    die_with_parent()
+    if not die_with_parent():  # the launcher ended before this server could ask
+        return 1
     server = socket.socket(fileno=int(argv[0]))
     _preload()
     try:

@@ -64,6 +64,7 @@ def _draw(sc: Scenario, series: TimeSeries, out_dir: str) -> None:  # in the chi
     from deploy.report.figures import write_figures
 
     out = Path(out_dir)
+    me = os.getpid()
     try:
         pid = os.fork()
     except OSError:
@@ -71,9 +72,9 @@ def _draw(sc: Scenario, series: TimeSeries, out_dir: str) -> None:  # in the chi
     if pid == 0:  # the fork: its figure, then out, never back into the caller's code
         code = 1
         try:
-            die_with_parent()
-            write_figures(sc, series, out, only=DRAWN_BY_FORK, notes=False)
-            code = 0
+            if die_with_parent(me):  # (this process ended before the fork could ask: out)
+                write_figures(sc, series, out, only=DRAWN_BY_FORK, notes=False)
+                code = 0
         finally:
             os._exit(code)
     write_figures(sc, series, out, only=DRAWN_HERE)
