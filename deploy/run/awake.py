@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import os
 import subprocess
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 from deploy.runtime.own_python import child_env, python_module
@@ -28,6 +29,22 @@ def not_realtime(pids: dict[str, int]) -> list[str]:
         except OSError:
             out.append(role)
     return out
+
+
+def refused_realtime(ready: dict[str, int], starting: dict[str, int], within_s: float,
+                     stop: Callable[[], bool]) -> list[str]:
+    """The roles not under SCHED_FIFO (``not_realtime``). ``ready``: nodes that raised
+    their priority before saying they were ready, so their policy is final. ``starting``:
+    children with no readiness of their own (the driver emulator), which raise theirs as
+    their loop begins, and on a loaded core after the nodes are ready: once every ready
+    node is under SCHED_FIFO (the host grants it), each is given ``within_s`` to be."""
+    refused = not_realtime(ready)
+    if refused:
+        return refused
+    deadline = time.monotonic() + within_s
+    while (refused := not_realtime(starting)) and time.monotonic() < deadline and not stop():
+        time.sleep(0.01)  # polling: a process's policy changes without telling anyone
+    return refused
 
 
 @contextmanager

@@ -32,6 +32,12 @@ def _policy(pid: int) -> tuple[int, set[int], int, str]:
             os.getpriority(os.PRIO_PROCESS, pid), group)
 
 
+def _group_id(line: str) -> str:
+    """The autogroup's name in a /proc/PID/autogroup line; the kernel prints nothing for
+    the root autogroup (a process whose session began at boot, as a CI runner's may)."""
+    return line.split()[0] if line else "the root autogroup"
+
+
 def test_one_spinner_a_core_below_everything_in_an_autogroup_of_its_own():
     with open("/proc/self/autogroup") as f:
         ours = f.read().strip()
@@ -41,7 +47,7 @@ def test_one_spinner_a_core_below_everything_in_an_autogroup_of_its_own():
         seen = [_policy(pid) for pid in pids]
     for (policy, affinity, nice, group), core in zip(seen, cores, strict=True):
         assert policy == os.SCHED_IDLE and affinity == {core} and nice == 19
-        assert group.endswith("nice 19") and group.split()[0] != ours.split()[0]
+        assert group.endswith("nice 19") and _group_id(group) != _group_id(ours)
     with open("/proc/self/autogroup") as f:
         assert f.read().strip() == ours  # the launcher's own group left as it was
     assert not any(stat_fields(pid) for pid in pids)  # ended by pid and reaped: not even a zombie
@@ -103,3 +109,44 @@ time.sleep(30)
     finally:
         fifo.kill()
         fifo.wait()
+
+
+def test_a_child_that_raises_its_priority_after_the_nodes_are_ready_is_waited_for():
+    """The driver emulator has no readiness of its own and raises its priority as its loop
+    begins, on a loaded core after the zenoh nodes said they were ready: the launcher gives
+    it time (refused_realtime) instead of refusing the spinners at once, which once left a
+    one-core CAN run without them. A ready node not under SCHED_FIFO refuses them at once."""
+    from deploy.run.awake import refused_realtime
+
+    late = subprocess.Popen([sys.executable, "-c", """
+import os, sys, time
+sys.stdin.readline()  # raised only once the launcher's check is waiting for it
+try:
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    print("fifo", flush=True)
+except OSError:  # refused (no privilege, or a CPU group without realtime time)
+    print("refused", flush=True)
+time.sleep(30)
+"""], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    normal = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    answers: list[str] = []
+
+    def raise_it_then_go_on() -> bool:  # the launcher's stop flag, asked at each poll
+        if not answers:
+            late.stdin.write("go\n")
+            late.stdin.flush()
+            answers.append(late.stdout.readline().strip())
+        return answers[0] == "refused"  # no wait for what the host refused
+
+    def never() -> bool:
+        raise AssertionError("a ready node was refused: nothing else is waited for")
+
+    try:
+        assert refused_realtime({"agent-1": normal.pid}, {"emulator": late.pid}, 60.0,
+                                never) == ["agent-1"]
+        got = refused_realtime({}, {"emulator": late.pid}, 60.0, raise_it_then_go_on)
+        assert answers and got == ([] if answers[0] == "fifo" else ["emulator"])
+    finally:
+        for p in (late, normal):
+            p.kill()
+            p.wait()
