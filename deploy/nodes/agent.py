@@ -72,6 +72,10 @@ LEADER_AHEAD_STEPS = LOOKAHEAD + TICK_EVERY + JUMP_OK
 SHARE_AHEAD_STEPS = JUMP_OK + 1
 REALTIME_SHARES_KEPT = 8  # realtime: a neighbour's newest shares kept by step
 TELEMETRY_HZ = 100.0  # realtime telemetry rate (lockstep: every step)
+# realtime: the samples a late loop steps its law on before the newest (AgentNode._catch_up);
+# past them, the oldest step over the periods between (a loop that far behind is overloaded,
+# and each costs the law's step again)
+MAX_CATCH_UP = 3
 TELEMETRY_BATCH_S = 0.1  # telemetry rows go out in batches of this much run time (at most)
 # ... and at most this many rows (lockstep: 8 steps a message, ~2.1 kB): zenoh 1.10 grows a
 # process by 16-44 MB the first time it moves a message of more than ~3 kB (measured), so
@@ -144,6 +148,15 @@ def _finite_row(r: TelemetryRow) -> TelemetryRow:
     return msgspec.structs.replace(r, **fixed, nonfinite=r.nonfinite or bad)
 
 
+class MissedStep(NamedTuple):
+    """A sample a realtime agent answered too late, with the inputs of its step."""
+
+    state: Sample
+    leader: LeaderPoint | None
+    leader_k: int
+    shares: dict[int, Reply]
+
+
 @dataclass
 class AgentInputs:
     """Everything received, keyed by step (lockstep) and the newest (realtime).
@@ -210,6 +223,7 @@ class AgentNode:
         self.law_resets = 0
         self.nonfinite_commands = 0  # steps whose law gave NaN/Inf: zero torques sent
         self.stale_samples = 0  # realtime: samples older than stale_after_s, not answered
+        self.caught_up = 0  # realtime: samples answered a period late, the law stepped on them
         self.overloaded_steps = 0  # realtime: steps of a loop slower than its period (pace.py)
         self.rejoin_s = -1.0  # rejoining: its process start to its first command, s
         self.steps_done = 0
@@ -548,6 +562,7 @@ class AgentNode:
                 continue  # (a stop ends the loop)
             box.drain()  # what came meanwhile without waking us: shares, the leader
             now = monotonic()
+            missed = self._missed_inputs(last_k)
             state, leader, leader_k = self._step_inputs(share_msgs)
             if state is None:
                 continue
@@ -574,6 +589,10 @@ class AgentNode:
                     continue
                 t0_mono, synced, rejoining = now - state.t, True, True
                 self.clock.t0_s = t0_mono
+            elif missed and dt < h <= stale_after:
+                stepped_to = self._catch_up(missed, state.t - h, pace, now - t0_mono)
+                if stepped_to is not None:
+                    h = state.t - stepped_to  # one period, unless a sample never came
             for j, msg in share_msgs.items():
                 self.last_shares[j] = msg.share
             cap = pace.speed_cap()
@@ -625,6 +644,62 @@ class AgentNode:
         self.law_resets += 1
         return True
 
+    def _missed_inputs(self, last_k: int) -> list[MissedStep]:
+        """Realtime, before :meth:`_step_inputs`: the samples between the last one answered
+        and the newest that came and went unanswered (this loop was late), oldest first, at
+        most ``MAX_CATCH_UP``, each with the leader at its step and the neighbours' shares
+        of the step before it (else the newest before each). Taken first: the tables
+        forget what is older than what is taken."""
+        inp = self.inputs
+        with self.node.mailbox.lock:
+            newest = inp.newest_state
+            if newest is None:
+                return []
+            first = max(last_k + 1, newest.k - MAX_CATCH_UP)
+            missed = []
+            for k in range(first, newest.k):
+                state = inp.states.get(k)
+                if state is None:
+                    continue
+                leader, leader_k = step_input(inp.leaders, k)
+                shares: dict[int, Reply] = {}
+                self._shares_of_step(k - 1, shares)
+                missed.append(MissedStep(state, leader, leader_k, shares))
+        return missed
+
+    def _catch_up(self, missed: list[MissedStep], last_t: float | None, pace: LoopPace,
+                  run_time_s: float) -> float | None:
+        """The law's step on each sample this loop answered too late (a newer one came
+        meanwhile), their commands never sent, so that the newest's step is one period
+        long, as in lockstep. One step over the periods missed instead integrated the
+        reference (eq. 11) and the observer (39) over them ahead of one: ``paper`` at
+        1 kHz on one core, an agent answering 1-3 % of its samples a period late, kept its
+        robot 5-14 cm off its reference for hundreds of ms at a time and never settled
+        (docs/bench-history.md). ``last_t``: the time of the sample answered before. The
+        time of the last sample stepped on (None: none, not before every neighbour was
+        heard: the newest then steps over every period since ``last_t``)."""
+        dt = self.sc.dt
+        for step in missed:
+            state = step.state
+            if any(j not in step.shares for j in self.neighbours):
+                return None
+            for j, msg in step.shares.items():
+                self.last_shares[j] = msg.share
+            ages = step_ages(state.k, step.leader_k, step.shares, dt)
+            lead = (step.leader.q, step.leader.q_dot) if step.leader is not None else None
+            if self.hears_leader and lead is None:
+                lead = (self.core.q0_hat_vec, self.core.v0_hat_vec)
+            h = dt if last_t is None or state.t <= last_t else state.t - last_t
+            t0 = now_ns()
+            self.core.step(state.t, state.q, state.q_dot, self.last_shares, lead,
+                           state.obstacles, state.robots, h, None if ages.fresh else ages,
+                           pace.horizon(run_time_s - state.t), pace.speed_cap(),
+                           state.own_torques)
+            self.node.costs.add(LAW, t0)
+            self.caught_up += 1
+            last_t = state.t
+        return last_t
+
     def _step_inputs(self, share_msgs: dict[int, Reply]
                      ) -> tuple[Sample | None, LeaderPoint | None, int]:
         """Realtime: the newest sample (None: none yet), the leader at its step and its
@@ -637,11 +712,19 @@ class AgentNode:
                 return None, None, -1
             inp.states.clear()
             leader, leader_k = step_input(inp.leaders, state.k)
-            for j in self.neighbours:  # the share of step k - 1, else the newest before
-                m, _ = step_input(inp.shares_of[j], state.k - 1)
-                if m is not None:
-                    share_msgs[j] = m
+            self._shares_of_step(state.k - 1, share_msgs)
         return state, leader, leader_k
+
+    def _shares_of_step(self, k: int, into: dict[int, Reply]) -> None:
+        """Realtime, under the mailbox's lock: into ``into``, each neighbour's share of
+        step ``k``, else the newest before it; nothing for one never heard (a rejoining
+        agent whose neighbour is gone: a missing table raised KeyError here)."""
+        shares_of = self.inputs.shares_of
+        for j in self.neighbours:
+            heard = shares_of.get(j)
+            m = None if heard is None else step_input(heard, k)[0]
+            if m is not None:
+                into[j] = m
 
     def _realtime_telemetry(self, telemetry_hz: float) -> None:
         """Telemetry is for people and the recorder: at most ``telemetry_hz`` rows a
@@ -702,6 +785,9 @@ class AgentNode:
             print(f"{self.node.role}: {self.stale_samples} sample(s) older than "
                   f"{self.core.cfg.degradation.stale_after_s * 1e3:.0f} ms on arrival left "
                   "unanswered", file=sys.stderr)
+        if self.caught_up:
+            print(f"{self.node.role}: {self.caught_up} sample(s) came while it was a period "
+                  "late: the law stepped on each, its command not sent", file=sys.stderr)
         held = self.guards["sample"].held
         if held:
             self.node.refused["unconfirmed jump"] = held
