@@ -38,6 +38,23 @@ def _group_id(line: str) -> str:
     return line.split()[0] if line else "the root autogroup"
 
 
+def _child_raising_its_priority(after_a_line: bool) -> subprocess.Popen:
+    """A process that asks for SCHED_FIFO 1 (after a line on its stdin, if so asked),
+    prints "fifo" or "refused" (no privilege, or a CPU group without realtime time), then
+    sleeps until killed."""
+    return subprocess.Popen([sys.executable, "-c", f"""
+import os, sys, time
+if {after_a_line}:
+    sys.stdin.readline()
+try:
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    print("fifo", flush=True)
+except OSError:
+    print("refused", flush=True)
+time.sleep(30)
+"""], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+
+
 def test_one_spinner_a_core_below_everything_in_an_autogroup_of_its_own():
     with open("/proc/self/autogroup") as f:
         ours = f.read().strip()
@@ -94,15 +111,7 @@ def test_a_node_not_under_sched_fifo_keeps_the_cores_as_they_are():
     finally:
         normal.kill()
         normal.wait()
-    fifo = subprocess.Popen([sys.executable, "-c", """
-import os, time
-try:
-    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-    print("fifo", flush=True)
-except OSError:  # refused (no privilege, or a CPU group without realtime time)
-    print("refused", flush=True)
-time.sleep(30)
-"""], stdout=subprocess.PIPE, text=True)
+    fifo = _child_raising_its_priority(after_a_line=False)
     try:
         got = fifo.stdout.readline().strip()
         assert not_realtime({"agent-1": fifo.pid}) == ([] if got == "fifo" else ["agent-1"])
@@ -118,16 +127,7 @@ def test_a_child_that_raises_its_priority_after_the_nodes_are_ready_is_waited_fo
     one-core CAN run without them. A ready node not under SCHED_FIFO refuses them at once."""
     from deploy.run.awake import refused_realtime
 
-    late = subprocess.Popen([sys.executable, "-c", """
-import os, sys, time
-sys.stdin.readline()  # raised only once the launcher's check is waiting for it
-try:
-    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-    print("fifo", flush=True)
-except OSError:  # refused (no privilege, or a CPU group without realtime time)
-    print("refused", flush=True)
-time.sleep(30)
-"""], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    late = _child_raising_its_priority(after_a_line=True)  # once the check waits for it
     normal = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
     answers: list[str] = []
 
