@@ -167,6 +167,12 @@ def _transport_lines(m: dict) -> list[str]:
                          f"{early['busy_share']:.0%} of {early['cores']} core(s), "
                          f"{early['heaviest']} {early['heaviest_cpu_us_per_step']:.0f} µs a step; "
                          f"this machine would hold it at about {early['max_rate_hz']:.0f} Hz")
+        if early and early.get("over_realtime_limit"):
+            lines.append(f"  realtime limit             the realtime processes took "
+                         f"{early['realtime_share']:.0%} of the cores, above the "
+                         f"{early['realtime_limit']:.0%} the kernel lets them have "
+                         "(sched_rt_runtime_us): it held them all, the plant too, for the rest "
+                         "of each second they needed more")
         rows = m.get("series_rows_missing")
         if rows and any(rows):
             lines.append(f"  states never heard         {_fmt_ints(rows)} step(s) (filled forward "

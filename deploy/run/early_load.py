@@ -6,7 +6,12 @@ run starts and a second later: each process's CPU per step, and the fleet's shar
 cores it may use. A fleet that takes more than ``BUSY_SHARE`` of them, or one process
 more than a period a step, cannot keep its clock: the launcher says so at once, naming the
 heaviest process and the highest rate this machine would hold the fleet at, and
-metrics.json (``early_load``) and the summary say it again. The robots are still guarded
+metrics.json (``early_load``) and the summary say it again. It also says when the fleet's
+realtime (SCHED_FIFO) processes alone took more of the cores than the kernel lets realtime
+processes have (``sched_rt_runtime_us`` of each ``sched_rt_period_us``, 95 % by default):
+the kernel then holds every one of them for the rest of such a period, the plant too
+(`paper` at 1 kHz on one core: stalls of 20-45 ms; docs/bench-history.md, "A late agent's
+law"). The robots are still guarded
 meanwhile (the safety filter, the plant's command timeout): a machine that cannot keep
 up slows and stops them, it never lets them touch.
 """
@@ -32,6 +37,20 @@ def cpu_seconds(pid: int) -> float | None:
         return None
 
 
+def realtime_limit_share(root: str = "/proc/sys/kernel") -> float | None:
+    """The share of each core the kernel lets SCHED_FIFO and SCHED_RR processes have
+    (``sched_rt_runtime_us`` / ``sched_rt_period_us``); None without a limit (-1) or where
+    it cannot be read."""
+    try:
+        with open(f"{root}/sched_rt_runtime_us") as f:
+            runtime = int(f.read())
+        with open(f"{root}/sched_rt_period_us") as f:
+            period = int(f.read())
+    except (OSError, ValueError):
+        return None
+    return None if runtime < 0 or period <= 0 else runtime / period
+
+
 @dataclass(frozen=True)
 class EarlyLoad:
     """The fleet's first second: CPU per step by process, against the cores."""
@@ -39,6 +58,20 @@ class EarlyLoad:
     cpu_us_per_step: dict[str, float]  # role -> µs of CPU a step
     period_us: float
     cores: int
+    realtime: frozenset[str] = frozenset()  # the roles that ran under SCHED_FIFO
+    realtime_limit: float | None = None  # realtime_limit_share() as it was read
+
+    @property
+    def realtime_share(self) -> float:
+        """The realtime processes' CPU over the cores' time."""
+        us = sum(v for r, v in self.cpu_us_per_step.items() if r in self.realtime)
+        return us / (self.period_us * self.cores)
+
+    @property
+    def over_realtime_limit(self) -> bool:
+        """The realtime processes took more than the kernel lets them have: it holds them
+        all, for the rest of each period where they do."""
+        return self.realtime_limit is not None and self.realtime_share > self.realtime_limit
 
     @property
     def busy_share(self) -> float:
@@ -66,6 +99,9 @@ class EarlyLoad:
     def as_json(self) -> dict:
         role, us = self.heaviest
         return {"behind": self.behind, "busy_share": round(self.busy_share, 3),
+                "realtime_share": round(self.realtime_share, 3),
+                "realtime_limit": self.realtime_limit,
+                "over_realtime_limit": self.over_realtime_limit,
                 "cores": self.cores, "heaviest": role, "heaviest_cpu_us_per_step": round(us, 1),
                 "max_rate_hz": round(self.max_rate_hz(), 1),
                 "cpu_us_per_step": {r: round(v, 1) for r, v in self.cpu_us_per_step.items()}}
@@ -77,7 +113,15 @@ class EarlyLoad:
                 f"({sum(self.cpu_us_per_step.values()):.0f} µs of CPU a {self.period_us:.0f} µs "
                 f"step), {role} the most ({us:.0f} µs a step); it would hold this fleet at "
                 f"about {self.max_rate_hz():.0f} Hz (--control-rate). The robots stay guarded; "
-                "expect deadline misses and a late settling")
+                "expect deadline misses and a late settling" + self._limit_note())
+
+    def _limit_note(self) -> str:
+        if not self.over_realtime_limit:
+            return ""
+        return (f"; its realtime processes took {self.realtime_share:.0%}, above the "
+                f"{self.realtime_limit:.0%} the kernel lets them have (sched_rt_runtime_us): "
+                "it holds all of them, the plant too, for the rest of each second where they "
+                "need more (stalls of tens of ms)")
 
 
 class EarlyLoadProbe:
@@ -103,9 +147,20 @@ class EarlyLoadProbe:
         """The load over the window (None: nothing could be read)."""
         steps = (now - self.started_at) / (self.period_us * 1e-6)  # type: ignore[operator]
         per_step: dict[str, float] = {}
+        realtime = set()
         for role, pid in self.pids.items():
             c, c0 = cpu_seconds(pid), self._start.get(role)
             if c is not None and c0 is not None and steps > 0:
                 per_step[role] = (c - c0) / steps * 1e6
-        self.result = EarlyLoad(per_step, self.period_us, self.cores) if per_step else None
+                if _under_fifo(pid):
+                    realtime.add(role)
+        self.result = EarlyLoad(per_step, self.period_us, self.cores, frozenset(realtime),
+                                realtime_limit_share()) if per_step else None
         return self.result
+
+
+def _under_fifo(pid: int) -> bool:
+    try:
+        return os.sched_getscheduler(pid) == os.SCHED_FIFO
+    except (AttributeError, OSError):  # not Linux, or gone
+        return False

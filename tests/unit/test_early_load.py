@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from deploy.run.early_load import EarlyLoad, EarlyLoadProbe, cpu_seconds
+from deploy.run.early_load import EarlyLoad, EarlyLoadProbe, cpu_seconds, realtime_limit_share
 
 
 def test_paper_at_1khz_on_one_core_is_behind_and_says_what_it_would_hold():
@@ -42,3 +42,24 @@ def test_the_probe_reads_a_busy_process_from_the_kernel():
     load = probe.finish(time.monotonic())
     assert load is not None and load.cpu_us_per_step["me"] > 0
     assert cpu_seconds(2 ** 22 + 12345) is None  # a process that is not there
+
+
+def test_realtime_processes_above_the_kernels_limit_are_named(tmp_path):
+    """paper at 1 kHz on one core in a slow hour (2026-11-29, 21:13): the SCHED_FIFO nodes
+    took ~97 % of the core, above the 95 % the kernel lets them have, and the plant stalled
+    20-45 ms; the launcher, not realtime, does not count."""
+    (tmp_path / "sched_rt_runtime_us").write_text("950000\n")
+    (tmp_path / "sched_rt_period_us").write_text("1000000\n")
+    limit = realtime_limit_share(str(tmp_path))
+    assert limit == pytest.approx(0.95)
+    cpu = {"plant": 290.0, "agent-1": 205.0, "agent-2": 215.0, "agent-3": 245.0,
+           "leader": 16.0, "launcher": 32.0}
+    load = EarlyLoad(cpu, 1000.0, 1, frozenset(set(cpu) - {"launcher"}), limit)
+    assert load.realtime_share == pytest.approx(0.971) and load.over_realtime_limit
+    assert "above the 95% the kernel lets them have" in load.message(1000.0)
+    assert load.as_json()["over_realtime_limit"] is True
+    within = EarlyLoad(cpu, 1000.0, 1, frozenset({"plant", "agent-1"}), limit)
+    assert not within.over_realtime_limit and "kernel" not in within.message(1000.0)
+    (tmp_path / "sched_rt_runtime_us").write_text("-1\n")  # no limit
+    assert realtime_limit_share(str(tmp_path)) is None
+    assert realtime_limit_share(str(tmp_path / "absent")) is None
