@@ -589,10 +589,8 @@ class AgentNode:
                     continue
                 t0_mono, synced, rejoining = now - state.t, True, True
                 self.clock.t0_s = t0_mono
-            elif missed and dt < h <= stale_after:
-                stepped_to = self._catch_up(missed, state.t - h, pace, now - t0_mono)
-                if stepped_to is not None:
-                    h = state.t - stepped_to  # one period, unless a sample never came
+            elif missed and dt < h <= stale_after:  # one period after, unless one never came
+                h = state.t - self._catch_up(missed, state.t - h, pace, now - t0_mono)
             for j, msg in share_msgs.items():
                 self.last_shares[j] = msg.share
             cap = pace.speed_cap()
@@ -667,29 +665,30 @@ class AgentNode:
                 missed.append(MissedStep(state, leader, leader_k, shares))
         return missed
 
-    def _catch_up(self, missed: list[MissedStep], last_t: float | None, pace: LoopPace,
-                  run_time_s: float) -> float | None:
+    def _catch_up(self, missed: list[MissedStep], last_t: float, pace: LoopPace,
+                  run_time_s: float) -> float:
         """The law's step on each sample this loop answered too late (a newer one came
         meanwhile), their commands never sent, so that the newest's step is one period
         long, as in lockstep. One step over the periods missed instead integrated the
         reference (eq. 11) and the observer (39) over them ahead of one: ``paper`` at
         1 kHz on one core, an agent answering 1-3 % of its samples a period late, kept its
         robot 5-14 cm off its reference for hundreds of ms at a time and never settled
-        (docs/bench-history.md). ``last_t``: the time of the sample answered before. The
-        time of the last sample stepped on (None: none, not before every neighbour was
-        heard: the newest then steps over every period since ``last_t``)."""
+        (docs/bench-history.md). ``last_t``: the time of the sample answered before.
+        Returns the time of the last sample stepped on, ``last_t`` if none was: one is not
+        stepped on before every neighbour was heard (as the newest is not), and the next
+        step then spans its period too."""
         dt = self.sc.dt
         for step in missed:
             state = step.state
             if any(j not in step.shares for j in self.neighbours):
-                return None
+                continue
             for j, msg in step.shares.items():
                 self.last_shares[j] = msg.share
             ages = step_ages(state.k, step.leader_k, step.shares, dt)
             lead = (step.leader.q, step.leader.q_dot) if step.leader is not None else None
             if self.hears_leader and lead is None:
                 lead = (self.core.q0_hat_vec, self.core.v0_hat_vec)
-            h = dt if last_t is None or state.t <= last_t else state.t - last_t
+            h = dt if state.t <= last_t else state.t - last_t
             t0 = now_ns()
             self.core.step(state.t, state.q, state.q_dot, self.last_shares, lead,
                            state.obstacles, state.robots, h, None if ages.fresh else ages,

@@ -85,7 +85,7 @@ def test_only_the_newest_few_are_caught_up_and_none_without_the_neighbours():
     assert [m.state.k for m in missed] == list(range(newest - MAX_CATCH_UP, newest))
     calls = _recorded(a)
     # no neighbour's share heard yet: nothing to step on (the newest steps over them all)
-    assert a._catch_up(missed, 0.0, LoopPace(sc.dt), newest * sc.dt) is None
+    assert a._catch_up(missed, 0.0, LoopPace(sc.dt), newest * sc.dt) == 0.0
     assert calls == [] and a.caught_up == 0
     assert a._missed_inputs(last_k=newest) == []  # nothing between the last answer and it
 
@@ -98,3 +98,19 @@ def test_a_sample_before_any_share_is_taken_without_the_neighbours():
     shares: dict = {}
     state, _, _ = a._step_inputs(shares)
     assert state.k == 0 and shares == {}
+
+
+def test_a_missed_sample_before_a_neighbour_was_heard_is_stepped_over():
+    """Not stepped on before every neighbour was heard (as the newest is not): the next
+    one stepped on spans its period too, and the newest's step starts from it."""
+    sc, rid, a = _agent()
+    for j in a.neighbours:
+        _share(a, sc, j, 2)  # first heard with its share of step 2
+    for k in range(5):
+        _sample(a, sc, rid, k)
+    calls = _recorded(a)
+    missed = a._missed_inputs(last_k=1)
+    assert [m.state.k for m in missed] == [2, 3]
+    assert a._catch_up(missed, 1 * sc.dt, LoopPace(sc.dt), 4 * sc.dt) == 3 * sc.dt
+    assert [c[0] for c in calls] == [3 * sc.dt]  # sample 2 wanted the shares of step 1
+    assert abs(calls[0][2] - 2 * sc.dt) < 1e-12 and a.caught_up == 1
