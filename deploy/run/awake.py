@@ -13,6 +13,12 @@ from contextlib import contextmanager
 from deploy.runtime.own_python import child_env, python_module
 
 STOP_WAIT_S = 5.0
+# how long a child with no readiness of its own (the driver emulator) is given to be under
+# SCHED_FIFO once every ready node is: on a loaded core it was under a second after them;
+# a host that grants the nodes' priority and refuses the emulator's higher one (an
+# RLIMIT_RTPRIO between the two) delays the run's start by this much, not by the start-up
+# timeout
+STARTING_GRACE_S = 5.0
 
 
 def not_realtime(pids: dict[str, int]) -> list[str]:

@@ -33,7 +33,7 @@ from deploy.contract.scenario import Scenario
 from deploy.contract.wire import LAUNCHER_ROLE, WIRE_VERSION, Keys, LeaderSteer, control
 from deploy.report.run_folder import RECORDING
 from deploy.report.timeseries import TimeSeries
-from deploy.run.awake import cores_kept_awake, refused_realtime
+from deploy.run.awake import STARTING_GRACE_S, cores_kept_awake, refused_realtime
 from deploy.run.early_load import EarlyLoad, EarlyLoadProbe
 from deploy.run.kill_schedule import KillSchedule
 from deploy.run.observer import Observer, SpooledWire
@@ -280,7 +280,7 @@ class Launcher:
         started = [c for c in self.supervisor.children if c.proc is not None]
         refused = refused_realtime({c.role: c.proc.pid for c in started if c.zenoh},
                                    {c.role: c.proc.pid for c in started if not c.zenoh},
-                                   self.opts.startup_timeout_s, self.stop)
+                                   STARTING_GRACE_S, self.stop)
         if refused:
             print(f"omnifleet run: --keep-cores-awake: not kept: {', '.join(refused)} not "
                   "under SCHED_FIFO (the host refused it), and a spinner would take the core "
