@@ -417,6 +417,13 @@ class AgentNode:
             self.node.publish(self.node.keys.telemetry(rid), lambda seq, stamp: Telemetry(
                 WIRE_VERSION, rid, seq, stamp, robot=rid, rows=safe))
 
+    def _leader_input(self, leader: LeaderPoint | None) -> tuple | None:
+        """The leader a step takes: the one heard, else (never heard yet) the agent's own
+        estimate of it, or None for an agent that does not hear the leader."""
+        if leader is not None:
+            return leader.q, leader.q_dot
+        return (self.core.q0_hat_vec, self.core.v0_hat_vec) if self.hears_leader else None
+
     def _compute(self, t: float, state: Sample, leader: LeaderPoint | None,
                  dt: float | None = None, ages: InputAges | None = None,
                  horizon: float | None = None, speed_cap: float = 1.0,
@@ -425,9 +432,7 @@ class AgentNode:
         ``speed_cap``: the realtime loop's pace (agents/pace.py)."""
         # the wire's sensed bodies as they are: the kernel reads their fields
         robots, obstacles = state.robots, state.obstacles
-        lead = (leader.q, leader.q_dot) if leader is not None else None
-        if self.hears_leader and lead is None:  # never heard it yet: use own estimate
-            lead = (self.core.q0_hat_vec, self.core.v0_hat_vec)
+        lead = self._leader_input(leader)
         q, q_dot = state.q, state.q_dot
         t0 = now_ns()
         out = self.core.step(t, q, q_dot, self.last_shares, lead, obstacles, robots, dt, ages,
@@ -685,9 +690,7 @@ class AgentNode:
             for j, msg in step.shares.items():
                 self.last_shares[j] = msg.share
             ages = step_ages(state.k, step.leader_k, step.shares, dt)
-            lead = (step.leader.q, step.leader.q_dot) if step.leader is not None else None
-            if self.hears_leader and lead is None:
-                lead = (self.core.q0_hat_vec, self.core.v0_hat_vec)
+            lead = self._leader_input(step.leader)
             h = dt if state.t <= last_t else state.t - last_t
             t0 = now_ns()
             self.core.step(state.t, state.q, state.q_dot, self.last_shares, lead,

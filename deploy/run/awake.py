@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 from deploy.runtime.own_python import child_env, python_module
+from deploy.runtime.priority import under_fifo
 
 STOP_WAIT_S = 5.0
 # how long a child with no readiness of its own (the driver emulator) is given to be under
@@ -27,14 +28,7 @@ def not_realtime(pids: dict[str, int]) -> list[str]:
     spinner beside such a node takes the core each time the node hands it over
     (deploy/runtime/idle_poll.py): a CAN fleet in the suite's CPU group of low weight,
     its nodes refused SCHED_FIFO there, had no state heard in a 1 s run."""
-    out = []
-    for role, pid in sorted(pids.items()):
-        try:
-            if os.sched_getscheduler(pid) != os.SCHED_FIFO:
-                out.append(role)
-        except OSError:
-            out.append(role)
-    return out
+    return [role for role, pid in sorted(pids.items()) if not under_fifo(pid)]
 
 
 def refused_realtime(ready: dict[str, int], starting: dict[str, int], within_s: float,

@@ -21,6 +21,8 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+from deploy.runtime.priority import under_fifo
+
 WINDOW_S = 1.0  # judged over the run's first second
 BUSY_SHARE = 0.85  # of the cores: above it, the fleet's loops wait for each other
 HOLD_SHARE = 0.6  # a rate this machine holds: the fleet within this share of the cores
@@ -152,15 +154,9 @@ class EarlyLoadProbe:
             c, c0 = cpu_seconds(pid), self._start.get(role)
             if c is not None and c0 is not None and steps > 0:
                 per_step[role] = (c - c0) / steps * 1e6
-                if _under_fifo(pid):
+                if under_fifo(pid):
                     realtime.add(role)
         self.result = EarlyLoad(per_step, self.period_us, self.cores, frozenset(realtime),
                                 realtime_limit_share()) if per_step else None
         return self.result
 
-
-def _under_fifo(pid: int) -> bool:
-    try:
-        return os.sched_getscheduler(pid) == os.SCHED_FIFO
-    except (AttributeError, OSError):  # not Linux, or gone
-        return False

@@ -86,6 +86,14 @@ def raise_priority(n: int) -> str:
         "; refused: " + ", ".join(refused) if refused else "")
 
 
+def under_fifo(pid: int) -> bool:
+    """Whether process ``pid`` runs under SCHED_FIFO (False once gone, or not Linux)."""
+    try:
+        return os.sched_getscheduler(pid) == os.SCHED_FIFO
+    except (AttributeError, OSError):
+        return False
+
+
 def leave_realtime_scheduling() -> None:
     """Back to the normal policy (its nice value kept) for this thread, if it ran under
     SCHED_FIFO: a node whose loop has ended (its report, its last flushes)."""
