@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-from deploy.contract.plant_registry import find_plant
 from deploy.run.node_forks import close_early, start_early
 
 # What the parser needs is imported when it is built, not with this module: a run that
@@ -81,32 +80,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def fleet_clock(argv: list[str]) -> str | None:
-    """The clock of the fleet ``omnifleet run ...`` will start (``--clock``, lockstep by
-    default, realtime for a ``--plant`` that runs on the wall clock only), or None: not a
-    run, ``--in-process``, or help. A scenario's own plant is not read here."""
-    if argv[:1] != ["run"] or "--in-process" in argv or {"-h", "--help"} & set(argv):
-        return None
-    options: dict[str, str] = {}
-    for i, a in enumerate(argv):
-        for name in ("--clock", "--plant"):
-            if a == name and i + 1 < len(argv):
-                options[name] = argv[i + 1]
-            elif a.startswith(f"{name}="):
-                options[name] = a.removeprefix(f"{name}=")
-    try:
-        plant = find_plant(options["--plant"]) if "--plant" in options else None
-    except ValueError:  # a plug-in that cannot be used: the command line says so next
-        plant = None
-    if plant is not None and plant.realtime_only:
-        return "realtime"
-    return options.get("--clock", "lockstep")
+def starts_a_fleet(argv: list[str]) -> bool:
+    """Whether ``omnifleet ...`` will start a fleet of node processes: ``run``, but not
+    ``--in-process`` nor help (whose nodes the fork server then forks, on either clock)."""
+    return argv[:1] == ["run"] and "--in-process" not in argv and not {"-h", "--help"} & set(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
-    clock = fleet_clock(sys.argv[1:] if argv is None else argv)
-    if clock is not None:
-        start_early(clock)  # its nodes' fork server, when they are forked
+    if starts_a_fleet(sys.argv[1:] if argv is None else argv):
+        start_early()  # its nodes' fork server
     try:
         from deploy.nodes.entry import dispatch
 

@@ -141,8 +141,8 @@ class Launcher:
         sup.run_dir = run_dir
         endpoint = o.endpoint or endpoint_of(run_dir, LAUNCHER_ROLE)
         try:
-            # it imports what the nodes need meanwhile (a realtime run: its restarts')
-            sup.start_forks(o.clock, restarts=any(e.restart for e in self.kills.pending))
+            # it imports what the nodes need meanwhile
+            sup.start_forks()
             lossless = o.clock == "lockstep"
             datagrams = DatagramPath(run_dir, LAUNCHER_ROLE, lossless) if o.datagrams else None
             node = Node(LAUNCHER_ROLE, obs.keys, obs.codec,

@@ -50,13 +50,16 @@ def node_env() -> dict[str, str]:
     return env
 
 
-def wanted(clock: str) -> bool:
-    """Whether a run on ``clock`` forks its nodes: on the lockstep clock, unless switched
-    off by ``OMNIFLEET_NODE_FORKS=0``. A realtime run spawns them: forked, `paper` at
-    1 kHz left robots unsettled in 3 of 6 alternating pairs (none spawned), and still in
-    4 of 6 with every page shared with the server copied before the loop, so not for
-    copy-on-write faults; the cause is open (docs/bench-history.md)."""
-    return clock == "lockstep" and os.environ.get(SWITCH, "1") != "0"
+def wanted() -> bool:
+    """Whether a run forks its nodes (on either clock), unless switched off by
+    ``OMNIFLEET_NODE_FORKS=0``. On the wall clock forked nodes take less CPU a step than
+    spawned ones: `paper` at 1 kHz on 2 cores, 19 alternating pairs in four sittings, the
+    fleet's CPU a step (the launcher aside) 0.90x (0.81-1.08x, below 1 in 16 pairs); the
+    CAN fleet with CiA 402 drives pinned to one core 0.80-0.90x (3 pairs). Realtime runs had
+    spawned their nodes since forked ones left `paper` unsettled in 3 of 6 pairs; with a
+    late agent now stepping its law on each sample it missed, they pass alike (15 and 16
+    of those 19 pairs, in noisy hours) (docs/bench-history.md, "Realtime nodes forked")."""
+    return os.environ.get(SWITCH, "1") != "0"
 
 
 def _subreaper(on: bool) -> bool:
@@ -206,11 +209,11 @@ class NodeForks:
 _early: NodeForks | None = None
 
 
-def start_early(clock: str) -> None:
-    """Start this process's fork server now, for the run on ``clock`` it is about to
-    launch (nothing when that run spawns its nodes)."""
+def start_early() -> None:
+    """Start this process's fork server now, for the run it is about to launch (nothing
+    when that run spawns its nodes: ``OMNIFLEET_NODE_FORKS=0``)."""
     global _early
-    if _early is None and wanted(clock):
+    if _early is None and wanted():
         _early = NodeForks()
         _early.start(node_env())
 

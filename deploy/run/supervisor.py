@@ -67,19 +67,16 @@ class Supervisor:
         self.run_dir = run_dir  # the run's sockets (a restarted node's old one is removed)
         self.children: list[Child] = []
         self.forks: NodeForks | None = None  # the nodes' fork server, once started
-        self.forks_for_restarts_only = False  # a realtime run forks only its restarts
 
-    def start_forks(self, clock: str, restarts: bool = False) -> None:
+    def start_forks(self) -> None:
         """Start the nodes' fork server now, so that it has imported what the nodes need
-        by the time they start (deploy/nodes/forks.py); without it (a realtime run, or
-        ``OMNIFLEET_NODE_FORKS=0`` in the environment: node_forks.wanted) each node is
-        started by its command line. ``restarts``: the fault plan restarts nodes; a
-        realtime run then forks those (and only those) from the server: spawned on a
-        loaded core, a restarted agent took ~0.9 s to import what it needs before its
-        first command, its robot on zero torque meanwhile. :meth:`stop_all` ends it."""
-        self.forks_for_restarts_only = not wanted(clock) and restarts and wanted("lockstep")
-        if not wanted(clock) and not self.forks_for_restarts_only:
-            close_early()  # the command line started one for a run that spawns its nodes
+        by the time they start (deploy/nodes/forks.py); without it
+        (``OMNIFLEET_NODE_FORKS=0`` in the environment: node_forks.wanted) each node is
+        started by its command line, and a node the fault plan restarts on a loaded core
+        takes ~0.9 s to import what it needs before its first command (forked, 0.07-0.15
+        s), its robot on zero torque meanwhile. :meth:`stop_all` ends it."""
+        if not wanted():
+            close_early()  # one the command line started before the switch was read
         elif self.forks is None:
             self.forks = take_early()  # started by the command line before its imports
             if self.forks is None:
@@ -99,7 +96,7 @@ class Supervisor:
             keys = _keys_pipe(self.keyring_of(child.role))
         try:
             forked = None
-            if self.forks is not None and (child.restarted or not self.forks_for_restarts_only):
+            if self.forks is not None:
                 forked = self.forks.fork(child.argv, env, child.log.fileno(), keys)
             child.proc = forked or subprocess.Popen(
                 child.argv if keys is None else [*child.argv, "--keys-fd", str(keys)],

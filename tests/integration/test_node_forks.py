@@ -44,7 +44,7 @@ def _wait_for(path: Path, text: bytes, proc) -> None:
 def test_a_forked_node_is_the_supervisors_child_in_its_own_session_showing_its_command(tmp_path):
     marker = f"forked-{os.getpid()}"
     sup = Supervisor(None)
-    sup.start_forks("lockstep")
+    sup.start_forks()
     try:
         c = _emulator(tmp_path, marker)
         sup.spawn(c)
@@ -70,7 +70,7 @@ def test_a_forked_node_reads_its_keys_from_its_pipe_and_exits_with_its_own_statu
     texts = {"agent-1": keyring_text(master, "forks", "agent-2", roles),  # another's keys
              "agent-2": "not a keyring"}
     sup = Supervisor(texts.__getitem__)
-    sup.start_forks("lockstep")
+    sup.start_forks()
     try:
         children = []
         for role in texts:
@@ -93,7 +93,7 @@ def test_a_forked_node_reads_its_keys_from_its_pipe_and_exits_with_its_own_statu
 def test_without_a_server_every_node_is_spawned_and_it_says_why(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(node_forks, "python_module", lambda m: python_module("no.such.module"))
     sup = Supervisor(None)
-    sup.start_forks("lockstep")
+    sup.start_forks()
     try:
         c = _emulator(tmp_path, f"spawned-{os.getpid()}")
         sup.spawn(c)
@@ -104,14 +104,6 @@ def test_without_a_server_every_node_is_spawned_and_it_says_why(tmp_path, monkey
         sup.stop_all()
     assert c.exit_code == 143
     assert "nodes started by their command line" in capsys.readouterr().err
-
-
-def test_the_switch_turns_the_server_off(tmp_path, monkeypatch):
-    monkeypatch.setenv("OMNIFLEET_NODE_FORKS", "0")
-    sup = Supervisor(None)
-    sup.start_forks("lockstep")
-    assert sup.forks is None
-    sup.stop_all()
 
 
 def test_a_forked_node_is_waited_for_and_signalled_like_a_spawned_one(tmp_path):
@@ -133,38 +125,32 @@ def test_a_forked_node_is_waited_for_and_signalled_like_a_spawned_one(tmp_path):
     assert forks.fork([*NODES, "emulate"], dict(os.environ), 1, None) is None  # closed
 
 
-def test_the_command_line_forks_only_for_a_lockstep_run_that_starts_a_fleet(monkeypatch):
-    from deploy.cli import fleet_clock
-    from deploy.contract.plant_registry import PLANTS, PlantEntry
+def test_the_command_line_forks_for_every_run_that_starts_a_fleet(monkeypatch):
+    from deploy.cli import starts_a_fleet
 
-    assert fleet_clock(["run", "paper", "--plant", "model"]) == "lockstep"
-    assert fleet_clock(["run", "lab", "--clock", "realtime"]) == "realtime"
-    assert fleet_clock(["run", "lab", "--clock=realtime"]) == "realtime"
-    # a plant on the wall clock only: no fork server started for nothing (it imported for
-    # ~0.65 s of CPU beside every CAN fleet's start)
-    assert fleet_clock(["run", "lab", "--plant", "can-emulated"]) == "realtime"
-    assert fleet_clock(["run", "lab", "--plant=can-emulated"]) == "realtime"
-    # read from the registry: a plant registered as realtime-only is too
-    monkeypatch.setitem(PLANTS, "toy-hardware", PlantEntry("a toy", None, realtime_only=True))
-    assert fleet_clock(["run", "lab", "--plant", "toy-hardware"]) == "realtime"
-    assert fleet_clock(["run", "paper", "--in-process"]) is None
-    assert fleet_clock(["run", "--help"]) is None
-    assert fleet_clock(["bench", "--quick"]) is None
-    assert node_forks.wanted("lockstep") and not node_forks.wanted("realtime")
+    assert starts_a_fleet(["run", "paper", "--plant", "model"])
+    assert starts_a_fleet(["run", "lab", "--clock", "realtime"])  # realtime runs fork too
+    assert starts_a_fleet(["run", "lab", "--plant", "can-emulated"])
+    assert not starts_a_fleet(["run", "paper", "--in-process"])
+    assert not starts_a_fleet(["run", "--help"])
+    assert not starts_a_fleet(["bench", "--quick"])
+    assert node_forks.wanted()
     monkeypatch.setenv("OMNIFLEET_NODE_FORKS", "0")
-    assert not node_forks.wanted("lockstep")
+    assert not node_forks.wanted()
 
 
-def test_a_realtime_run_spawns_its_nodes_and_ends_a_server_started_for_it(tmp_path):
-    node_forks.start_early("lockstep")  # as a command line that misread the clock would
+def test_a_run_told_not_to_fork_spawns_its_nodes_and_ends_a_server_started_for_it(
+        tmp_path, monkeypatch):
+    node_forks.start_early()  # the command line's, before the run read the switch
     server = node_forks._early._server
     assert server.poll() is None
+    monkeypatch.setenv("OMNIFLEET_NODE_FORKS", "0")
     sup = Supervisor(None)
-    sup.start_forks("realtime")
+    sup.start_forks()
     try:
         assert sup.forks is None and node_forks.take_early() is None
         assert server.returncode is not None  # ended and reaped, not left idle beside the run
-        c = _emulator(tmp_path, f"realtime-{os.getpid()}")
+        c = _emulator(tmp_path, f"spawned-{os.getpid()}")
         sup.spawn(c)
         assert not isinstance(c.proc, ForkedProcess)
     finally:
