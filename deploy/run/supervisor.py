@@ -76,7 +76,7 @@ class Supervisor:
         takes ~0.9 s to import what it needs before its first command (forked, 0.07-0.15
         s), its robot on zero torque meanwhile. :meth:`stop_all` ends it."""
         if not wanted():
-            close_early()  # one the command line started before the switch was read
+            close_early()  # a server started before the switch was turned off
         elif self.forks is None:
             self.forks = take_early()  # started by the command line before its imports
             if self.forks is None:
