@@ -7,6 +7,7 @@ from pathlib import Path
 
 from deploy.contract.plant_registry import is_dynamic
 from deploy.report.verdict import judge, verdict_line
+from deploy.runtime.priority import over_realtime_limit_words
 
 
 def meets_paper_criteria(m: dict) -> bool:
@@ -168,11 +169,9 @@ def _transport_lines(m: dict) -> list[str]:
                          f"{early['heaviest']} {early['heaviest_cpu_us_per_step']:.0f} µs a step; "
                          f"this machine would hold it at about {early['max_rate_hz']:.0f} Hz")
         if early and early.get("over_realtime_limit"):
-            lines.append(f"  realtime limit             the realtime processes took "
-                         f"{early['realtime_share']:.0%} of the cores, above the "
-                         f"{early['realtime_limit']:.0%} the kernel lets them have "
-                         "(sched_rt_runtime_us): it held them all, the plant too, for the rest "
-                         "of each second they needed more")
+            lines.append("  realtime limit             the realtime processes took "
+                         + over_realtime_limit_words(early["realtime_share"],
+                                                     early["realtime_limit"]))
         rows = m.get("series_rows_missing")
         if rows and any(rows):
             lines.append(f"  states never heard         {_fmt_ints(rows)} step(s) (filled forward "

@@ -21,7 +21,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-from deploy.runtime.priority import under_fifo
+from deploy.runtime.priority import over_realtime_limit_words, under_fifo
 
 WINDOW_S = 1.0  # judged over the run's first second
 BUSY_SHARE = 0.85  # of the cores: above it, the fleet's loops wait for each other
@@ -120,10 +120,8 @@ class EarlyLoad:
     def _limit_note(self) -> str:
         if not self.over_realtime_limit:
             return ""
-        return (f"; its realtime processes took {self.realtime_share:.0%}, above the "
-                f"{self.realtime_limit:.0%} the kernel lets them have (sched_rt_runtime_us): "
-                "it holds all of them, the plant too, for the rest of each second where they "
-                "need more (stalls of tens of ms)")
+        words = over_realtime_limit_words(self.realtime_share, self.realtime_limit)  # type: ignore[arg-type]
+        return f"; its realtime processes took {words} (stalls of tens of ms)"
 
 
 class EarlyLoadProbe:
@@ -159,4 +157,3 @@ class EarlyLoadProbe:
         self.result = EarlyLoad(per_step, self.period_us, self.cores, frozenset(realtime),
                                 realtime_limit_share()) if per_step else None
         return self.result
-

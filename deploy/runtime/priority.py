@@ -94,6 +94,15 @@ def under_fifo(pid: int) -> bool:
         return False
 
 
+def over_realtime_limit_words(share: float, limit: float) -> str:
+    """What realtime processes that took ``share`` of the cores, above the kernel's
+    ``limit`` (``sched_rt_runtime_us`` / ``sched_rt_period_us``), met: the words of the
+    first second's warning and of the run's summary."""
+    return (f"{share:.1%}, above the {limit:.0%} the kernel lets them have "
+            "(sched_rt_runtime_us): it holds all of them, the plant too, for the rest of each "
+            "second where they need more")
+
+
 def leave_realtime_scheduling() -> None:
     """Back to the normal policy (its nice value kept) for this thread, if it ran under
     SCHED_FIFO: a node whose loop has ended (its report, its last flushes)."""
