@@ -30,6 +30,7 @@ from agents.degradation import InputAges, predict
 from agents.look_ahead import LookAhead
 from agents.pace import LoopPace
 from agents.plugged import make_core
+from agents.rehearsal import REHEARSAL_LEAD_S, rehearse
 from deploy.contract.fault_plan import FaultPlan
 from deploy.contract.options import DEFAULT_STEP_DEADLINE_S
 from deploy.contract.scenario import Scenario
@@ -548,6 +549,8 @@ class AgentNode:
         self.node.wake_on([self.node.keys.sample(self.rid)])
         keys = self.node.keys
         self.node.connect_ahead([keys.cmd(self.rid), keys.telemetry(self.rid)])
+        if t0_mono is not None:
+            self._rehearse(t0_mono)
         last_k = -1
         last_step = None
         pace = LoopPace(dt)
@@ -611,6 +614,25 @@ class AgentNode:
             if rejoining:  # the first command of a restarted agent: how long it took
                 rejoining = False
                 self._note_rejoined()
+
+    def _rehearse(self, t0_mono: float) -> None:
+        """Just before t = 0, the paper's law stepped on a scratch core (agents/rehearsal.py):
+        the run's first answers come sooner and at fewer different steps. Waits on the
+        mailbox until then (a stop ends the wait)."""
+        if self._law is not None:  # a lab's own law is stepped by the run alone
+            return
+        lead = t0_mono - REHEARSAL_LEAD_S - time.monotonic()
+        if lead > 0.0:
+            self.node.mailbox.wait_until(self.stop, lead)
+        if self.stop():
+            return
+        q, qd = self.sc.initial_state()
+        q0h, v0h = self.sc.initial_estimates(self.index)
+        i = self.index
+        shares = {j: self.core.initial_share for j in self.neighbours}  # their shape
+        horizon = 0 if self.look_ahead is None else self.look_ahead.horizon
+        rehearse(self.core.cfg, q[i], qd[i], q0h, v0h, shares, self._leader_input(None),
+                 self.sc.obstacle_bodies(), horizon)
 
     def _await_sample(self, has_new_sample: Callable[[], bool], last_k: int,
                       steps: int) -> bool:

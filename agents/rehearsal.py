@@ -1,0 +1,48 @@
+"""A rehearsal of the paper's law just before a realtime run starts (ours, not the paper's).
+
+A realtime agent sleeps through the start's lead (~0.3 s) and then steps a law that has not
+run in that time. On one core (`taskset -c 0`) the fleet's first steps cost 1-2 ms of CPU
+per process against ~0.1 ms a few steps later, so the agents answered their first sample
+only at step 1-8 (4-10 ms after t = 0), each at a different step. The paper's law is
+deadbeat at 1 kHz: its feed-forward q_d_ddot = (v_d(k) - v_d(k-1)) / h, eqs. (36), (40)-(42),
+turns a neighbour's share that comes after such a gap into a one-step torque spike of 3-5x
+its neighbours' (1.6e5 N m after 5e4), and `paper` on one core diverged (a robot past
+1000 m/s at 9-18 ms) in 7 of 15 runs. Three steps of the law on a scratch core 20 ms before
+t = 0 bring the first answers 1-2 ms earlier and left 2 of 15 diverging, side by side
+(docs/bench-history.md, "A rehearsal before t = 0"). Rehearsed 0.3 s before t = 0 instead,
+nothing changed: what it warms is gone again after that long asleep.
+
+The rehearsal steps a core of its own, built from the run's configuration and initial
+state, and is discarded: the agent's own core, and every result of the run, stay as they
+were. Only the paper's compiled law is rehearsed: a lab's own law (agents/plugged.py) is
+stepped by the run alone, whatever its instances hold or do.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+from agents.core import AgentConfig, Bodies, Share
+from agents.look_ahead import LookAhead
+from agents.plugged import make_core
+
+REHEARSAL_STEPS = 3
+REHEARSAL_LEAD_S = 0.02  # before t = 0: long enough for every agent's on one core (~0.5 ms each)
+
+
+def rehearse(cfg: AgentConfig, q: Sequence[float], q_dot: Sequence[float],
+             q0_hat: Sequence[float], v0_hat: Sequence[float], shares: Mapping[int, Share],
+             leader: tuple | None, obstacles: Bodies, horizon: int) -> int:
+    """Step a scratch core of the paper's law ``REHEARSAL_STEPS`` times from the robot's
+    initial state (its look-ahead plan too, ``horizon`` steps, none for 0); the number of
+    steps rehearsed. ``leader``: (q, q_dot) as the first step would take it, None for an
+    agent that does not hear the leader."""
+    core = make_core(cfg, None, None, q, q_dot, q0_hat, v0_hat)
+    look = LookAhead(core, horizon) if horizon else None
+    dt = cfg.dt
+    for n in range(REHEARSAL_STEPS):
+        t = n * dt
+        out = core.step(t, q, q_dot, shares, leader, obstacles, (), dt)
+        if look is not None:
+            look.plan(core, out, t, q, q_dot, shares, leader, obstacles, (), None)
+    return REHEARSAL_STEPS
