@@ -30,7 +30,7 @@ from agents.degradation import InputAges, predict
 from agents.look_ahead import LookAhead
 from agents.pace import LoopPace
 from agents.plugged import make_core
-from agents.rehearsal import REHEARSAL_LEAD_S, rehearse
+from agents.rehearsal import rehearsal_wait, rehearse
 from deploy.contract.fault_plan import FaultPlan
 from deploy.contract.options import DEFAULT_STEP_DEADLINE_S
 from deploy.contract.scenario import Scenario
@@ -619,11 +619,11 @@ class AgentNode:
         """Just before t = 0, the paper's law stepped on a scratch core (agents/rehearsal.py):
         the run's first answers come sooner and at fewer different steps. Waits on the
         mailbox until then (a stop ends the wait)."""
-        if self._law is not None:  # a lab's own law is stepped by the run alone
+        wait = rehearsal_wait(t0_mono, time.monotonic())
+        if self._law is not None or wait is None:  # a lab's own law: stepped by the run alone
             return
-        lead = t0_mono - REHEARSAL_LEAD_S - time.monotonic()
-        if lead > 0.0:
-            self.node.mailbox.wait_until(self.stop, lead)
+        if wait > 0.0:
+            self.node.mailbox.wait_until(self.stop, wait)
         if self.stop():
             return
         q, qd = self.sc.initial_state()

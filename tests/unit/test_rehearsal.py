@@ -3,8 +3,10 @@ core of its own: the agent's law gives what it gives without it, bit for bit."""
 
 import math
 
+import pytest
+
 from agents.plugged import make_core
-from agents.rehearsal import REHEARSAL_STEPS, rehearse
+from agents.rehearsal import REHEARSAL_LEAD_S, REHEARSAL_STEPS, rehearsal_wait, rehearse
 
 
 def _agent(sc, i):
@@ -42,3 +44,12 @@ def test_a_rehearsal_of_an_agent_that_does_not_hear_the_leader_without_look_ahea
     core = make_core(cfg, None, None, q, qd, q0h, v0h)
     shares = {j: core.initial_share for j, _ in cfg.neighbours}
     assert rehearse(cfg, q, qd, q0h, v0h, shares, None, (), 0) == REHEARSAL_STEPS
+
+
+def test_the_rehearsal_waits_for_its_lead_and_is_left_out_when_the_start_is_near():
+    t0 = 100.0
+    assert rehearsal_wait(t0, t0 - 0.3) == pytest.approx(0.3 - REHEARSAL_LEAD_S)
+    assert rehearsal_wait(t0, t0 - REHEARSAL_LEAD_S) == 0.0  # at once
+    assert rehearsal_wait(t0, t0 - 0.6 * REHEARSAL_LEAD_S) == 0.0
+    assert rehearsal_wait(t0, t0 - 0.4 * REHEARSAL_LEAD_S) is None  # too near t = 0
+    assert rehearsal_wait(t0, t0 + 1.0) is None  # the start heard late
