@@ -3,14 +3,18 @@
 A realtime agent sleeps through the start's lead (~0.3 s) and then steps a law that has not
 run in that time. On one core (`taskset -c 0`) the fleet's first steps cost 1-2 ms of CPU
 per process against ~0.1 ms a few steps later, so the agents answered their first sample
-only at step 1-8 (4-10 ms after t = 0), each at a different step. The paper's law is
+only at steps 1-8 (4-12 ms after t = 0), each at a different step. The paper's law is
 deadbeat at 1 kHz: its feed-forward q_d_ddot = (v_d(k) - v_d(k-1)) / h, eqs. (36), (40)-(42),
 turns a neighbour's share that comes after such a gap into a one-step torque spike of 3-5x
-its neighbours' (1.6e5 N m after 5e4), and `paper` on one core diverged (a robot past
-1000 m/s at 9-18 ms) in 7 of 15 runs. Three steps of the law on a scratch core 20 ms before
-t = 0 bring the first answers 1-2 ms earlier and left 2 of 15 diverging, side by side
-(docs/bench-history.md, "A rehearsal before t = 0"). Rehearsed 0.3 s before t = 0 instead,
-nothing changed: what it warms is gone again after that long asleep.
+(1.55e5 N m between 3.6e4 and 1.7e4), and `paper` on one core diverged (a robot past
+1000 m/s 9-18 ms after t = 0) in about a third of its runs. Three steps of the law on a
+scratch core 20 ms before t = 0, side by side in alternating pairs of 0.3 s runs: 6 of 120
+diverged against 25 of 120, the states unanswered in time fewer in 58 of 65 pairs
+(docs/bench-history.md, "The start on one core"). Rehearsed 5 ms before t = 0 the
+rehearsals crowded the start (12 of 20 diverged); 0.3 s before, nothing changed. In a slow
+hour the rehearsals themselves took 2-9 ms of CPU each (the first touch of what the fork
+server's heap shares with the agent, and cold caches) and no longer sufficed (13 of 25
+diverged against 18 of 25, with the leader's first batches early too).
 
 The rehearsal steps a core of its own, built from the run's configuration and initial
 state, and is discarded: the agent's own core, and every result of the run, stay as they
@@ -27,7 +31,7 @@ from agents.look_ahead import LookAhead
 from agents.plugged import make_core
 
 REHEARSAL_STEPS = 3
-REHEARSAL_LEAD_S = 0.02  # before t = 0: long enough for every agent's on one core (~0.5 ms each)
+REHEARSAL_LEAD_S = 0.02  # before t = 0 (as good as 50 ms; 5 ms crowded the start)
 
 
 def rehearsal_wait(t0_s: float, now_s: float) -> float | None:

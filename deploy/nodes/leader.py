@@ -137,9 +137,10 @@ class LeaderNode:
         batch) go out ``EARLY_S`` before t = 0 instead, out of the fleet's first
         milliseconds, when every node pays for its first step after the start's lead
         (0.7 ms of the leader's on one core; agents/rehearsal.py). `paper` at 1 kHz on
-        one core, 0.3 s runs, 45 alternating pairs: no run diverged against 7, states
-        unanswered in time median 25 against 32 (docs/bench-history.md). A steered
-        leader's states wait for its commands, which count from t = 0."""
+        one core, 0.3 s runs, 70 alternating pairs: no run diverged against 10, states
+        unanswered in time median 25-30 against 30-39 (docs/bench-history.md, "The start
+        on one core"). A steered leader's states wait for its commands, which count from
+        t = 0."""
         wait = t0_mono - EARLY_S - time.monotonic()
         if wait > 0.0:
             self.node.mailbox.wait_until(self.stop, wait)
