@@ -33,8 +33,8 @@ def test_a_late_wake_lengthens_the_horizon_but_does_not_slow_the_robot():
 
 
 def test_a_loop_that_cannot_keep_its_period_slows_its_robot():
-    pace = LoopPace(0.001, window=10)
-    for interval in (0.004, 0.001, 0.004, 0.004, 0.001):  # median 4 periods
+    pace = LoopPace(0.001, window=10, swing_s=0.0)  # the scale follows its target at once
+    for interval in (0.004, 0.001, 0.004, 0.004, 0.001) * 2:  # median 4 periods
         pace.note(interval)
     assert pace.speed_cap() == pytest.approx(1.5 / 4.0)  # 1.5 periods allowed, 4 taken
     assert pace.horizon() == pytest.approx(0.004)
@@ -43,11 +43,51 @@ def test_a_loop_that_cannot_keep_its_period_slows_its_robot():
     assert pace.speed_cap() == 1.0
 
 
+def test_the_start_of_a_run_is_not_an_overload():
+    """A run's first steps are slow in every node (`paper` at 1 kHz on one core: 3-5 ms
+    apart): until the window is full the loop's pace is not known and nothing is slowed;
+    the horizon covers those intervals from the first."""
+    pace = LoopPace(0.001, window=50, swing_s=0.0)
+    for interval in (0.003, 0.005, 0.004, 0.003):
+        pace.note(interval)
+        assert pace.speed_cap() == 1.0
+    assert pace.horizon() == pytest.approx(0.005)
+    for _ in range(46):  # still that slow when the window is full: an overload
+        pace.note(0.004)
+    assert pace.speed_cap() == pytest.approx(1.5 / 4.0)
+
+
+def test_the_scale_moves_by_a_period_share_of_its_swing_at_a_step():
+    """The law's feed-forward differentiates the command (q_d_ddot = (v_d(k) - v_d(k-1))
+    / h): the scale moves toward its target by at most period / swing_s a step, down and
+    back up, and settles on it exactly."""
+    period, swing = 0.001, 0.02  # a step moves it by at most 0.05
+    pace = LoopPace(period, window=10, swing_s=swing)
+    caps = []
+    for _ in range(10):
+        pace.note(0.004)  # target 1.5 / 4 once the window is full
+        caps.append(pace.speed_cap())
+    for _ in range(30):
+        pace.note(0.004)
+        caps.append(pace.speed_cap())
+    assert caps[-1] == pytest.approx(1.5 / 4.0)
+    assert pace.target_cap() == pytest.approx(1.5 / 4.0)
+    for _ in range(40):  # back on its period
+        pace.note(0.001)
+        caps.append(pace.speed_cap())
+    assert caps[-1] == 1.0
+    moves = np.abs(np.diff([1.0, *caps]))
+    assert moves.max() <= period / swing + 1e-12
+    assert min(caps) == pytest.approx(1.5 / 4.0)  # it got there, and no lower
+
+
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError):
         LoopPace(0.0)
     with pytest.raises(ValueError):
         LoopPace(0.01, slow_above=0.5)
+    with pytest.raises(ValueError):
+        LoopPace(0.01, swing_s=float("nan"))
 
 
 def _lab_agent(**over):
@@ -103,13 +143,14 @@ from hypothesis import strategies as st  # noqa: E402
 
 @given(st.lists(st.floats(0.0, 0.02), max_size=200), st.integers(1, 30))
 def test_the_running_counts_answer_as_the_whole_window_does(intervals, window):
-    """The speed cap and the horizon kept as the window moves equal those of the window
-    sorted and searched whole, at every step."""
+    """The speed cap's target and the horizon kept as the window moves equal those of
+    the window sorted and searched whole, at every step (the target 1 until it is full)."""
     pace = LoopPace(0.001, window=window)
     for i, x in enumerate(intervals):
         pace.note(x)
         seen = intervals[max(0, i + 1 - window):i + 1]
         median = sorted(seen)[len(seen) // 2]
         ratio = median / 0.001
-        assert pace.speed_cap() == (1.0 if ratio <= 1.5 else 1.5 / ratio)
+        full = len(seen) == window
+        assert pace.target_cap() == (1.5 / ratio if full and ratio > 1.5 else 1.0)
         assert pace.longest_s == max(seen)
