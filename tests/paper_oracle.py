@@ -483,6 +483,13 @@ class ReferenceCore:
         if not own_torques or (self.last_h is not None and h != self.last_h):
             self.z1_hat = None  # the observer restarts from the measurement (AgentCore.step)
         self.last_h = h
+        # a step later than the period the last one advanced by: the estimate and the
+        # reference carried to now at their rates, then advanced by the period
+        lag = h - cfg.dt if self.v_d_prev is not None and h > cfg.dt * (1.0 + 1e-9) else 0.0
+        if lag:
+            self.q0_hat = self.q0_hat + self.v0_hat * lag
+            self.q_d = self.q_d + self.v_d_prev * lag
+        advance = h - lag
         nbr = [shares[j] for j, _ in cfg.neighbours]
         zeta, zeta_dot = self.offsets(t)
         q_fd, v_fd = desired_formation(
@@ -508,18 +515,18 @@ class ReferenceCore:
         nonfinite = not bool(np.all(np.isfinite(torques)))
         if nonfinite:
             torques = np.zeros(4)
-        n = max(1, math.ceil(h / cfg.dt - 1e-9))  # (39) in sub-steps of at most the period
+        n = max(1, math.ceil(advance / cfg.dt - 1e-9))  # (39) in sub-steps of at most the period
         for _ in range(n):
             self.z1_hat, self.z2_hat = eso_step(self.z1_hat, self.z2_hat, e_dot, gamma, cfg.eso,
-                                                h / n)
+                                                advance / n)
         q_d_now = self.q_d
-        self.q_d = self.q_d + 0.5 * h * (v_ref + v_d)
+        self.q_d = self.q_d + 0.5 * advance * (v_ref + v_d)
         self.v_d_prev = v_d
         lq, lv = leader if leader is not None else (None, None)
         self.q0_hat, self.v0_hat = estimator_step(
             self.q0_hat, self.v0_hat, [np.asarray(s.q0_hat, float) for s in nbr],
             [np.asarray(s.v0_hat, float) for s in nbr],
-            self.weights, cfg.leader_weight, lq, lv, cfg.estimator, h,
+            self.weights, cfg.leader_weight, lq, lv, cfg.estimator, advance,
         )
         share = Share(self.q0_hat.copy(), self.v0_hat.copy(), q.copy(), q_dot.copy(), zeta, zeta_dot)
         if not bool(np.all(np.isfinite(v_d))):

@@ -106,6 +106,7 @@ cdef class Law:
     cdef bint info_lost, reacquiring
     cdef double reacquire_s
     cdef double speed_cap       # this step's (Inputs.speed_cap)
+    cdef double lag             # this step's h beyond the period (_to_sample_time)
     cdef int n_tasks            # tasks of the last step (the chain: FDB and the engaged ones)
     # work buffers
     cdef Task* tasks
@@ -196,6 +197,7 @@ cdef class Law:
         self.z2[0] = self.z2[1] = self.z2[2] = 0.0
         self.speed_factor = 1.0
         self.speed_cap = 1.0
+        self.lag = 0.0
         self.info_lost = self.reacquiring = False
         self.reacquire_s = 0.0
 
@@ -327,6 +329,25 @@ cdef class Law:
         scale_at(t, self.scale0x, self.scale0y, self.changes, self.n_changes, scale, rate)
         offsets(self.rx, self.ry, self.heading_offset, self.q0h[2], self.v0h[2], scale, rate,
                 zeta, zeta_dot)
+
+    cdef void _to_sample_time(self, double h) noexcept nogil:
+        """A step ``h`` after the last one, and h longer than the period the last one
+        advanced the leader estimate (14) and the reference (11) by: a realtime agent's
+        first step after a stall. Both are carried to this sample's time first, at the
+        rates they had (degradation.predict's first order), so that the step's formation
+        reference (16) and tracking error are of now; the step then advances them by the
+        period. Computed from the estimate and the reference as they were, the step after
+        a 20 ms stall of ``paper``'s agents at 1 kHz commanded ~9 m/s less for one period
+        (FDB's gain times the leader's 20 ms), and the next one's feed-forward turned that
+        back into torques 250x the steady ones (docs/bench-history.md). Lockstep and
+        in-process steps are one period long: nothing changes there."""
+        cdef int j
+        self.lag = 0.0
+        if self.has_vdp and h > self.dt * (1.0 + 1e-9):
+            self.lag = h - self.dt
+            for j in range(3):
+                self.q0h[j] = self.q0h[j] + self.v0h[j] * self.lag
+                self.qref[j] = self.qref[j] + self.vdp[j] * self.lag
 
     cdef void _limited(self, double* v, double h) noexcept nogil:
         """The fused velocity as commanded: the explicit speed limit, the degradation
@@ -492,11 +513,12 @@ cdef class Law:
 
         # observer (39) and reference integration (CLIK, eq. 11: the trapezoid of the
         # first-order hold)
+        # both over the period once a late step's lag was carried (_to_sample_time)
         eso_advance(self.z1, self.z2, e_dot, gamma, self.mu1, self.mu2_eso, self.r1, self.r2,
-                    h, self.dt)
+                    h - self.lag, self.dt)
         for j in range(3):
             o.q_d[j] = self.qref[j]
-            self.qref[j] = self.qref[j] + 0.5 * h * (v_ref[j] + v_d[j])
+            self.qref[j] = self.qref[j] + 0.5 * (h - self.lag) * (v_ref[j] + v_d[j])
             self.vdp[j] = v_d[j]
         self.has_vdp = True
 
@@ -526,6 +548,7 @@ cdef class Law:
         cdef bint has_fresh = False, has_lq
         cdef double* row
         cdef double* work = self._work(x.n_nbr)
+        self._to_sample_time(h)
         # own state, predicted over its age (degradation.py)
         predict(x.q, x.qd, x.state_age if x.has_ages else 0.0, qv)
         # the freshest leader information (degradation.py): ages add up along the graph
@@ -598,7 +621,7 @@ cdef class Law:
             self.kept_w[kept] = self.weights[i]
             kept += 1
         estimator_step(self.q0h, self.v0h, kept, self.kept_w, work, self.leader_weight,
-                       has_lq, lq, x.lv, self.iota, self.eta1, self.eta2, h)
+                       has_lq, lq, x.lv, self.iota, self.eta1, self.eta2, h - self.lag)
         if self.reacquiring and has_fresh:
             self.reacquiring = reacquire(self.q0h, self.v0h, fq, fv, self.reacquire_tau,
                                          self.reacquire_tol, h)
@@ -701,6 +724,7 @@ cdef class Law:
         x.state_age = x.leader_age = 0.0
         self.speed_cap = x.speed_cap
         self.n_tasks = 0
+        self._to_sample_time(h)
         self._limited(v, h)
         self._drive(&x, x.q, v, e, s, &o)
         if not (isfinite(v[0]) and isfinite(v[1]) and isfinite(v[2])):
