@@ -111,3 +111,16 @@ class Odometry:
         c_now, s_now = cos(phi + w * dt), sin(phi + w * dt)
         self.q = (x + dt * (c * vx - s * vy), y + dt * (s * vx + c * vy), phi + dt * w)
         self.q_dot = (c_now * vx - s_now * vy, s_now * vx + c_now * vy, w)
+
+
+def pose_carried(q: Vec3, q_dot: Vec3, age_s: float | None, max_lead_s: float) -> Vec3:
+    """The pose of the newest encoder data ``age_s`` old, carried to now at the velocity
+    it gave, by at most ``max_lead_s`` (past that the data is lost, and the pose stays
+    where the carry left it). Held at the lead, not dropped back to the uncarried pose:
+    dropped back, a CiA 402 robot's published pose went 1.4-2.2 cm backwards for the 5-25
+    ms one drive's encoder data came late (the pose of 25 ms before, 4 samples in a row),
+    and its agent answered with torques 30x the steady ones (`lab`, 200 Hz, one core)."""
+    if age_s is None or not age_s > 0.0:
+        return q
+    lead = age_s if age_s < max_lead_s else max_lead_s
+    return q[0] + lead * q_dot[0], q[1] + lead * q_dot[1], q[2] + lead * q_dot[2]

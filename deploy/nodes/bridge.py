@@ -32,7 +32,7 @@ import numpy as np
 
 from bridges.driver import DriveState, WheelDriver
 from bridges.monitor import DriverMonitor
-from bridges.odometry import Odometry
+from bridges.odometry import Odometry, pose_carried
 from bridges.safety import ZERO, CommandGate, Decision
 from bridges.udp_can import send_frames
 from deploy.contract.options import DEFAULT_COMMAND_TIMEOUT_S
@@ -428,9 +428,8 @@ class BridgeNode:
         # the pose is as of the newest encoder estimates (100 Hz from an ODrive, half
         # our rate): carried to now at the velocity they gave, so the agent does not
         # see a staircase (at most two encoder periods ahead: past that it is lost)
-        age = None if now is None else self.monitor.encoder_age_s(now)
-        if age is not None and 0.0 < age <= MAX_POSE_LEAD_S:
-            q = (q[0] + age * qd[0], q[1] + age * qd[1], q[2] + age * qd[2])
+        if now is not None:
+            q = pose_carried(q, qd, self.monitor.encoder_age_s(now), MAX_POSE_LEAD_S)
         t0 = now_ns()
         with node.mailbox.lock:
             pos, vel = self.positions.copy(), self.velocities.copy()
