@@ -220,17 +220,20 @@ class _Drive:
         self.pending = {}
         self.emu._index_rpdos()
 
-    def on_sync(self, now: float, lead_s: float) -> None:
+    def on_sync(self, now: float, lead_s: float, backlog: bool = True) -> None:
         """Apply the synchronous RPDOs, sample and send the TPDOs due. A SYNC read at
-        the emulator time of the one before (the emulator behind the wall clock, reading
-        a backlog) samples nothing new: its TPDOs are shed and counted, as the ODrive
-        emulator sheds stale encoder estimates (sending them kept a starved emulator
-        falling further behind). ``lead_s``: how far the wall clock is past the physics'
-        newest tick (:meth:`RobotEmulator.sample_lead_s`), read once for the robot's
-        drives: they sample on the same SYNC."""
+        the emulator time of the one before while the emulator reads a backlog
+        (``backlog``: more than a tick behind the wall clock) samples nothing new: its
+        TPDOs are shed and counted, as the ODrive emulator sheds stale encoder estimates
+        (sending them kept a starved emulator falling further behind). Two SYNCs within
+        one tick of an emulator on time are two SYNCs (a bridge's late period, then its
+        next on time): shed, the second's TPDOs left the bridge without encoder data for
+        14-20 ms and its pose stepped back (`lab` on one core). ``lead_s``: how far the
+        wall clock is past the physics' newest tick (:meth:`RobotEmulator.sample_lead_s`),
+        read once for the robot's drives: they sample on the same SYNC."""
         if not self.operational:
             return
-        stale = self.last_sync == now
+        stale = self.last_sync == now and backlog
         self.last_sync = now
         self.syncs += 1
         for cob_id, data in list(self.pending.items()):
@@ -544,9 +547,10 @@ class Cia402Emulator(RobotEmulator):
             if len(data) > 1:
                 c.bad_length += 1
                 return False
-            lead = self.sample_lead_s()
+            behind = self.behind_s()
+            lead, backlog = min(behind, self.tick_s), behind > self.tick_s
             for d in self._listening():
-                d.on_sync(now, lead)
+                d.on_sync(now, lead, backlog)
             return True
         hit = self._rpdo_of.get(cob)
         if hit is not None:

@@ -246,9 +246,18 @@ class RobotEmulator:
         """Realtime: how far the wall clock is past the physics' newest tick (at most a
         tick), for a drive that samples on a frame (a CiA 402 SYNC) between ticks; 0 on a
         virtual clock."""
+        return min(self.behind_s(), self._h)
+
+    def behind_s(self) -> float:
+        """Realtime: how far the wall clock is past the physics' newest tick; more than a
+        tick while the emulator reads a backlog (it was off the CPU). 0 on a virtual clock."""
         if not math.isfinite(self.monotonic_origin_s):
             return 0.0
-        return min(max(time.monotonic() - self.monotonic_origin_s - self.t, 0.0), self._h)
+        return max(time.monotonic() - self.monotonic_origin_s - self.t, 0.0)
+
+    @property
+    def tick_s(self) -> float:
+        return self._h
 
     def armed_now(self) -> None:
         """A drive of this robot was armed (enabled) now: the disturbance starts."""

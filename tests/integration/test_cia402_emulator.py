@@ -213,6 +213,35 @@ def test_bring_up_configures_each_drive_and_reads_the_mapping_back(lab, rig_fact
     assert len([f for _, f in r.raw if f.arbitration_id == 0x181]) == 4
 
 
+def _two_syncs_in_one_tick(r) -> int:
+    """Two SYNCs, the second due for the TPDOs (every 2nd), read in one step of the
+    emulator: node 1's TPDO1 frames that came of them."""
+    if r.emu.drive(1).syncs % 2 == 1:  # the next SYNC would be the due one: skip it
+        r.period()
+    sync = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
+    r.send([sync, sync])
+    before = len(r.raw)
+    r.now = round(r.now + DT, 9)
+    r.emu.step(r.now)
+    r.read()
+    return len([f for _, f in r.raw[before:] if f.arbitration_id == 0x181])
+
+
+def test_two_syncs_within_a_tick_are_two_syncs_unless_the_emulator_reads_a_backlog(lab, rig_factory):
+    """A bridge's late period, then its next on time: two SYNCs reach the emulator
+    between two of its ticks. On time, the drives sample on each (the due one's TPDOs go
+    out: shed, the bridge went 14-20 ms without encoder data); more than a tick behind the
+    wall clock (reading what queued while it was off the CPU), the second samples nothing
+    new and its TPDOs are shed and counted."""
+    r = rig_factory(lab, report_rate_hz=100.0)
+    r.period(n=4)
+    assert _two_syncs_in_one_tick(r) == 1  # a virtual clock is never behind
+    shed = r.emu.counters.shed
+    r.emu.monotonic_origin_s = time.monotonic() - r.emu.t - 1.0  # 1 s behind the wall clock
+    assert _two_syncs_in_one_tick(r) == 0
+    assert r.emu.counters.shed > shed
+
+
 def test_bring_up_names_a_drive_that_does_not_answer(lab, rig_factory, monkeypatch):
     from bridges import cia402_driver
 
