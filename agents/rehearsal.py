@@ -14,7 +14,10 @@ diverged against 25 of 120, the states unanswered in time fewer in 58 of 65 pair
 rehearsals crowded the start (12 of 20 diverged); 0.3 s before, nothing changed. In a slow
 hour the rehearsals themselves took 2-9 ms of CPU each (the first touch of what the fork
 server's heap shares with the agent, and cold caches) and no longer sufficed (13 of 25
-diverged against 18 of 25, with the leader's first batches early too).
+diverged against 18 of 25, with the leader's first batches early too). Found after: much
+of what the feed-forward differentiated at the start was the loop's own speed scale, capped
+by the median of the start's first few intervals and then jumping from step to step
+(agents/pace.py now waits for a full window and moves the scale gradually).
 
 The rehearsal steps a core of its own, built from the run's configuration and initial
 state, and is discarded: the agent's own core, and every result of the run, stay as they
