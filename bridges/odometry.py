@@ -117,8 +117,8 @@ def pose_carried(q: Vec3, q_dot: Vec3, age_s: float | None, max_lead_s: float) -
     """The pose of the newest encoder data ``age_s`` old, carried to now at the velocity
     it gave, by at most ``max_lead_s`` (past that the data is lost, and the pose stays
     where the carry left it). Held at the lead, not dropped back to the uncarried pose:
-    dropped back, a CiA 402 robot's published pose went 1.4-2.2 cm backwards for the 5-25
-    ms one drive's encoder data came late (the pose of 25 ms before, 4 samples in a row),
+    dropped back, a CiA 402 robot's published pose went 1.4-2.2 cm backwards while its
+    drives' encoder data was 20-45 ms old (the pose of 25 ms before, 4 samples in a row),
     and its agent answered with torques 30x the steady ones (`lab`, 200 Hz, one core)."""
     if age_s is None or not age_s > 0.0:
         return q
