@@ -348,6 +348,33 @@ def test_realtime_run_reports_latency_jitter_and_misses(tmp_path):
     assert m["contacts"] == 0
 
 
+def test_a_realtime_fleet_holds_the_formation_lockstep_holds(tmp_path):
+    """The wall clock behaves like lockstep: each realtime step is built from inputs of one
+    step (the leader's and the neighbours' shares of the same k, deploy/nodes/agent.py), so
+    lab's formation on the wall clock is the in-process run's (lockstep's, bit for bit):
+    its RMS within 10 % per robot, whole run and after settling, over 12 s in which the
+    robots cross the room at up to 1.7 m/s. On a quiet machine the two series' poses agree
+    to ~1e-14 m; late steps move them apart, which the 10 % allows."""
+    def run():
+        out = tmp_path / f"rt-{len(list(tmp_path.iterdir()))}"
+        rc, _, err = finish(start("run", "lab", "--clock", "realtime", "--plant", "model",
+                                  "--duration", "12", "--out", str(out), "--no-figures",
+                                  "--no-record"))
+        assert rc == 0, err
+        return json.loads((out / "metrics.json").read_text())
+    rt = judged(run, lambda m: m, "lab realtime, 12 s")
+    ref_out = tmp_path / "in-process"
+    rc, _, err = finish(start("run", "lab", "--in-process", "--plant", "model", "--duration",
+                              "12", "--out", str(ref_out), "--no-figures", "--no-record"))
+    assert rc == 0, err
+    ref = json.loads((ref_out / "metrics.json").read_text())
+    for key in ("formation_rms_whole_run_m", "formation_rms_after_settling_m"):
+        for got, want in zip(rt[key], ref[key], strict=True):
+            assert got is not None and want is not None and want > 0.1, (key, got, want)
+            assert abs(got - want) <= 0.1 * want, (key, rt[key], ref[key])
+    assert rt["contacts"] == 0
+
+
 @pytest.mark.load_safe
 def test_a_bad_fleet_name_is_refused_before_anything_starts(tmp_path):
     out = tmp_path / "run"
