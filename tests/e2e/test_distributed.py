@@ -348,6 +348,7 @@ def test_realtime_run_reports_latency_jitter_and_misses(tmp_path):
     assert m["contacts"] == 0
 
 
+@pytest.mark.realtime
 def test_a_realtime_fleet_holds_the_formation_lockstep_holds(tmp_path):
     """The wall clock behaves like lockstep: each realtime step is built from inputs of one
     step (the leader's and the neighbours' shares of the same k, deploy/nodes/agent.py), so
