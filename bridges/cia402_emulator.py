@@ -220,7 +220,7 @@ class _Drive:
         self.pending = {}
         self.emu._index_rpdos()
 
-    def on_sync(self, now: float, lead_s: float, backlog: bool = True) -> None:
+    def on_sync(self, now: float, lead_s: float, backlog: bool) -> None:
         """Apply the synchronous RPDOs, sample and send the TPDOs due. A SYNC read at
         the emulator time of the one before while the emulator reads a backlog
         (``backlog``: more than a tick behind the wall clock) samples nothing new: its
@@ -548,7 +548,7 @@ class Cia402Emulator(RobotEmulator):
                 c.bad_length += 1
                 return False
             behind = self.behind_s()
-            lead, backlog = min(behind, self.tick_s), behind > self.tick_s
+            lead, backlog = min(behind, self._h), behind > self._h
             for d in self._listening():
                 d.on_sync(now, lead, backlog)
             return True

@@ -255,10 +255,6 @@ class RobotEmulator:
             return 0.0
         return max(time.monotonic() - self.monotonic_origin_s - self.t, 0.0)
 
-    @property
-    def tick_s(self) -> float:
-        return self._h
-
     def armed_now(self) -> None:
         """A drive of this robot was armed (enabled) now: the disturbance starts."""
         self.disturbance.armed(self._row, self.t)

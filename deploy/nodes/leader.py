@@ -129,8 +129,7 @@ class LeaderNode:
             while self.k_next < b * n:  # a late wake: what is past is not sent
                 self.generator.advance()
                 self.k_next += 1
-            while self.k_next < due:
-                self._publish_next(min(n, due - self.k_next))
+            self._publish_through(due, n)
 
     def _first_batches_early(self, t0_mono: float, due: int, n: int) -> None:
         """A path known ahead: the states the first wake would send (through the second
@@ -144,6 +143,10 @@ class LeaderNode:
         wait = t0_mono - EARLY_S - time.monotonic()
         if wait > 0.0:
             self.node.mailbox.wait_until(self.stop, wait)
+        self._publish_through(due, n)
+
+    def _publish_through(self, due: int, n: int) -> None:
+        """The states up to step ``due`` (excluded) not sent yet, in batches of ``n``."""
         while self.k_next < due and not self.stop():
             self._publish_next(min(n, due - self.k_next))
 
